@@ -1,0 +1,37 @@
+// Traversal benchmark: per pixel a camera ray and up to three cosine-sampled bounce rays (closest hit), counted like every technique's rays.
+#import gilab::math::{offset_ray_origin, to_world}
+#import gilab::rng::{rng_init, rand_pair}
+#import gilab::frame::{frame, camera_ray_dir}
+#import gilab::counters::{flush_counts, RAY_CAMERA, RAY_INDIRECT}
+#import gilab::bvh::{trace_closest, NO_HIT}
+#import gilab::scene::tri_geom
+#import gilab::sampling::sample_cosine_hemisphere
+
+// Keeps the traversal from being optimised away: summed hit distances per pixel.
+@group(1) @binding(2) var<storage, read_write> checksum: array<vec4<f32>>;
+
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
+    var counts = array<u32, 8>(0u, 0u, 0u, 0u, 0u, 0u, 0u, 0u);
+    if gid.x < frame.size.x && gid.y < frame.size.y {
+        var rng = rng_init(gid.xy, frame.frame_index, frame.seed);
+        var origin = frame.camera_pos.xyz;
+        var dir = camera_ray_dir(vec2<f32>(gid.xy) + 0.5);
+        var sum = 0.0;
+        for (var bounce = 0u; bounce < 4u; bounce++) {
+            let hit = trace_closest(origin, dir, 0.0, 1e30);
+            counts[select(RAY_INDIRECT, RAY_CAMERA, bounce == 0u)] += 1u;
+            if hit.tri == NO_HIT {
+                break;
+            }
+            sum += hit.t;
+            let g = tri_geom[hit.tri];
+            var n = normalize(cross(g.edge_b.xyz, g.edge_c.xyz));
+            n = select(n, -n, dot(n, dir) > 0.0);
+            origin = offset_ray_origin(origin + dir * hit.t, n);
+            dir = to_world(sample_cosine_hemisphere(rand_pair(&rng)), n);
+        }
+        checksum[gid.y * frame.size.x + gid.x] += vec4<f32>(sum, 0.0, 0.0, 1.0);
+    }
+    flush_counts(local_index, counts);
+}

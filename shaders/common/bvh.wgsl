@@ -1,0 +1,114 @@
+// BVH traversal: closest hit and any hit over the binned-SAH BVH built in src/scene/bvh.rs.
+// Stackless: nodes are in depth-first order with skip pointers (a hit on an interior node goes
+// to the next node, a miss or a finished leaf to `skip`), so no per-lane stack is needed; on
+// CPU rasterisers such as lavapipe private-array stacks are gather/scatter and far slower.
+#define_import_path gilab::bvh
+
+#import gilab::scene::{bvh_nodes, tri_geom}
+
+const NO_HIT: u32 = 0xffffffffu;
+
+struct Hit {
+    t: f32,
+    tri: u32,
+    // Barycentrics of the second and third vertex.
+    bary: vec2<f32>,
+}
+
+fn hits_aabb(origin: vec3<f32>, inv_dir: vec3<f32>, bmin: vec3<f32>, bmax: vec3<f32>, t_max: f32) -> bool {
+    let t_lo = (bmin - origin) * inv_dir;
+    let t_hi = (bmax - origin) * inv_dir;
+    let tmin = min(t_lo, t_hi);
+    let tmax = max(t_lo, t_hi);
+    let enter = max(max(tmin.x, tmin.y), max(tmin.z, 0.0));
+    let exit = min(min(tmax.x, tmax.y), min(tmax.z, t_max));
+    return enter <= exit;
+}
+
+// Returns (t, bary_b, bary_c); t < 0 when missed. Zero-area triangles never hit (det == 0).
+fn intersect_tri(origin: vec3<f32>, dir: vec3<f32>, tri: u32) -> vec3<f32> {
+    let g = tri_geom[tri];
+    let edge_b = g.edge_b.xyz;
+    let edge_c = g.edge_c.xyz;
+    let p = cross(dir, edge_c);
+    let det = dot(edge_b, p);
+    if abs(det) < 1e-20 {
+        return vec3<f32>(-1.0, 0.0, 0.0);
+    }
+    let inv_det = 1.0 / det;
+    let s = origin - g.vertex_a.xyz;
+    let bary_b = dot(s, p) * inv_det;
+    let q = cross(s, edge_b);
+    let bary_c = dot(dir, q) * inv_det;
+    if bary_b < 0.0 || bary_b > 1.0 || bary_c < 0.0 || bary_b + bary_c > 1.0 {
+        return vec3<f32>(-1.0, 0.0, 0.0);
+    }
+    let t = dot(edge_c, q) * inv_det;
+    return vec3<f32>(t, bary_b, bary_c);
+}
+
+fn safe_inv_dir(dir: vec3<f32>) -> vec3<f32> {
+    let eps = 1e-20;
+    let d = select(dir, vec3<f32>(eps), abs(dir) < vec3<f32>(eps));
+    return 1.0 / d;
+}
+
+// Closest hit in (t_min, t_max). hit.tri == NO_HIT on a miss.
+fn trace_closest(origin: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32) -> Hit {
+    var hit = Hit(t_max, NO_HIT, vec2<f32>(0.0));
+    let inv_dir = safe_inv_dir(dir);
+    let node_count = arrayLength(&bvh_nodes);
+    var i = 0u;
+    while i < node_count {
+        let node = bvh_nodes[i];
+        if !hits_aabb(origin, inv_dir, node.bounds_min, node.bounds_max, hit.t) {
+            i = node.skip;
+            continue;
+        }
+        let count = node.tris & 0xffu;
+        if count == 0u {
+            i++;
+            continue;
+        }
+        let first = node.tris >> 8u;
+        for (var k = 0u; k < count; k++) {
+            let r = intersect_tri(origin, dir, first + k);
+            if r.x > t_min && r.x < hit.t {
+                hit = Hit(r.x, first + k, r.yz);
+            }
+        }
+        i = node.skip;
+    }
+    if hit.tri == NO_HIT {
+        hit.t = t_max;
+    }
+    return hit;
+}
+
+// True if anything blocks the open segment (t_min, t_max): shadow and visibility rays.
+fn trace_any(origin: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32) -> bool {
+    let inv_dir = safe_inv_dir(dir);
+    let node_count = arrayLength(&bvh_nodes);
+    var i = 0u;
+    while i < node_count {
+        let node = bvh_nodes[i];
+        if !hits_aabb(origin, inv_dir, node.bounds_min, node.bounds_max, t_max) {
+            i = node.skip;
+            continue;
+        }
+        let count = node.tris & 0xffu;
+        if count == 0u {
+            i++;
+            continue;
+        }
+        let first = node.tris >> 8u;
+        for (var k = 0u; k < count; k++) {
+            let r = intersect_tri(origin, dir, first + k);
+            if r.x > t_min && r.x < t_max {
+                return true;
+            }
+        }
+        i = node.skip;
+    }
+    return false;
+}

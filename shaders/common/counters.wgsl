@@ -1,0 +1,39 @@
+// Ray accounting, counted the same way for every technique: one count per traversal query, by kind.
+// Threads count locally, a workgroup sums in shared memory, and one thread adds the sum to a
+// 64-bit (lo, hi) global counter, so atomics stay cheap and totals never wrap.
+#define_import_path gilab::counters
+
+const RAY_CAMERA: u32 = 0u;
+const RAY_SHADOW: u32 = 1u;
+const RAY_INDIRECT: u32 = 2u;
+const RAY_PROBE: u32 = 3u;
+const RAY_SURFEL: u32 = 4u;
+const RAY_CACHE: u32 = 5u;
+// Not a ray: samples whose radiance was NaN/Inf and was dropped. Tests require it to stay 0.
+const COUNT_INVALID_SAMPLES: u32 = 6u;
+const COUNTER_KINDS: u32 = 8u;
+
+@group(1) @binding(1) var<storage, read_write> counters: array<atomic<u32>, 16>;
+
+var<workgroup> wg_counts: array<atomic<u32>, 8>;
+
+// Must be called by every invocation of the workgroup (it contains a barrier).
+fn flush_counts(local_index: u32, counts: array<u32, 8>) {
+    for (var k = 0u; k < COUNTER_KINDS; k++) {
+        if counts[k] > 0u {
+            atomicAdd(&wg_counts[k], counts[k]);
+        }
+    }
+    workgroupBarrier();
+    if local_index == 0u {
+        for (var k = 0u; k < COUNTER_KINDS; k++) {
+            let v = atomicLoad(&wg_counts[k]);
+            if v > 0u {
+                let old = atomicAdd(&counters[2u * k], v);
+                if old > 0xffffffffu - v {
+                    atomicAdd(&counters[2u * k + 1u], 1u);
+                }
+            }
+        }
+    }
+}

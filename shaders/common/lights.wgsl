@@ -1,0 +1,125 @@
+// Light sampling for next-event estimation: one light picked from the power-proportional CDF
+// over emissive triangles and punctual lights, then a point on it (area) or its position (delta).
+#define_import_path gilab::lights
+
+#import gilab::scene::{light_pool, Light, tri_geom, tri_attr, materials, tri_material, LIGHT_TRIANGLE, LIGHT_POINT, LIGHT_SPOT, LIGHT_DIRECTIONAL}
+#import gilab::sampling::sample_triangle
+
+struct LightSample {
+    wi: vec3<f32>,
+    dist: f32,
+    // Radiance arriving along wi (before the shadow test), not divided by pdf.
+    radiance: vec3<f32>,
+    // Solid-angle pdf including the selection probability; for delta lights the selection probability.
+    pdf: f32,
+    is_delta: bool,
+    valid: bool,
+}
+
+// Index of the first light whose inclusive CDF exceeds u.
+fn select_light(u: f32) -> u32 {
+    var lo = 0u;
+    var hi = light_pool.count - 1u;
+    while lo < hi {
+        let mid = (lo + hi) / 2u;
+        if light_pool.lights[mid].cdf > u {
+            hi = mid;
+        } else {
+            lo = mid + 1u;
+        }
+    }
+    return lo;
+}
+
+// Emitted radiance of a triangle towards direction `to_viewer` (single-sided unless the material says so).
+fn triangle_emission(tri: u32, to_viewer: vec3<f32>) -> vec3<f32> {
+    let m = materials[tri_material(tri)];
+    let g = tri_geom[tri];
+    let ng = cross(g.edge_b.xyz, g.edge_c.xyz);
+    if m.emissive.w < 0.5 && dot(ng, to_viewer) <= 0.0 {
+        return vec3<f32>(0.0);
+    }
+    return m.emissive.xyz;
+}
+
+// Solid-angle pdf with which sample_light would have produced a hit on emissive triangle `tri`
+// at distance `dist` along direction `wi`: used for MIS when a BSDF-sampled ray hits a light.
+fn triangle_light_pdf(tri: u32, wi: vec3<f32>, dist: f32) -> f32 {
+    let pmf = tri_attr[tri].normal_a.w;
+    if pmf <= 0.0 {
+        return 0.0;
+    }
+    let g = tri_geom[tri];
+    let c = cross(g.edge_b.xyz, g.edge_c.xyz);
+    let len = length(c);
+    let area = 0.5 * len;
+    let cos_l = abs(dot(c / len, wi));
+    if area <= 0.0 || cos_l <= 0.0 {
+        return 0.0;
+    }
+    return pmf * dist * dist / (cos_l * area);
+}
+
+fn sample_light(p: vec3<f32>, u_select: f32, u: vec2<f32>) -> LightSample {
+    var s = LightSample(vec3<f32>(0.0), 0.0, vec3<f32>(0.0), 0.0, false, false);
+    if light_pool.count == 0u {
+        return s;
+    }
+    let light = light_pool.lights[select_light(u_select)];
+    if light.pmf <= 0.0 {
+        return s;
+    }
+    switch light.kind {
+        case LIGHT_TRIANGLE: {
+            let g = tri_geom[light.tri];
+            let b = sample_triangle(u);
+            let x = g.vertex_a.xyz + b.x * g.edge_b.xyz + b.y * g.edge_c.xyz;
+            let c = cross(g.edge_b.xyz, g.edge_c.xyz);
+            let len = length(c);
+            let d = x - p;
+            let dist_sq = dot(d, d);
+            if len <= 0.0 || dist_sq <= 1e-12 {
+                return s;
+            }
+            let dist = sqrt(dist_sq);
+            s.wi = d / dist;
+            s.dist = dist;
+            s.radiance = triangle_emission(light.tri, -s.wi);
+            let cos_l = abs(dot(c / len, s.wi));
+            if cos_l <= 1e-8 {
+                return s;
+            }
+            s.pdf = light.pmf * dist_sq / (cos_l * 0.5 * len);
+            s.valid = any(s.radiance > vec3<f32>(0.0));
+        }
+        case LIGHT_POINT, LIGHT_SPOT: {
+            let d = light.position.xyz - p;
+            let dist_sq = dot(d, d);
+            if dist_sq <= 1e-12 {
+                return s;
+            }
+            s.dist = sqrt(dist_sq);
+            s.wi = d / s.dist;
+            var falloff = 1.0;
+            if light.kind == LIGHT_SPOT {
+                let cd = dot(light.direction.xyz, -s.wi);
+                let a = clamp(cd * light.spot.y + light.spot.z, 0.0, 1.0);
+                falloff = a * a;
+            }
+            s.radiance = light.intensity.xyz * falloff / dist_sq;
+            s.pdf = light.pmf;
+            s.is_delta = true;
+            s.valid = falloff > 0.0;
+        }
+        case LIGHT_DIRECTIONAL: {
+            s.wi = -light.direction.xyz;
+            s.dist = 1e30;
+            s.radiance = light.intensity.xyz;
+            s.pdf = light.pmf;
+            s.is_delta = true;
+            s.valid = true;
+        }
+        default: {}
+    }
+    return s;
+}

@@ -1,0 +1,51 @@
+// Small shared math helpers: constants, orthonormal bases, luminance, finiteness checks.
+#define_import_path gilab::math
+
+const PI: f32 = 3.14159265358979;
+const INV_PI: f32 = 0.318309886183791;
+const TWO_PI: f32 = 6.28318530717959;
+const F32_MAX: f32 = 3.4e38;
+
+fn luminance(c: vec3<f32>) -> f32 {
+    return dot(c, vec3<f32>(0.2126, 0.7152, 0.0722));
+}
+
+fn max_component(v: vec3<f32>) -> f32 {
+    return max(v.x, max(v.y, v.z));
+}
+
+// Frisvad-style basis without the singularity (Duff et al. 2017).
+fn onb_tangent(n: vec3<f32>) -> vec3<f32> {
+    let s = select(-1.0, 1.0, n.z >= 0.0);
+    let a = -1.0 / (s + n.z);
+    let b = n.x * n.y * a;
+    return vec3<f32>(1.0 + s * n.x * n.x * a, s * b, -s * n.x);
+}
+
+fn onb_bitangent(n: vec3<f32>) -> vec3<f32> {
+    let s = select(-1.0, 1.0, n.z >= 0.0);
+    let a = -1.0 / (s + n.z);
+    let b = n.x * n.y * a;
+    return vec3<f32>(b, s + n.y * n.y * a, -n.y);
+}
+
+fn to_world(v: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
+    return v.x * onb_tangent(n) + v.y * onb_bitangent(n) + v.z * n;
+}
+
+fn to_local(v: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
+    return vec3<f32>(dot(v, onb_tangent(n)), dot(v, onb_bitangent(n)), dot(v, n));
+}
+
+// NaN fails every comparison, so this is false for NaN and for +-Inf.
+fn is_finite_vec(v: vec3<f32>) -> bool {
+    let a = abs(v);
+    return a.x <= F32_MAX && a.y <= F32_MAX && a.z <= F32_MAX;
+}
+
+// Moves a ray origin off a surface along the geometric normal, scaled with the
+// position's magnitude so large scenes do not self-intersect (Wächter & Binder, RTG1 ch. 6).
+fn offset_ray_origin(p: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
+    let scale = 1e-4 + 2e-6 * max_component(abs(p));
+    return p + n * scale;
+}

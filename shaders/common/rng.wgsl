@@ -1,0 +1,35 @@
+// Counter-based random numbers: PCG hash seeded per pixel, sample and frame so any frame can be re-rendered bit-identically.
+#define_import_path gilab::rng
+
+struct Rng {
+    state: u32,
+}
+
+fn pcg_hash(v: u32) -> u32 {
+    let state = v * 747796405u + 2891336453u;
+    let word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
+    return (word >> 22u) ^ word;
+}
+
+fn rng_init(pixel: vec2<u32>, sample_index: u32, seed: u32) -> Rng {
+    let h = pcg_hash(pixel.x ^ pcg_hash(pixel.y ^ pcg_hash(sample_index ^ pcg_hash(seed))));
+    return Rng(h);
+}
+
+fn rand_uint(rng: ptr<function, Rng>) -> u32 {
+    (*rng).state = (*rng).state * 747796405u + 2891336453u;
+    let s = (*rng).state;
+    let word = ((s >> ((s >> 28u) + 4u)) ^ s) * 277803737u;
+    return (word >> 22u) ^ word;
+}
+
+// Uniform in [0, 1): 24 random mantissa bits so 1.0 is never returned.
+fn rand(rng: ptr<function, Rng>) -> f32 {
+    return f32(rand_uint(rng) >> 8u) * (1.0 / 16777216.0);
+}
+
+fn rand_pair(rng: ptr<function, Rng>) -> vec2<f32> {
+    let a = rand(rng);
+    let b = rand(rng);
+    return vec2<f32>(a, b);
+}

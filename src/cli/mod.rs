@@ -1,0 +1,104 @@
+//! Command-line interface: `shot`, `reference`, `compare`, `bench`. Every rendering subcommand
+//! takes a preset (optional: the built-in default is the Cornell box) and overrides for it.
+
+mod bench;
+mod render_job;
+
+use crate::compare::{io, metrics};
+use crate::gpu::{BackendChoice, Gpu};
+use crate::preset::{LoadedPreset, Overrides};
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+use std::path::PathBuf;
+
+#[derive(Parser, Debug)]
+#[command(name = "gilab", version, about = "Real-time global illumination research sandbox")]
+pub struct Cli {
+    /// GPU backend: auto (Vulkan, else GL), vulkan or gl. Also GILAB_BACKEND.
+    #[arg(long, global = true, default_value = "auto")]
+    pub backend: BackendChoice,
+    #[command(subcommand)]
+    pub command: Option<Command>,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Render a preset: tonemapped PNG, linear EXR and JSON metadata per technique.
+    Shot {
+        /// Preset file (default: the built-in Cornell box preset).
+        preset: Option<PathBuf>,
+        /// Output folder; files go to OUT/<preset name>/<technique>.{png,exr,json}.
+        #[arg(long, default_value = "out")]
+        out: PathBuf,
+        /// Print scene features and the passes each technique runs or skips.
+        #[arg(long)]
+        verbose: bool,
+        #[command(flatten)]
+        overrides: Overrides,
+    },
+    /// Render and cache a converged reference EXR for a preset's scene, camera and size.
+    Reference {
+        preset: Option<PathBuf>,
+        /// Cache folder.
+        #[arg(long, default_value = "cache/reference")]
+        cache: PathBuf,
+        /// Render again even if the cache has this reference.
+        #[arg(long)]
+        force: bool,
+        #[command(flatten)]
+        overrides: Overrides,
+    },
+    /// Error of image A against reference B (linear HDR): MSE, relMSE, SMAPE.
+    Compare { image: PathBuf, reference: PathBuf },
+    /// Benchmarks: BVH traversal Mrays/s and reference path tracer ms/frame.
+    Bench {
+        /// Image size: N or WxH.
+        #[arg(long, default_value = "256")]
+        size: String,
+        /// Timed frames per measurement (after one warm-up frame).
+        #[arg(long, default_value_t = 8)]
+        frames: u32,
+        /// Scenes to measure (default: cornell and the largest built-in scene).
+        #[arg(long)]
+        scene: Vec<String>,
+    },
+}
+
+pub fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        None => {
+            use clap::CommandFactory;
+            Cli::command().print_help()?;
+            println!("\nThe interactive viewer is not built yet; render headless with `gilab shot [PRESET]`.");
+            Ok(())
+        }
+        Some(Command::Shot { preset, out, verbose, overrides }) => {
+            let mut p = LoadedPreset::load_or_default(preset.as_deref())?;
+            p.apply(&overrides)?;
+            let gpu = std::sync::Arc::new(Gpu::new(cli.backend)?);
+            println!("adapter: {}", gpu.summary);
+            render_job::shot(gpu, &p, &out, verbose)
+        }
+        Some(Command::Reference { preset, cache, force, overrides }) => {
+            let mut p = LoadedPreset::load_or_default(preset.as_deref())?;
+            p.apply(&overrides)?;
+            let gpu = std::sync::Arc::new(Gpu::new(cli.backend)?);
+            println!("adapter: {}", gpu.summary);
+            let path = render_job::reference(gpu, &p, &cache, force)?;
+            println!("reference: {}", path.display());
+            Ok(())
+        }
+        Some(Command::Compare { image, reference }) => {
+            let a = io::read_exr(&image)?;
+            let b = io::read_exr(&reference)?;
+            let m = metrics::compare(&a, &b)?;
+            println!("MSE {:.6e}  relMSE {:.6e}  SMAPE {:.6e}", m.mse, m.rel_mse, m.smape);
+            Ok(())
+        }
+        Some(Command::Bench { size, frames, scene }) => {
+            let gpu = std::sync::Arc::new(Gpu::new(cli.backend)?);
+            println!("adapter: {}", gpu.summary);
+            bench::run(gpu, crate::preset::parse_size(&size)?, frames.max(1), &scene)
+        }
+    }
+}

@@ -1,0 +1,190 @@
+//! Headless rendering jobs shared by `shot` and `reference`: render a preset's techniques to
+//! convergence budget, then write PNG + EXR + JSON.
+
+use crate::compare::{io, Image};
+use crate::gpu::{shaders::ShaderLibrary, Gpu};
+use crate::preset::LoadedPreset;
+use crate::render::{create_technique, engine::Engine, engine::EngineSettings, PassInfo, RayCounts};
+use crate::scene::features::SceneFeatures;
+use anyhow::{Context, Result};
+use indicatif::{ProgressBar, ProgressStyle};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// Everything a shot records next to its images.
+#[derive(Serialize)]
+pub struct ShotMetadata {
+    pub technique: String,
+    pub preset: serde_json::Value,
+    pub preset_file: Option<String>,
+    pub adapter: crate::gpu::AdapterSummary,
+    pub scene: String,
+    pub scene_features: SceneFeatures,
+    pub passes: Vec<PassInfo>,
+    pub camera: crate::scene::Camera,
+    pub size: [u32; 2],
+    pub seed: u32,
+    pub spp: u32,
+    pub frames: u32,
+    pub rays: RayCounts,
+    pub rays_by_kind: std::collections::BTreeMap<String, u64>,
+    pub rays_per_pixel: f64,
+    pub gpu_ms_total: f64,
+    pub gpu_ms_per_frame: f64,
+    pub gpu_ms_by_pass: std::collections::BTreeMap<String, f64>,
+    pub wall_ms_total: f64,
+    pub timestamps: bool,
+    pub mean_radiance: [f64; 3],
+    pub non_finite_pixels: usize,
+}
+
+/// Renders one technique of a preset for `spp` samples; returns the image and its metadata.
+pub fn render_technique(gpu: Arc<Gpu>, p: &LoadedPreset, index: usize, quiet: bool) -> Result<(Image, ShotMetadata)> {
+    let preset = &p.preset;
+    let entry = &preset.techniques[index];
+    let scene = p.load_scene()?;
+    let camera = p.camera(&scene);
+    let mut technique = create_technique(&entry.name)?;
+    technique.set_params(&entry.params)?;
+    let settings = EngineSettings { extent: preset.render.size, seed: preset.render.seed, camera };
+    let scene_name = scene.name.clone();
+    let mut engine = Engine::new(gpu.clone(), ShaderLibrary::discover(), scene, technique, settings)?;
+    let spf = engine.technique.samples_per_frame().max(1);
+    let frames = preset.render.spp.div_ceil(spf).max(1);
+    let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(frames as u64) };
+    bar.set_style(
+        ProgressStyle::with_template("{prefix:>10} [{bar:30}] {pos}/{len} frames {elapsed_precise} eta {eta}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    bar.set_prefix(entry.name.clone());
+    let mut by_pass = std::collections::BTreeMap::new();
+    for _ in 0..frames {
+        let report = engine.render_frame()?;
+        for (name, ms) in report.gpu_ms_by_pass {
+            *by_pass.entry(name).or_insert(0.0) += ms / frames as f64;
+        }
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let image = engine.read_output()?;
+    let rays = engine.ray_counts()?;
+    let pixels = (preset.render.size[0] * preset.render.size[1]) as f64;
+    let meta = ShotMetadata {
+        technique: entry.name.clone(),
+        preset: serde_json::to_value(preset)?,
+        preset_file: p.path.as_ref().map(|p| p.display().to_string()),
+        adapter: gpu.summary.clone(),
+        scene: scene_name,
+        scene_features: engine.gpu_scene.data.features.clone(),
+        passes: engine.passes(),
+        camera,
+        size: preset.render.size,
+        seed: preset.render.seed,
+        spp: engine.samples,
+        frames,
+        rays,
+        rays_by_kind: rays.named().into_iter().map(|(k, v)| (k.to_string(), v)).collect(),
+        rays_per_pixel: rays.total() as f64 / pixels,
+        gpu_ms_total: engine.total_gpu_ms,
+        gpu_ms_per_frame: engine.total_gpu_ms / frames as f64,
+        gpu_ms_by_pass: by_pass,
+        wall_ms_total: engine.total_wall_ms,
+        timestamps: gpu.timestamp_period.is_some(),
+        mean_radiance: image.mean(),
+        non_finite_pixels: image.non_finite_count(),
+    };
+    Ok((image, meta))
+}
+
+fn preset_stem(p: &LoadedPreset) -> String {
+    p.path
+        .as_ref()
+        .and_then(|p| p.file_stem())
+        .map_or_else(|| "default".to_string(), |s| s.to_string_lossy().to_string())
+}
+
+pub fn write_outputs(dir: &Path, stem: &str, image: &Image, meta: &ShotMetadata, p: &LoadedPreset) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    io::write_png(&dir.join(format!("{stem}.png")), image, p.preset.tonemap.operator, p.preset.tonemap.exposure)?;
+    io::write_exr(&dir.join(format!("{stem}.exr")), image)?;
+    std::fs::write(dir.join(format!("{stem}.json")), serde_json::to_string_pretty(meta)?)?;
+    Ok(())
+}
+
+pub fn shot(gpu: Arc<Gpu>, p: &LoadedPreset, out: &Path, verbose: bool) -> Result<()> {
+    let dir = out.join(preset_stem(p));
+    for i in 0..p.preset.techniques.len() {
+        let (image, meta) = render_technique(gpu.clone(), p, i, false)?;
+        if verbose && i == 0 {
+            println!("scene '{}': {}", meta.scene, meta.scene_features.summary());
+        }
+        if verbose {
+            for pass in &meta.passes {
+                println!("  {:<10} {:<26} {:<4} {}", meta.technique, pass.name, if pass.runs { "runs" } else { "skip" }, pass.why);
+            }
+        }
+        write_outputs(&dir, &meta.technique, &image, &meta, p)?;
+        let per_pass: Vec<String> = meta.gpu_ms_by_pass.iter().map(|(k, v)| format!("{k} {v:.2} ms")).collect();
+        println!(
+            "{}: {}x{} {} spp, {:.2} rays/pixel, {:.1} ms GPU/frame ({}), mean radiance [{:.4}, {:.4}, {:.4}], non-finite pixels {} -> {}",
+            meta.technique,
+            meta.size[0],
+            meta.size[1],
+            meta.spp,
+            meta.rays_per_pixel,
+            meta.gpu_ms_per_frame,
+            if per_pass.is_empty() { "wall time".to_string() } else { per_pass.join(", ") },
+            meta.mean_radiance[0],
+            meta.mean_radiance[1],
+            meta.mean_radiance[2],
+            meta.non_finite_pixels,
+            dir.join(format!("{}.png", meta.technique)).display()
+        );
+    }
+    Ok(())
+}
+
+/// Cache key of a reference render: scene, camera, size, reference parameters, spp and seed.
+pub fn reference_key(p: &LoadedPreset) -> Result<String> {
+    use std::hash::Hasher;
+    let scene = p.load_scene()?;
+    let camera = p.camera(&scene);
+    let params = p.preset.techniques.iter().find(|t| t.name == "reference").map(|t| t.params.clone()).unwrap_or_default();
+    let canonical = serde_json::json!({
+        "scene": p.preset.scene.source,
+        "scene_params": p.preset.scene.params,
+        "camera": camera,
+        "size": p.preset.render.size,
+        "spp": p.preset.render.spp,
+        "seed": p.preset.render.seed,
+        "reference": params,
+    });
+    let mut h = fnv::FnvHasher::default();
+    h.write(canonical.to_string().as_bytes());
+    Ok(format!("{:016x}", h.finish()))
+}
+
+pub fn reference(gpu: Arc<Gpu>, p: &LoadedPreset, cache: &Path, force: bool) -> Result<PathBuf> {
+    let mut p = p.clone();
+    // Only the reference technique renders a reference, whatever the preset lists.
+    let params = p.preset.techniques.iter().find(|t| t.name == "reference").map(|t| t.params.clone()).unwrap_or_default();
+    p.preset.techniques = vec![crate::preset::TechniqueEntry { name: "reference".into(), params }];
+    let key = reference_key(&p)?;
+    let path = cache.join(format!("{key}.exr"));
+    if path.exists() && !force {
+        println!("cached (use --force to render again)");
+        return Ok(path);
+    }
+    let (image, meta) = render_technique(gpu, &p, 0, false)?;
+    write_outputs(cache, &key, &image, &meta, &p)?;
+    println!(
+        "reference: {} spp, {:.1} s GPU, {:.2} rays/pixel, non-finite pixels {}",
+        meta.spp,
+        meta.gpu_ms_total / 1e3,
+        meta.rays_per_pixel,
+        meta.non_finite_pixels
+    );
+    Ok(path)
+}

@@ -1,0 +1,197 @@
+//! GPU context: adapter choice (Vulkan preferred, GL fallback), device creation with the
+//! adapter's own limits, an error log instead of panics, timestamp queries and readback.
+
+pub mod readback;
+pub mod shaders;
+pub mod timing;
+
+use anyhow::{anyhow, bail, Context, Result};
+use std::sync::{Arc, Mutex};
+
+/// Which wgpu backend to use. `Auto` prefers Vulkan and falls back to GL.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BackendChoice {
+    #[default]
+    Auto,
+    Vulkan,
+    Gl,
+}
+
+impl std::str::FromStr for BackendChoice {
+    type Err = anyhow::Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s.to_ascii_lowercase().as_str() {
+            "auto" | "" => Ok(Self::Auto),
+            "vulkan" | "vk" => Ok(Self::Vulkan),
+            "gl" | "gles" | "opengl" => Ok(Self::Gl),
+            other => bail!("unknown backend '{other}' (expected auto, vulkan or gl)"),
+        }
+    }
+}
+
+impl BackendChoice {
+    /// `GILAB_BACKEND` overrides `Auto`.
+    pub fn resolve_env(self) -> Result<Self> {
+        match (self, std::env::var("GILAB_BACKEND")) {
+            (Self::Auto, Ok(v)) => v.parse().context("GILAB_BACKEND"),
+            (s, _) => Ok(s),
+        }
+    }
+}
+
+/// Errors wgpu reported outside any error scope; drained and shown instead of panicking.
+#[derive(Clone, Default)]
+pub struct ErrorLog(Arc<Mutex<Vec<String>>>);
+
+impl ErrorLog {
+    pub fn push(&self, msg: String) {
+        log::error!("wgpu: {msg}");
+        if let Ok(mut v) = self.0.lock() {
+            v.push(msg);
+        }
+    }
+    pub fn take(&self) -> Vec<String> {
+        self.0.lock().map(|mut v| std::mem::take(&mut *v)).unwrap_or_default()
+    }
+}
+
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct AdapterSummary {
+    pub name: String,
+    pub backend: String,
+    pub device_type: String,
+    pub driver: String,
+    pub driver_info: String,
+    pub timestamps: bool,
+}
+
+impl std::fmt::Display for AdapterSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} ({}, {}, {} {})", self.name, self.backend, self.device_type, self.driver, self.driver_info)
+    }
+}
+
+pub struct Gpu {
+    pub instance: wgpu::Instance,
+    pub adapter: wgpu::Adapter,
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    pub summary: AdapterSummary,
+    pub errors: ErrorLog,
+    /// Nanoseconds per timestamp tick; `None` when timestamp queries are unavailable.
+    pub timestamp_period: Option<f32>,
+}
+
+/// Features used when the adapter has them; nothing is strictly required beyond compute.
+fn optional_features() -> wgpu::Features {
+    wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::TIMESTAMP_QUERY_INSIDE_ENCODERS
+}
+
+impl Gpu {
+    /// Creates a headless device. Errors (not panics) if no adapter fits.
+    pub fn new(choice: BackendChoice) -> Result<Gpu> {
+        let choice = choice.resolve_env()?;
+        if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
+            // lavapipe prints an error line without it; a private temp dir is enough.
+            let dir = std::env::temp_dir().join(format!("gilab-xdg-{}", std::process::id()));
+            let _ = std::fs::create_dir_all(&dir);
+            // SAFETY: set before any thread that reads the environment is started by us.
+            unsafe { std::env::set_var("XDG_RUNTIME_DIR", &dir) };
+        }
+        let order: &[wgpu::Backends] = match choice {
+            BackendChoice::Auto => &[wgpu::Backends::VULKAN, wgpu::Backends::GL],
+            BackendChoice::Vulkan => &[wgpu::Backends::VULKAN],
+            BackendChoice::Gl => &[wgpu::Backends::GL],
+        };
+        let mut tried = Vec::new();
+        for &backends in order {
+            let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+            desc.backends = backends;
+            let instance = wgpu::Instance::new(desc);
+            let adapters = pollster::block_on(instance.enumerate_adapters(backends));
+            // Prefer real GPUs, then CPU rasterisers (lavapipe/llvmpipe).
+            let best = adapters.into_iter().max_by_key(|a| match a.get_info().device_type {
+                wgpu::DeviceType::DiscreteGpu => 4,
+                wgpu::DeviceType::IntegratedGpu => 3,
+                wgpu::DeviceType::VirtualGpu => 2,
+                wgpu::DeviceType::Cpu => 1,
+                wgpu::DeviceType::Other => 0,
+            });
+            match best {
+                Some(adapter) => return Self::from_adapter(instance, adapter),
+                None => tried.push(format!("{backends:?}")),
+            }
+        }
+        Err(anyhow!(
+            "no GPU adapter found (tried {}). Install Mesa's software Vulkan driver with \
+             `apt-get install mesa-vulkan-drivers`, or force GL with --backend gl",
+            tried.join(", ")
+        ))
+    }
+
+    fn from_adapter(instance: wgpu::Instance, adapter: wgpu::Adapter) -> Result<Gpu> {
+        let info = adapter.get_info();
+        let features = adapter.features() & optional_features();
+        let limits = adapter.limits();
+        if !adapter.get_downlevel_capabilities().flags.contains(wgpu::DownlevelFlags::COMPUTE_SHADERS) {
+            bail!("adapter {} has no compute shaders, which gilab requires", info.name);
+        }
+        if limits.max_storage_buffers_per_shader_stage < 9 {
+            bail!(
+                "adapter {} allows {} storage buffers per stage; gilab needs 9",
+                info.name,
+                limits.max_storage_buffers_per_shader_stage
+            );
+        }
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("gilab"),
+            required_features: features,
+            required_limits: limits,
+            experimental_features: wgpu::ExperimentalFeatures::disabled(),
+            memory_hints: wgpu::MemoryHints::Performance,
+            trace: wgpu::Trace::Off,
+        }))
+        .with_context(|| format!("requesting a device from {}", info.name))?;
+        let errors = ErrorLog::default();
+        let sink = errors.clone();
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| sink.push(e.to_string())));
+        let timestamps = features.contains(wgpu::Features::TIMESTAMP_QUERY);
+        let timestamp_period = timestamps.then(|| queue.get_timestamp_period());
+        let summary = AdapterSummary {
+            name: info.name.clone(),
+            backend: format!("{:?}", info.backend),
+            device_type: format!("{:?}", info.device_type),
+            driver: info.driver.clone(),
+            driver_info: info.driver_info.clone(),
+            timestamps,
+        };
+        Ok(Gpu { instance, adapter, device, queue, summary, errors, timestamp_period })
+    }
+
+    /// Waits for all submitted work.
+    pub fn wait(&self) -> Result<()> {
+        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("device poll failed: {e}"))?;
+        Ok(())
+    }
+
+    /// Runs `f` inside a validation error scope and turns a captured error into `Err`.
+    pub fn scoped<T>(&self, what: &str, f: impl FnOnce() -> T) -> Result<T> {
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let value = f();
+        match pollster::block_on(scope.pop()) {
+            None => Ok(value),
+            Some(e) => Err(anyhow!("{what}: {e}")),
+        }
+    }
+
+    /// Fails if wgpu reported any error outside a scope since the last check.
+    pub fn check_errors(&self) -> Result<()> {
+        let errs = self.errors.take();
+        if errs.is_empty() {
+            Ok(())
+        } else {
+            Err(anyhow!("GPU error: {}", errs.join("; ")))
+        }
+    }
+}

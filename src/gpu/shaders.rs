@@ -1,0 +1,268 @@
+//! WGSL shader library: files under `shaders/` composed with naga_oil.
+//!
+//! Why naga_oil: it is maintained (Bevy's shader system), works on naga 30 directly so the
+//! composed `naga::Module` goes to wgpu without re-parsing, supports `#import` of items and
+//! `#define_import_path` modules, and its errors carry file:line spans (codespan).
+//!
+//! Shaders are read from disk at run time (so hot reload can rebuild pipelines) with the
+//! copy embedded at build time as fallback, so the binary also runs outside the repository.
+//! Modules live in `shaders/common/` (each starts with `#define_import_path gilab::NAME`);
+//! entry files live in per-technique folders.
+
+use include_dir::{include_dir, Dir};
+use naga_oil::compose::{
+    get_preprocessor_data, ComposableModuleDescriptor, Composer, ComposerError, NagaModuleDescriptor, ShaderLanguage,
+    ShaderType,
+};
+use std::collections::{BTreeMap, HashSet};
+use std::path::{Path, PathBuf};
+
+static EMBEDDED: Dir<'static> = include_dir!("$CARGO_MANIFEST_DIR/shaders");
+
+/// A shader that failed to load or compose: `location` is `file:line:column` when known.
+#[derive(Debug, Clone, thiserror::Error)]
+#[error("{location}: {message}")]
+pub struct ShaderError {
+    pub location: String,
+    pub message: String,
+    /// The full codespan report (source excerpt with markers).
+    pub report: String,
+}
+
+#[derive(Clone, Debug)]
+pub enum ShaderSource {
+    Disk(PathBuf),
+    Embedded,
+}
+
+pub struct ShaderLibrary {
+    pub source: ShaderSource,
+}
+
+impl ShaderLibrary {
+    /// Picks `GILAB_SHADERS`, then `./shaders`, then the build tree's `shaders/`, then the embedded copy.
+    pub fn discover() -> ShaderLibrary {
+        let candidates = [
+            std::env::var_os("GILAB_SHADERS").map(PathBuf::from),
+            Some(PathBuf::from("shaders")),
+            Some(PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/shaders"))),
+        ];
+        for c in candidates.into_iter().flatten() {
+            if c.join("common").is_dir() {
+                return ShaderLibrary { source: ShaderSource::Disk(c) };
+            }
+        }
+        ShaderLibrary { source: ShaderSource::Embedded }
+    }
+
+    pub fn embedded() -> ShaderLibrary {
+        ShaderLibrary { source: ShaderSource::Embedded }
+    }
+
+    pub fn root(&self) -> Option<&Path> {
+        match &self.source {
+            ShaderSource::Disk(p) => Some(p),
+            ShaderSource::Embedded => None,
+        }
+    }
+
+    /// Every `.wgsl` file, as (path relative to `shaders/`, source).
+    pub fn files(&self) -> Result<BTreeMap<String, String>, ShaderError> {
+        let mut out = BTreeMap::new();
+        match &self.source {
+            ShaderSource::Disk(root) => collect_disk(root, root, &mut out)?,
+            ShaderSource::Embedded => collect_embedded(&EMBEDDED, &mut out),
+        }
+        Ok(out)
+    }
+
+    /// Entry files: `.wgsl` files outside `common/`.
+    pub fn entry_files(&self) -> Result<Vec<String>, ShaderError> {
+        Ok(self.files()?.into_keys().filter(|k| !k.starts_with("common/")).collect())
+    }
+
+    /// Composes `entry` (e.g. "reference/path_trace.wgsl") and its imports into one validated module.
+    pub fn compose(&self, entry: &str) -> Result<naga::Module, ShaderError> {
+        let files = self.files()?;
+        let source = files.get(entry).ok_or_else(|| ShaderError {
+            location: format!("shaders/{entry}"),
+            message: "shader file not found".into(),
+            report: String::new(),
+        })?;
+        // Module name -> (file, source) for everything that declares an import path.
+        let mut modules: BTreeMap<String, (String, String)> = BTreeMap::new();
+        for (path, src) in &files {
+            if let (Some(name), _, _) = get_preprocessor_data(src) {
+                modules.insert(name, (path.clone(), src.clone()));
+            }
+        }
+        let mut composer = Composer::default();
+        let mut added = HashSet::new();
+        let (_, imports, _) = get_preprocessor_data(source);
+        for import in imports {
+            add_module_recursive(&mut composer, &modules, &import.import, &mut added, &mut Vec::new())?;
+        }
+        let file_path = format!("shaders/{entry}");
+        composer
+            .make_naga_module(NagaModuleDescriptor {
+                source,
+                file_path: &file_path,
+                shader_type: ShaderType::Wgsl,
+                ..Default::default()
+            })
+            .map_err(|e| composer_error(&composer, &e))
+    }
+
+    /// Entry files that import (directly or not) the given file: what hot reload must rebuild.
+    pub fn dependents(&self, changed: &str) -> Result<Vec<String>, ShaderError> {
+        let files = self.files()?;
+        let mut module_of_file = BTreeMap::new();
+        let mut modules = BTreeMap::new();
+        for (path, src) in &files {
+            if let (Some(name), _, _) = get_preprocessor_data(src) {
+                module_of_file.insert(path.clone(), name.clone());
+                modules.insert(name, (path.clone(), src.clone()));
+            }
+        }
+        let mut out = Vec::new();
+        for entry in self.entry_files()? {
+            if entry == changed {
+                out.push(entry);
+                continue;
+            }
+            let mut seen = HashSet::new();
+            let mut stack: Vec<String> = get_preprocessor_data(&files[&entry]).1.into_iter().map(|i| i.import).collect();
+            while let Some(imp) = stack.pop() {
+                let Some(name) = resolve_module(&modules, &imp) else { continue };
+                if !seen.insert(name.clone()) {
+                    continue;
+                }
+                let (file, src) = &modules[&name];
+                if file == changed {
+                    out.push(entry.clone());
+                    break;
+                }
+                stack.extend(get_preprocessor_data(src).1.into_iter().map(|i| i.import));
+            }
+        }
+        Ok(out)
+    }
+}
+
+/// `gilab::scene::Light` imports item `Light` from module `gilab::scene`: longest known prefix wins.
+fn resolve_module(modules: &BTreeMap<String, (String, String)>, import: &str) -> Option<String> {
+    let mut candidate = import.to_string();
+    loop {
+        if modules.contains_key(&candidate) {
+            return Some(candidate);
+        }
+        let cut = candidate.rfind("::")?;
+        candidate.truncate(cut);
+    }
+}
+
+fn add_module_recursive(
+    composer: &mut Composer,
+    modules: &BTreeMap<String, (String, String)>,
+    import: &str,
+    added: &mut HashSet<String>,
+    chain: &mut Vec<String>,
+) -> Result<(), ShaderError> {
+    let Some(name) = resolve_module(modules, import) else {
+        // Unknown: let naga_oil report it with a span when composing the importer.
+        return Ok(());
+    };
+    if added.contains(&name) {
+        return Ok(());
+    }
+    if chain.contains(&name) {
+        return Err(ShaderError {
+            location: format!("shaders/{}", modules[&name].0),
+            message: format!("import cycle: {} -> {name}", chain.join(" -> ")),
+            report: String::new(),
+        });
+    }
+    chain.push(name.clone());
+    let (file, src) = &modules[&name];
+    for dep in get_preprocessor_data(src).1 {
+        add_module_recursive(composer, modules, &dep.import, added, chain)?;
+    }
+    chain.pop();
+    let file_path = format!("shaders/{file}");
+    let result = composer.add_composable_module(ComposableModuleDescriptor {
+        source: src,
+        file_path: &file_path,
+        language: ShaderLanguage::Wgsl,
+        ..Default::default()
+    });
+    if let Err(e) = result {
+        return Err(composer_error(composer, &e));
+    }
+    added.insert(name);
+    Ok(())
+}
+
+/// Turns naga_oil's codespan report into `file:line:column: message` plus the full report.
+fn composer_error(composer: &Composer, e: &ComposerError) -> ShaderError {
+    let report = e.emit_to_string(composer);
+    let plain = strip_ansi(&report);
+    let location = plain
+        .lines()
+        .find_map(|l| l.split_once("┌─ ").map(|(_, loc)| loc.trim().to_string()))
+        .unwrap_or_else(|| e.source.path(composer).clone());
+    let message = plain
+        .lines()
+        .find_map(|l| l.trim().strip_prefix("error: ").map(str::to_string))
+        .unwrap_or_else(|| e.inner.to_string());
+    ShaderError { location, message, report: plain }
+}
+
+fn strip_ansi(s: &str) -> String {
+    let mut out = String::with_capacity(s.len());
+    let mut chars = s.chars();
+    while let Some(c) = chars.next() {
+        if c == '\u{1b}' {
+            for c2 in chars.by_ref() {
+                if c2.is_ascii_alphabetic() {
+                    break;
+                }
+            }
+        } else {
+            out.push(c);
+        }
+    }
+    out
+}
+
+fn collect_disk(root: &Path, dir: &Path, out: &mut BTreeMap<String, String>) -> Result<(), ShaderError> {
+    let io_err = |p: &Path, e: std::io::Error| ShaderError {
+        location: p.display().to_string(),
+        message: e.to_string(),
+        report: String::new(),
+    };
+    let mut entries: Vec<_> = std::fs::read_dir(dir).map_err(|e| io_err(dir, e))?.flatten().collect();
+    entries.sort_by_key(|e| e.path());
+    for entry in entries {
+        let p = entry.path();
+        if p.is_dir() {
+            collect_disk(root, &p, out)?;
+        } else if p.extension().is_some_and(|e| e == "wgsl") {
+            let rel = p.strip_prefix(root).unwrap_or(&p).to_string_lossy().replace('\\', "/");
+            out.insert(rel, std::fs::read_to_string(&p).map_err(|e| io_err(&p, e))?);
+        }
+    }
+    Ok(())
+}
+
+fn collect_embedded(dir: &Dir<'static>, out: &mut BTreeMap<String, String>) {
+    for f in dir.files() {
+        if f.path().extension().is_some_and(|e| e == "wgsl") {
+            if let Some(text) = f.contents_utf8() {
+                out.insert(f.path().to_string_lossy().replace('\\', "/"), text.to_string());
+            }
+        }
+    }
+    for d in dir.dirs() {
+        collect_embedded(d, out);
+    }
+}

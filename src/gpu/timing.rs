@@ -1,0 +1,96 @@
+//! Per-pass GPU timings from timestamp queries (one begin/end pair per pass).
+
+use super::Gpu;
+use anyhow::Result;
+
+pub const MAX_PASSES: u32 = 16;
+
+pub struct PassTimer {
+    query_set: Option<wgpu::QuerySet>,
+    resolve: Option<wgpu::Buffer>,
+    names: Vec<&'static str>,
+}
+
+impl PassTimer {
+    pub fn new(gpu: &Gpu) -> PassTimer {
+        let (query_set, resolve) = if gpu.timestamp_period.is_some() {
+            let qs = gpu.device.create_query_set(&wgpu::QuerySetDescriptor {
+                label: Some("pass timestamps"),
+                ty: wgpu::QueryType::Timestamp,
+                count: MAX_PASSES * 2,
+            });
+            let buf = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("timestamp resolve"),
+                size: (MAX_PASSES * 2 * 8) as u64,
+                usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            });
+            (Some(qs), Some(buf))
+        } else {
+            (None, None)
+        };
+        PassTimer { query_set, resolve, names: Vec::new() }
+    }
+
+    /// Starts a new frame's set of passes.
+    pub fn begin_frame(&mut self) {
+        self.names.clear();
+    }
+
+    /// Timestamp writes for a compute pass named `name` (None when unsupported or full).
+    pub fn compute_pass(&mut self, name: &'static str) -> Option<wgpu::ComputePassTimestampWrites<'_>> {
+        let i = self.next_index(name)?;
+        Some(wgpu::ComputePassTimestampWrites {
+            query_set: self.query_set.as_ref()?,
+            beginning_of_pass_write_index: Some(2 * i),
+            end_of_pass_write_index: Some(2 * i + 1),
+        })
+    }
+
+    pub fn render_pass(&mut self, name: &'static str) -> Option<wgpu::RenderPassTimestampWrites<'_>> {
+        let i = self.next_index(name)?;
+        Some(wgpu::RenderPassTimestampWrites {
+            query_set: self.query_set.as_ref()?,
+            beginning_of_pass_write_index: Some(2 * i),
+            end_of_pass_write_index: Some(2 * i + 1),
+        })
+    }
+
+    fn next_index(&mut self, name: &'static str) -> Option<u32> {
+        self.query_set.as_ref()?;
+        if self.names.len() as u32 >= MAX_PASSES {
+            return None;
+        }
+        self.names.push(name);
+        Some(self.names.len() as u32 - 1)
+    }
+
+    /// Records the resolve of this frame's queries into the encoder.
+    pub fn resolve(&self, enc: &mut wgpu::CommandEncoder) {
+        if let (Some(qs), Some(buf)) = (&self.query_set, &self.resolve) {
+            if !self.names.is_empty() {
+                enc.resolve_query_set(qs, 0..self.names.len() as u32 * 2, buf, 0);
+            }
+        }
+    }
+
+    /// Reads back (name, milliseconds) per pass; call after the frame's submission.
+    pub fn read(&self, gpu: &Gpu) -> Result<Vec<(&'static str, f64)>> {
+        let (Some(buf), Some(period)) = (&self.resolve, gpu.timestamp_period) else {
+            return Ok(Vec::new());
+        };
+        if self.names.is_empty() {
+            return Ok(Vec::new());
+        }
+        let ticks: Vec<u64> = super::readback::read_buffer(gpu, buf, self.names.len() * 2)?;
+        Ok(self
+            .names
+            .iter()
+            .enumerate()
+            .map(|(i, n)| {
+                let dt = ticks[2 * i + 1].saturating_sub(ticks[2 * i]);
+                (*n, dt as f64 * period as f64 * 1e-6)
+            })
+            .collect())
+    }
+}

@@ -1,0 +1,294 @@
+//! Presets (`presets/*.toml`): scene, camera, resolution, seed, sample budget, techniques with
+//! parameters and tonemapping. Unknown keys are errors (typos fail loudly, with line and column).
+//! CLI overrides (`--scene`, `--technique`, `--size`, `--spp`, `--seed`, `--set key=value`) are
+//! applied to the parsed document before it is checked again.
+
+use crate::compare::tonemap::Operator;
+use crate::scene::{builtin, gltf_load, Camera, Scene};
+use anyhow::{anyhow, bail, Context, Result};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Preset {
+    pub scene: SceneRef,
+    /// Overrides the scene's own camera.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<Camera>,
+    #[serde(default)]
+    pub render: RenderSettings,
+    #[serde(default)]
+    pub tonemap: TonemapSettings,
+    #[serde(default = "default_techniques")]
+    pub techniques: Vec<TechniqueEntry>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SceneRef {
+    /// A built-in scene name (`cornell`, `furnace`, ...) or a path to a .gltf/.glb file
+    /// (relative paths are relative to the preset file).
+    pub source: String,
+    /// Built-in scene parameters (e.g. furnace `albedo`).
+    #[serde(default, skip_serializing_if = "toml::Table::is_empty")]
+    pub params: toml::Table,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RenderSettings {
+    /// Width and height in pixels.
+    #[serde(default = "default_size")]
+    pub size: [u32; 2],
+    #[serde(default = "default_seed")]
+    pub seed: u32,
+    /// Samples per pixel a `shot` accumulates (frames = spp / samples_per_frame).
+    #[serde(default = "default_spp")]
+    pub spp: u32,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct TonemapSettings {
+    #[serde(default)]
+    pub operator: Operator,
+    /// Exposure in EV stops (+1 doubles the brightness).
+    #[serde(default)]
+    pub exposure: f32,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct TechniqueEntry {
+    pub name: String,
+    #[serde(default)]
+    pub params: toml::Table,
+}
+
+fn default_size() -> [u32; 2] {
+    [256, 256]
+}
+fn default_seed() -> u32 {
+    1
+}
+fn default_spp() -> u32 {
+    64
+}
+fn default_techniques() -> Vec<TechniqueEntry> {
+    vec![TechniqueEntry { name: "reference".into(), params: toml::Table::new() }]
+}
+
+impl Default for RenderSettings {
+    fn default() -> Self {
+        RenderSettings { size: default_size(), seed: default_seed(), spp: default_spp() }
+    }
+}
+
+impl Default for TonemapSettings {
+    fn default() -> Self {
+        TonemapSettings { operator: Operator::Aces, exposure: 0.0 }
+    }
+}
+
+/// Command-line overrides of a preset.
+#[derive(Clone, Debug, Default, clap::Args)]
+pub struct Overrides {
+    /// Scene: a built-in name (cornell, furnace, many-lights, thin-wall, glossy, hard-cases) or a .gltf/.glb path.
+    #[arg(long)]
+    pub scene: Option<String>,
+    /// Technique to render (replaces the preset's list).
+    #[arg(long)]
+    pub technique: Option<String>,
+    /// Image size: N (square) or WxH.
+    #[arg(long)]
+    pub size: Option<String>,
+    /// Samples per pixel.
+    #[arg(long)]
+    pub spp: Option<u32>,
+    #[arg(long)]
+    pub seed: Option<u32>,
+    /// Set any preset key: `render.seed=3`, `scene.params.albedo=0.5`, `tonemap.exposure=1`;
+    /// a key without a section (`max_depth=4`) sets that parameter on every technique.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+}
+
+/// A loaded preset with where it came from (for relative paths and metadata).
+#[derive(Clone, Debug)]
+pub struct LoadedPreset {
+    pub preset: Preset,
+    pub path: Option<PathBuf>,
+    /// The preset file's text (empty for the built-in default).
+    pub text: String,
+}
+
+/// The default preset, used when no file is given: the Cornell box.
+pub const DEFAULT_PRESET: &str = include_str!("../presets/cornell.toml");
+
+/// Formats a TOML error as `file:line:column: message` on one line.
+fn toml_error(path: &str, text: &str, e: &toml::de::Error) -> anyhow::Error {
+    let msg = e.message().replace('\n', " ");
+    match e.span() {
+        Some(span) => {
+            let before = &text[..span.start.min(text.len())];
+            let line = before.matches('\n').count() + 1;
+            let col = before.rfind('\n').map_or(before.chars().count(), |i| before[i + 1..].chars().count()) + 1;
+            anyhow!("{path}:{line}:{col}: {msg}")
+        }
+        None => anyhow!("{path}: {msg}"),
+    }
+}
+
+impl LoadedPreset {
+    pub fn from_text(text: &str, path: Option<&Path>) -> Result<LoadedPreset> {
+        let label = path.map_or("<built-in default preset>".to_string(), |p| p.display().to_string());
+        let preset: Preset = toml::from_str(text).map_err(|e| toml_error(&label, text, &e))?;
+        Ok(LoadedPreset { preset, path: path.map(Path::to_path_buf), text: text.to_string() })
+    }
+
+    pub fn load(path: &Path) -> Result<LoadedPreset> {
+        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read preset {}", path.display()))?;
+        Self::from_text(&text, Some(path))
+    }
+
+    /// `None` gives the built-in default preset.
+    pub fn load_or_default(path: Option<&Path>) -> Result<LoadedPreset> {
+        match path {
+            Some(p) => Self::load(p),
+            None => Self::from_text(DEFAULT_PRESET, None),
+        }
+    }
+
+    pub fn apply(&mut self, o: &Overrides) -> Result<()> {
+        let mut doc = toml::Table::try_from(&self.preset).context("serialising preset")?;
+        if let Some(s) = &o.scene {
+            set_path(&mut doc, "scene.source", toml::Value::String(s.clone()))?;
+            // Parameters of the preset's scene do not carry over to another scene.
+            if let Some(toml::Value::Table(scene)) = doc.get_mut("scene") {
+                scene.remove("params");
+            }
+            // Relative to where the user typed it, not to the preset.
+            let p = Path::new(s);
+            if !builtin::is_builtin(s) && p.is_relative() {
+                let abs = std::env::current_dir()?.join(p);
+                set_path(&mut doc, "scene.source", toml::Value::String(abs.display().to_string()))?;
+            }
+        }
+        if let Some(t) = &o.technique {
+            let mut entry = toml::Table::new();
+            entry.insert("name".into(), toml::Value::String(t.clone()));
+            doc.insert("techniques".into(), toml::Value::Array(vec![toml::Value::Table(entry)]));
+        }
+        if let Some(size) = &o.size {
+            let [w, h] = parse_size(size)?;
+            set_path(&mut doc, "render.size", toml::Value::Array(vec![(w as i64).into(), (h as i64).into()]))?;
+        }
+        if let Some(spp) = o.spp {
+            set_path(&mut doc, "render.spp", (spp as i64).into())?;
+        }
+        if let Some(seed) = o.seed {
+            set_path(&mut doc, "render.seed", (seed as i64).into())?;
+        }
+        for kv in &o.set {
+            let (k, v) = kv.split_once('=').ok_or_else(|| anyhow!("--set {kv}: expected KEY=VALUE"))?;
+            let value = parse_value(v.trim());
+            let k = k.trim();
+            let top = k.split('.').next().unwrap_or("");
+            if ["scene", "camera", "render", "tonemap", "techniques"].contains(&top) {
+                set_path(&mut doc, k, value).with_context(|| format!("--set {kv}"))?;
+            } else if let Some(toml::Value::Array(list)) = doc.get_mut("techniques") {
+                for t in list.iter_mut() {
+                    if let toml::Value::Table(t) = t {
+                        let params = t.entry("params").or_insert_with(|| toml::Value::Table(Default::default()));
+                        if let toml::Value::Table(p) = params {
+                            p.insert(k.to_string(), value.clone());
+                        }
+                    }
+                }
+            }
+        }
+        self.preset = doc.try_into().map_err(|e: toml::de::Error| anyhow!("preset after command-line overrides: {}", e.message().replace('\n', " ")))?;
+        Ok(())
+    }
+
+    /// Builds the scene the preset names.
+    pub fn load_scene(&self) -> Result<Scene> {
+        let src = &self.preset.scene.source;
+        if builtin::is_builtin(src) {
+            return builtin::build(src, &self.preset.scene.params);
+        }
+        let p = Path::new(src);
+        let path = match (&self.path, p.is_relative()) {
+            (Some(preset_path), true) => preset_path.parent().unwrap_or(Path::new(".")).join(p),
+            _ => p.to_path_buf(),
+        };
+        let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+        if ext != "gltf" && ext != "glb" {
+            if !path.exists() {
+                // Most likely a misspelt built-in name.
+                return builtin::build(src, &self.preset.scene.params);
+            }
+            bail!("{}: unsupported scene format (expected .gltf or .glb)", path.display());
+        }
+        if !self.preset.scene.params.is_empty() {
+            bail!("scene.params is only for built-in scenes, not {}", path.display());
+        }
+        gltf_load::load(&path)
+    }
+
+    pub fn camera(&self, scene: &Scene) -> Camera {
+        self.preset.camera.unwrap_or_else(|| scene.default_camera())
+    }
+
+    pub fn to_toml(&self) -> Result<String> {
+        Ok(toml::to_string_pretty(&self.preset)?)
+    }
+}
+
+pub fn parse_size(s: &str) -> Result<[u32; 2]> {
+    let parse = |v: &str| v.trim().parse::<u32>().ok().filter(|n| (1..=16384).contains(n));
+    let size = match s.split_once(['x', 'X']) {
+        Some((w, h)) => parse(w).zip(parse(h)).map(|(w, h)| [w, h]),
+        None => parse(s).map(|n| [n, n]),
+    };
+    size.ok_or_else(|| anyhow!("invalid size '{s}': expected N or WxH with values 1..16384"))
+}
+
+fn parse_value(v: &str) -> toml::Value {
+    toml::from_str::<toml::Table>(&format!("v = {v}"))
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| toml::Value::String(v.to_string()))
+}
+
+fn set_path(doc: &mut toml::Table, key: &str, value: toml::Value) -> Result<()> {
+    let parts: Vec<&str> = key.split('.').collect();
+    let mut cur = doc;
+    for (i, part) in parts.iter().enumerate() {
+        let last = i == parts.len() - 1;
+        if last {
+            cur.insert(part.to_string(), value);
+            return Ok(());
+        }
+        let next = cur.entry(part.to_string()).or_insert_with(|| toml::Value::Table(Default::default()));
+        cur = match next {
+            toml::Value::Table(t) => t,
+            toml::Value::Array(a) => {
+                // `techniques.0.params.x`: index into the array.
+                let idx: usize = parts[i + 1].parse().map_err(|_| anyhow!("'{part}' is a list: use {part}.N"))?;
+                let rest = parts[i + 2..].join(".");
+                let item = a.get_mut(idx).ok_or_else(|| anyhow!("{part}.{idx} does not exist"))?;
+                return match item {
+                    toml::Value::Table(t) if !rest.is_empty() => set_path(t, &rest, value),
+                    _ => {
+                        *item = value;
+                        Ok(())
+                    }
+                };
+            }
+            _ => bail!("'{part}' is not a table"),
+        };
+    }
+    Ok(())
+}

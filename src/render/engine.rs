@@ -1,0 +1,246 @@
+//! The headless engine: one scene, one camera, one technique; renders frames, reads results
+//! back and accounts rays and GPU time. The CLI, the tests and (later) the viewer all use it.
+
+use super::{gbuffer::GBuffer, pipelines, FrameUniforms, PassInfo, RayCounts, RenderContext, Technique, COUNTER_SLOTS};
+use crate::compare::Image;
+use crate::gpu::{readback, shaders::ShaderLibrary, timing::PassTimer, Gpu};
+use crate::scene::{gpu_scene::GpuScene, Camera, Scene};
+use anyhow::{Context, Result};
+use std::sync::Arc;
+use std::time::Instant;
+use wgpu::util::DeviceExt;
+
+/// Builds a RenderContext from the engine's fields (a macro so the borrow checker sees that
+/// the technique itself is not borrowed and can be called mutably beside it).
+macro_rules! render_context {
+    ($e:expr) => {
+        RenderContext {
+            gpu: &$e.gpu,
+            shaders: &$e.shaders,
+            scene: &$e.gpu_scene,
+            frame_layout_entries: &$e.frame_layout_entries,
+            uniforms: &$e.uniforms,
+            counters: &$e.counters,
+            extent: $e.extent,
+        }
+    };
+}
+
+pub struct EngineSettings {
+    pub extent: [u32; 2],
+    pub seed: u32,
+    pub camera: Camera,
+}
+
+/// What one frame cost.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct FrameReport {
+    pub frame_index: u32,
+    pub gpu_ms_by_pass: Vec<(String, f64)>,
+    pub gpu_ms: f64,
+    pub wall_ms: f64,
+}
+
+pub struct Engine {
+    pub gpu: Arc<Gpu>,
+    pub shaders: ShaderLibrary,
+    pub scene: Scene,
+    pub gpu_scene: GpuScene,
+    pub camera: Camera,
+    prev_camera: Camera,
+    pub extent: [u32; 2],
+    pub seed: u32,
+    pub technique: Box<dyn Technique>,
+    uniforms: wgpu::Buffer,
+    counters: wgpu::Buffer,
+    frame_layout_entries: Vec<wgpu::BindGroupLayoutEntry>,
+    gbuffer: Option<GBuffer>,
+    timer: PassTimer,
+    /// Frames since the last history reset.
+    pub frame_index: u32,
+    /// Samples per pixel accumulated since the last reset.
+    pub samples: u32,
+    /// Summed GPU (or, without timestamps, wall) milliseconds since the last reset.
+    pub total_gpu_ms: f64,
+    pub total_wall_ms: f64,
+}
+
+impl Engine {
+    pub fn new(gpu: Arc<Gpu>, shaders: ShaderLibrary, scene: Scene, technique: Box<dyn Technique>, settings: EngineSettings) -> Result<Engine> {
+        anyhow::ensure!(settings.extent[0] > 0 && settings.extent[1] > 0, "image size must be positive");
+        let max = gpu.device.limits().max_texture_dimension_2d;
+        anyhow::ensure!(settings.extent[0] <= max && settings.extent[1] <= max, "image size exceeds the adapter's limit of {max}");
+        let gpu_scene = GpuScene::upload(&gpu, &scene);
+        let uniforms = gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("frame uniforms"),
+            contents: bytemuck::bytes_of(&FrameUniforms::default()),
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        });
+        let counters = gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("ray counters"),
+            contents: bytemuck::cast_slice(&[0u32; COUNTER_SLOTS * 2]),
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+        });
+        let frame_layout_entries = vec![
+            pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE),
+            pipelines::storage_entry(1, false),
+        ];
+        let timer = PassTimer::new(&gpu);
+        let mut engine = Engine {
+            gpu,
+            shaders,
+            scene,
+            gpu_scene,
+            camera: settings.camera,
+            prev_camera: settings.camera,
+            extent: settings.extent,
+            seed: settings.seed,
+            technique,
+            uniforms,
+            counters,
+            frame_layout_entries,
+            gbuffer: None,
+            timer,
+            frame_index: 0,
+            samples: 0,
+            total_gpu_ms: 0.0,
+            total_wall_ms: 0.0,
+        };
+        let id = engine.technique.id();
+        engine.technique.build(&render_context!(engine)).with_context(|| format!("building technique '{id}'"))?;
+        engine.gpu.check_errors()?;
+        engine.reset();
+        Ok(engine)
+    }
+
+    /// Which passes run for this scene (technique passes plus the shared G-buffer).
+    pub fn passes(&self) -> Vec<PassInfo> {
+        self.technique.passes(&self.gpu_scene.data.features)
+    }
+
+    /// Clears history and counters (camera cut, scene edit, parameter change).
+    pub fn reset(&mut self) {
+        self.technique.reset_history(&self.gpu);
+        self.gpu.queue.write_buffer(&self.counters, 0, bytemuck::cast_slice(&[0u32; COUNTER_SLOTS * 2]));
+        self.frame_index = 0;
+        self.samples = 0;
+        self.total_gpu_ms = 0.0;
+        self.total_wall_ms = 0.0;
+        self.prev_camera = self.camera;
+    }
+
+    pub fn set_camera(&mut self, camera: Camera) {
+        self.prev_camera = self.camera;
+        self.camera = camera;
+        self.reset();
+    }
+
+    pub fn set_params(&mut self, params: &toml::Table) -> Result<()> {
+        self.technique.set_params(params)?;
+        self.technique.build(&render_context!(self))?;
+        self.reset();
+        Ok(())
+    }
+
+    fn uniforms_for_frame(&self) -> FrameUniforms {
+        let [w, h] = self.extent;
+        let aspect = w as f32 / h as f32;
+        let (lo, hi) = self.scene.bounds();
+        let near = ((hi - lo).length() * 1e-4).max(1e-4);
+        let (right, up, fwd) = self.camera.basis();
+        let tan = (self.camera.fov_y.clamp(0.01, 179.0).to_radians() * 0.5).tan();
+        FrameUniforms {
+            clip_from_world: self.camera.clip_from_world(aspect, near).to_cols_array_2d(),
+            prev_clip_from_world: self.prev_camera.clip_from_world(aspect, near).to_cols_array_2d(),
+            camera_pos: self.camera.position.extend(1.0).to_array(),
+            camera_right: (right * tan * aspect).extend(0.0).to_array(),
+            camera_up: (up * tan).extend(0.0).to_array(),
+            camera_forward: fwd.extend(0.0).to_array(),
+            sky: self.gpu_scene.sky.extend(0.0).to_array(),
+            size: self.extent,
+            frame_index: self.frame_index,
+            seed: self.seed,
+            samples_per_frame: self.technique.samples_per_frame(),
+            max_depth: self.technique.max_depth(),
+            sample_offset: self.samples,
+            flags: 0,
+        }
+    }
+
+    /// Renders one frame of the technique and waits for it.
+    pub fn render_frame(&mut self) -> Result<FrameReport> {
+        let start = Instant::now();
+        let uniforms = self.uniforms_for_frame();
+        self.gpu.queue.write_buffer(&self.uniforms, 0, bytemuck::bytes_of(&uniforms));
+        let mut enc = self.gpu.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("frame") });
+        self.timer.begin_frame();
+        self.technique.render(&render_context!(self), &mut enc, &mut self.timer);
+        self.timer.resolve(&mut enc);
+        self.gpu.queue.submit([enc.finish()]);
+        self.gpu.wait()?;
+        let wall_ms = start.elapsed().as_secs_f64() * 1e3;
+        let passes = self.timer.read(&self.gpu)?;
+        self.gpu.check_errors()?;
+        let gpu_ms = if passes.is_empty() { wall_ms } else { passes.iter().map(|p| p.1).sum() };
+        let report = FrameReport {
+            frame_index: self.frame_index,
+            gpu_ms_by_pass: passes.into_iter().map(|(n, ms)| (n.to_string(), ms)).collect(),
+            gpu_ms,
+            wall_ms,
+        };
+        self.total_gpu_ms += gpu_ms;
+        self.total_wall_ms += wall_ms;
+        self.frame_index += 1;
+        self.samples += self.technique.samples_per_frame();
+        self.prev_camera = self.camera;
+        Ok(report)
+    }
+
+    /// Renders the G-buffer for the current camera (for techniques that consume it, tests and debug views).
+    pub fn render_gbuffer(&mut self) -> Result<&GBuffer> {
+        if self.gbuffer.as_ref().is_none_or(|g| g.extent != self.extent) {
+            self.gbuffer = Some(GBuffer::new(&self.gpu, &self.shaders, &self.gpu_scene, &self.uniforms, self.extent)?);
+        }
+        let uniforms = self.uniforms_for_frame();
+        self.gpu.queue.write_buffer(&self.uniforms, 0, bytemuck::bytes_of(&uniforms));
+        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        let mut timer = PassTimer::new(&self.gpu);
+        let gbuffer = self.gbuffer.as_ref().expect("created above");
+        gbuffer.render(&self.gpu_scene, &mut enc, &mut timer);
+        self.gpu.queue.submit([enc.finish()]);
+        self.gpu.wait()?;
+        self.gpu.check_errors()?;
+        Ok(gbuffer)
+    }
+
+    /// Linear HDR radiance of the technique's output.
+    pub fn read_output(&self) -> Result<Image> {
+        let [w, h] = self.extent;
+        let px: Vec<[f32; 4]> = readback::read_buffer(&self.gpu, self.technique.output(), (w * h) as usize)?;
+        Ok(Image::from_rgba(w, h, &px))
+    }
+
+    /// Per-pixel sample variance (rgb) from the Welford M2, if the technique accumulates.
+    pub fn read_variance(&self) -> Result<Option<Image>> {
+        let Some(m2) = self.technique.variance_m2() else { return Ok(None) };
+        let [w, h] = self.extent;
+        let mean: Vec<[f32; 4]> = readback::read_buffer(&self.gpu, self.technique.output(), (w * h) as usize)?;
+        let m2: Vec<[f32; 4]> = readback::read_buffer(&self.gpu, m2, (w * h) as usize)?;
+        let var: Vec<[f32; 4]> = mean
+            .iter()
+            .zip(&m2)
+            .map(|(m, v)| {
+                let n = m[3];
+                let d = if n > 1.0 { 1.0 / (n - 1.0) } else { 0.0 };
+                [v[0] * d, v[1] * d, v[2] * d, n]
+            })
+            .collect();
+        Ok(Some(Image::from_rgba(w, h, &var)))
+    }
+
+    /// Rays by kind since the last reset.
+    pub fn ray_counts(&self) -> Result<RayCounts> {
+        let words: Vec<u32> = readback::read_buffer(&self.gpu, &self.counters, COUNTER_SLOTS * 2)?;
+        Ok(RayCounts::from_words(&words))
+    }
+}

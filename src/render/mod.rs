@@ -1,0 +1,118 @@
+//! Shared per-frame inputs (FrameUniforms, G-buffer), the Technique interface and registry,
+//! ray accounting, and the headless engine that drives them.
+
+pub mod engine;
+pub mod gbuffer;
+pub mod pipelines;
+
+use crate::gpu::{shaders::ShaderLibrary, timing::PassTimer, Gpu};
+use crate::scene::{features::SceneFeatures, gpu_scene::GpuScene};
+use anyhow::Result;
+use serde::Serialize;
+
+/// Matches `FrameUniforms` in shaders/common/frame.wgsl.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct FrameUniforms {
+    pub clip_from_world: [[f32; 4]; 4],
+    pub prev_clip_from_world: [[f32; 4]; 4],
+    pub camera_pos: [f32; 4],
+    pub camera_right: [f32; 4],
+    pub camera_up: [f32; 4],
+    pub camera_forward: [f32; 4],
+    pub sky: [f32; 4],
+    pub size: [u32; 2],
+    pub frame_index: u32,
+    pub seed: u32,
+    pub samples_per_frame: u32,
+    pub max_depth: u32,
+    pub sample_offset: u32,
+    pub flags: u32,
+}
+
+/// Ray kinds, indices into the GPU counters (shaders/common/counters.wgsl).
+pub const RAY_KINDS: [&str; 6] = ["camera", "shadow", "indirect", "probe", "surfel", "cache"];
+pub const COUNTER_INVALID_SAMPLES: usize = 6;
+pub const COUNTER_SLOTS: usize = 8;
+
+/// Cumulative counters since the last history reset.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct RayCounts {
+    pub by_kind: [u64; 6],
+    pub invalid_samples: u64,
+}
+
+impl RayCounts {
+    pub fn total(&self) -> u64 {
+        self.by_kind.iter().sum()
+    }
+    pub fn from_words(words: &[u32]) -> RayCounts {
+        let get = |k: usize| words[2 * k] as u64 | ((words[2 * k + 1] as u64) << 32);
+        let mut by_kind = [0; 6];
+        for (k, v) in by_kind.iter_mut().enumerate() {
+            *v = get(k);
+        }
+        RayCounts { by_kind, invalid_samples: get(COUNTER_INVALID_SAMPLES) }
+    }
+    pub fn named(&self) -> Vec<(&'static str, u64)> {
+        RAY_KINDS.iter().copied().zip(self.by_kind).filter(|(_, v)| *v > 0).collect()
+    }
+}
+
+/// A pass a technique runs or skips for the current scene, with the reason (rule 3).
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct PassInfo {
+    pub name: &'static str,
+    pub runs: bool,
+    pub why: String,
+}
+
+/// Everything a technique needs to build and record its work.
+pub struct RenderContext<'a> {
+    pub gpu: &'a Gpu,
+    pub shaders: &'a ShaderLibrary,
+    pub scene: &'a GpuScene,
+    pub frame_layout_entries: &'a [wgpu::BindGroupLayoutEntry],
+    pub uniforms: &'a wgpu::Buffer,
+    pub counters: &'a wgpu::Buffer,
+    pub extent: [u32; 2],
+}
+
+/// One GI technique: long-lived pipelines, per-frame recording, linear HDR out.
+pub trait Technique {
+    /// Preset key, CSV column and file-name stem.
+    fn id(&self) -> &'static str;
+    /// Which passes run for this scene and why the others do not.
+    fn passes(&self, features: &SceneFeatures) -> Vec<PassInfo>;
+    /// (Re)creates pipelines and buffers; on error the previous pipelines stay usable.
+    fn build(&mut self, ctx: &RenderContext) -> Result<()>;
+    /// Forget accumulated history (camera cut, scene edit, parameter change).
+    fn reset_history(&mut self, gpu: &Gpu);
+    /// Samples per pixel one frame adds (what the frame uniforms' `samples_per_frame` carries).
+    fn samples_per_frame(&self) -> u32;
+    /// Maximum path depth passed in the frame uniforms (0 = unbounded).
+    fn max_depth(&self) -> u32 {
+        0
+    }
+    fn render(&mut self, ctx: &RenderContext, enc: &mut wgpu::CommandEncoder, timer: &mut PassTimer);
+    /// Linear HDR radiance, one vec4<f32> per pixel (rgb; w = samples behind the value).
+    fn output(&self) -> &wgpu::Buffer;
+    /// Per-pixel Welford M2 (rgb) when the technique accumulates samples; None otherwise.
+    fn variance_m2(&self) -> Option<&wgpu::Buffer> {
+        None
+    }
+    fn params(&self) -> toml::Table;
+    fn set_params(&mut self, params: &toml::Table) -> Result<()>;
+}
+
+pub const TECHNIQUES: &[(&str, &str)] = &[("reference", "progressive unbiased path tracer (ground truth)")];
+
+pub fn create_technique(name: &str) -> Result<Box<dyn Technique>> {
+    match name {
+        "reference" => Ok(Box::new(crate::techniques::reference::ReferencePathTracer::default())),
+        other => {
+            let names: Vec<&str> = TECHNIQUES.iter().map(|t| t.0).collect();
+            anyhow::bail!("unknown technique '{other}' (available: {})", names.join(", "))
+        }
+    }
+}

@@ -1,0 +1,72 @@
+//! Pipeline creation with composed shaders, inside wgpu error scopes: failures come back as
+//! `Err` with the shader's file:line, never as a panic.
+
+use crate::gpu::{shaders::ShaderLibrary, Gpu};
+use anyhow::{anyhow, Result};
+use std::borrow::Cow;
+
+pub fn shader_module(gpu: &Gpu, shaders: &ShaderLibrary, entry: &str) -> Result<wgpu::ShaderModule> {
+    let module = shaders.compose(entry).map_err(|e| anyhow!("{e}"))?;
+    gpu.scoped(&format!("shader module shaders/{entry}"), || {
+        gpu.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some(entry),
+            source: wgpu::ShaderSource::Naga(Cow::Owned(module)),
+        })
+    })
+}
+
+pub fn compute_pipeline(
+    gpu: &Gpu,
+    shaders: &ShaderLibrary,
+    entry: &str,
+    layouts: &[&wgpu::BindGroupLayout],
+) -> Result<wgpu::ComputePipeline> {
+    let module = shader_module(gpu, shaders, entry)?;
+    let bind_group_layouts: Vec<Option<&wgpu::BindGroupLayout>> = layouts.iter().map(|l| Some(*l)).collect();
+    gpu.scoped(&format!("compute pipeline shaders/{entry}"), || {
+        let layout = gpu.device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some(entry),
+            bind_group_layouts: &bind_group_layouts,
+            immediate_size: 0,
+        });
+        gpu.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some(entry),
+            layout: Some(&layout),
+            module: &module,
+            entry_point: Some("main"),
+            compilation_options: Default::default(),
+            cache: None,
+        })
+    })
+}
+
+pub fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+pub fn uniform_entry(binding: u32, visibility: wgpu::ShaderStages) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility,
+        ty: wgpu::BindingType::Buffer { ty: wgpu::BufferBindingType::Uniform, has_dynamic_offset: false, min_binding_size: None },
+        count: None,
+    }
+}
+
+pub fn storage_buffer(gpu: &Gpu, label: &str, size: u64) -> wgpu::Buffer {
+    gpu.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size: size.max(16),
+        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    })
+}

@@ -1,0 +1,225 @@
+//! Scenes: the CPU-side triangle soup every technique renders (world space, one material per
+//! triangle), loaded from glTF or built procedurally, plus its BVH, features and GPU upload.
+
+pub mod builtin;
+pub mod bvh;
+pub mod features;
+pub mod gltf_load;
+pub mod gpu_scene;
+
+use anyhow::Result;
+use glam::{Vec2, Vec3, Vec4};
+use serde::{Deserialize, Serialize};
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct Material {
+    pub name: String,
+    /// Linear RGBA factor (multiplied with the texture).
+    pub base_color: Vec4,
+    pub base_color_texture: Option<usize>,
+    pub metallic: f32,
+    pub roughness: f32,
+    /// Emitted radiance: emissiveFactor x KHR_materials_emissive_strength.
+    pub emissive: Vec3,
+    /// KHR_materials_specular specularFactor: 0 turns the dielectric specular lobe off (pure Lambert).
+    pub specular: f32,
+    /// Emission goes both ways only when the material is double-sided.
+    pub double_sided: bool,
+}
+
+impl Material {
+    pub fn lambert(name: &str, albedo: Vec3) -> Material {
+        Material {
+            name: name.into(),
+            base_color: albedo.extend(1.0),
+            base_color_texture: None,
+            metallic: 0.0,
+            roughness: 1.0,
+            emissive: Vec3::ZERO,
+            specular: 0.0,
+            double_sided: false,
+        }
+    }
+    pub fn emitter(name: &str, radiance: Vec3) -> Material {
+        Material { emissive: radiance, ..Material::lambert(name, Vec3::ZERO) }
+    }
+    pub fn glossy(name: &str, base: Vec3, metallic: f32, roughness: f32) -> Material {
+        Material { metallic, roughness, specular: 1.0, ..Material::lambert(name, base) }
+    }
+}
+
+/// An sRGB-encoded RGBA8 texture (base colour).
+#[derive(Clone, Debug)]
+pub struct Texture {
+    pub width: u32,
+    pub height: u32,
+    pub rgba8: Vec<u8>,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PunctualKind {
+    Point,
+    Spot,
+    Directional,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct PunctualLight {
+    pub kind: PunctualKind,
+    pub position: Vec3,
+    /// Direction the light points to (spot, directional).
+    pub direction: Vec3,
+    /// Colour x intensity: W/sr for point/spot, W/m^2 for directional (glTF's photometric units taken as radiometric).
+    pub intensity: Vec3,
+    pub inner_cone: f32,
+    pub outer_cone: f32,
+}
+
+/// A pinhole camera; `fov_y` in degrees.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Camera {
+    pub position: Vec3,
+    pub target: Vec3,
+    #[serde(default = "default_up")]
+    pub up: Vec3,
+    pub fov_y: f32,
+}
+
+fn default_up() -> Vec3 {
+    Vec3::Y
+}
+
+impl Camera {
+    pub fn forward(&self) -> Vec3 {
+        (self.target - self.position).try_normalize().unwrap_or(Vec3::NEG_Z)
+    }
+    /// Right and up vectors, robust to `up` parallel to the view direction.
+    pub fn basis(&self) -> (Vec3, Vec3, Vec3) {
+        let f = self.forward();
+        let mut r = f.cross(self.up);
+        if r.length_squared() < 1e-10 {
+            r = f.cross(if f.y.abs() < 0.9 { Vec3::Y } else { Vec3::X });
+        }
+        let r = r.normalize();
+        (r, r.cross(f), f)
+    }
+    pub fn view_from_world(&self) -> glam::Mat4 {
+        let (_, up, f) = self.basis();
+        glam::camera::rh::view::look_to_mat4(self.position, f, up)
+    }
+    pub fn clip_from_world(&self, aspect: f32, near: f32) -> glam::Mat4 {
+        let fov = self.fov_y.clamp(0.01, 179.0).to_radians();
+        // wgpu's NDC: y up, depth in [0, 1] (the "directx" convention).
+        glam::camera::rh::proj::directx::perspective_infinite(fov, aspect, near) * self.view_from_world()
+    }
+}
+
+/// World-space triangle soup. Triangles index into the vertex arrays.
+#[derive(Clone, Debug, Default)]
+pub struct Scene {
+    pub name: String,
+    pub positions: Vec<Vec3>,
+    /// Per vertex; zero-length normals mean "use the geometric normal".
+    pub normals: Vec<Vec3>,
+    pub uvs: Vec<Vec2>,
+    pub triangles: Vec<[u32; 3]>,
+    pub triangle_material: Vec<u32>,
+    pub materials: Vec<Material>,
+    pub textures: Vec<Texture>,
+    pub lights: Vec<PunctualLight>,
+    pub camera: Option<Camera>,
+    /// Constant sky radiance seen by rays that leave the scene.
+    pub sky: Vec3,
+}
+
+impl Scene {
+    pub fn new(name: &str) -> Scene {
+        Scene { name: name.into(), ..Default::default() }
+    }
+
+    pub fn add_material(&mut self, m: Material) -> u32 {
+        self.materials.push(m);
+        self.materials.len() as u32 - 1
+    }
+
+    /// Adds a triangle with flat normals (computed from the winding) and planar UVs.
+    pub fn add_triangle(&mut self, v: [Vec3; 3], material: u32) {
+        let n = (v[1] - v[0]).cross(v[2] - v[0]).normalize_or_zero();
+        let base = self.positions.len() as u32;
+        for (i, p) in v.iter().enumerate() {
+            self.positions.push(*p);
+            self.normals.push(n);
+            self.uvs.push([Vec2::ZERO, Vec2::X, Vec2::Y][i]);
+        }
+        self.triangles.push([base, base + 1, base + 2]);
+        self.triangle_material.push(material);
+    }
+
+    /// Quad a-b-c-d (counter-clockwise seen from the side the normal faces).
+    pub fn add_quad(&mut self, a: Vec3, b: Vec3, c: Vec3, d: Vec3, material: u32) {
+        self.add_triangle([a, b, c], material);
+        self.add_triangle([a, c, d], material);
+    }
+
+    /// Axis-aligned-then-transformed box given by 8 corners; faces wound outward.
+    pub fn add_box(&mut self, corners: [Vec3; 8], material: u32) {
+        // corners: bottom 0..4 (ccw seen from above), top 4..8 above them.
+        let [b0, b1, b2, b3, t0, t1, t2, t3] = corners;
+        self.add_quad(t0, t1, t2, t3, material); // top, faces +y when bottom ring is ccw from above
+        self.add_quad(b0, b3, b2, b1, material); // bottom
+        self.add_quad(b0, b1, t1, t0, material);
+        self.add_quad(b1, b2, t2, t1, material);
+        self.add_quad(b2, b3, t3, t2, material);
+        self.add_quad(b3, b0, t0, t3, material);
+    }
+
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        let mut lo = Vec3::splat(f32::MAX);
+        let mut hi = Vec3::splat(f32::MIN);
+        for t in &self.triangles {
+            for &i in t {
+                lo = lo.min(self.positions[i as usize]);
+                hi = hi.max(self.positions[i as usize]);
+            }
+        }
+        if lo.x > hi.x {
+            (Vec3::ZERO, Vec3::ZERO)
+        } else {
+            (lo, hi)
+        }
+    }
+
+    /// A camera that frames the whole scene when neither the file nor the preset gives one.
+    pub fn default_camera(&self) -> Camera {
+        if let Some(c) = self.camera {
+            return c;
+        }
+        let (lo, hi) = self.bounds();
+        let center = (lo + hi) * 0.5;
+        let radius = ((hi - lo).length() * 0.5).max(1e-3);
+        Camera { position: center + Vec3::new(0.0, 0.3, 1.0).normalize() * radius * 2.2, target: center, up: Vec3::Y, fov_y: 45.0 }
+    }
+
+    /// Checks internal consistency; loaders call it so bad data never reaches the GPU.
+    pub fn validate(&self) -> Result<()> {
+        let nv = self.positions.len();
+        anyhow::ensure!(self.triangles.len() < bvh::MAX_TRIANGLES, "{} triangles exceed the limit of {}", self.triangles.len(), bvh::MAX_TRIANGLES);
+        anyhow::ensure!(self.normals.len() == nv && self.uvs.len() == nv, "vertex attribute arrays differ in length");
+        anyhow::ensure!(self.triangle_material.len() == self.triangles.len(), "one material per triangle expected");
+        for (i, t) in self.triangles.iter().enumerate() {
+            anyhow::ensure!(t.iter().all(|&v| (v as usize) < nv), "triangle {i} indexes a vertex out of range");
+            anyhow::ensure!((self.triangle_material[i] as usize) < self.materials.len(), "triangle {i} has no material");
+        }
+        for p in &self.positions {
+            anyhow::ensure!(p.is_finite(), "vertex position is not finite");
+        }
+        for m in &self.materials {
+            if let Some(t) = m.base_color_texture {
+                anyhow::ensure!(t < self.textures.len(), "material '{}' references a missing texture", m.name);
+            }
+        }
+        Ok(())
+    }
+}

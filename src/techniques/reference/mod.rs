@@ -1,0 +1,153 @@
+//! # Reference path tracer (`reference`)
+//!
+//! The ground truth every other technique is measured against. Progressive and unbiased:
+//! each frame adds `samples_per_frame` paths per pixel, averaged with Welford's update so the
+//! mean and per-pixel variance stay accurate in float32 over many thousands of samples.
+//!
+//! Per path vertex: emission (MIS-weighted after non-delta bounces), next-event estimation of
+//! one light picked power-proportionally from emissive triangles and punctual lights (power
+//! heuristic against BSDF sampling), a BSDF sample (GGX visible normals or cosine), and
+//! Russian roulette from the third bounce. `max_depth` 0 means unbounded (roulette only).
+//! Shader: shaders/reference/path_trace.wgsl.
+
+use crate::gpu::{timing::PassTimer, Gpu};
+use crate::render::{pipelines, PassInfo, RenderContext, Technique};
+use crate::scene::features::SceneFeatures;
+use anyhow::{bail, Result};
+
+pub struct ReferencePathTracer {
+    /// Paths per pixel per frame. Higher: fewer frames to converge, longer frames.
+    pub samples_per_frame: u32,
+    /// Maximum bounces; 0 = unbounded (Russian roulette only), the unbiased default.
+    pub max_depth: u32,
+    pipeline: Option<wgpu::ComputePipeline>,
+    bind_group: Option<wgpu::BindGroup>,
+    mean: Option<wgpu::Buffer>,
+    m2: Option<wgpu::Buffer>,
+    extent: [u32; 2],
+}
+
+impl Default for ReferencePathTracer {
+    fn default() -> Self {
+        ReferencePathTracer { samples_per_frame: 1, max_depth: 0, pipeline: None, bind_group: None, mean: None, m2: None, extent: [0, 0] }
+    }
+}
+
+impl Technique for ReferencePathTracer {
+    fn id(&self) -> &'static str {
+        "reference"
+    }
+
+    fn passes(&self, f: &SceneFeatures) -> Vec<PassInfo> {
+        let mut v = vec![PassInfo { name: "path_trace", runs: true, why: "one kernel traces camera, shadow and bounce rays".into() }];
+        v.push(PassInfo {
+            name: "nee: emissive triangles",
+            runs: f.has_emissive(),
+            why: if f.has_emissive() {
+                format!("{} emissive triangles in the light pool", f.emissive_triangle_count)
+            } else {
+                "no emissive triangles".into()
+            },
+        });
+        v.push(PassInfo {
+            name: "nee: punctual lights",
+            runs: f.has_punctual(),
+            why: if f.has_punctual() { "punctual lights in the light pool".into() } else { "no punctual lights".into() },
+        });
+        v.push(PassInfo {
+            name: "sky",
+            runs: f.sky_visible,
+            why: if f.sky_visible { "sky radiance reachable from the camera".into() } else { "sky black or enclosed".into() },
+        });
+        v.push(PassInfo { name: "gbuffer", runs: false, why: "traces its own jittered camera rays for antialiasing".into() });
+        v
+    }
+
+    fn build(&mut self, ctx: &RenderContext) -> Result<()> {
+        let gpu = ctx.gpu;
+        let mut entries = ctx.frame_layout_entries.to_vec();
+        entries.push(pipelines::storage_entry(2, false));
+        entries.push(pipelines::storage_entry(3, false));
+        let layout = gpu.device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("reference"), entries: &entries });
+        // Build everything first so a failure leaves the previous pipeline in place.
+        let pipeline = pipelines::compute_pipeline(gpu, ctx.shaders, "reference/path_trace.wgsl", &[&ctx.scene.layout, &layout])?;
+        let pixels = (ctx.extent[0] * ctx.extent[1]) as u64;
+        let (mean, m2) = if self.extent == ctx.extent && self.mean.is_some() {
+            (self.mean.take().expect("checked"), self.m2.take().expect("checked"))
+        } else {
+            (pipelines::storage_buffer(gpu, "reference mean", pixels * 16), pipelines::storage_buffer(gpu, "reference m2", pixels * 16))
+        };
+        let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("reference"),
+            layout: &layout,
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: ctx.uniforms.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: ctx.counters.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 2, resource: mean.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 3, resource: m2.as_entire_binding() },
+            ],
+        });
+        self.pipeline = Some(pipeline);
+        self.bind_group = Some(bind_group);
+        self.mean = Some(mean);
+        self.m2 = Some(m2);
+        self.extent = ctx.extent;
+        Ok(())
+    }
+
+    fn reset_history(&mut self, gpu: &Gpu) {
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        for b in [&self.mean, &self.m2].into_iter().flatten() {
+            enc.clear_buffer(b, 0, None);
+        }
+        gpu.queue.submit([enc.finish()]);
+    }
+
+    fn samples_per_frame(&self) -> u32 {
+        self.samples_per_frame
+    }
+
+    fn max_depth(&self) -> u32 {
+        self.max_depth
+    }
+
+    fn render(&mut self, ctx: &RenderContext, enc: &mut wgpu::CommandEncoder, timer: &mut PassTimer) {
+        let (Some(pipeline), Some(bg)) = (&self.pipeline, &self.bind_group) else { return };
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("reference path_trace"),
+            timestamp_writes: timer.compute_pass("path_trace"),
+        });
+        pass.set_pipeline(pipeline);
+        pass.set_bind_group(0, &ctx.scene.bind_group, &[]);
+        pass.set_bind_group(1, bg, &[]);
+        pass.dispatch_workgroups(ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1);
+    }
+
+    fn output(&self) -> &wgpu::Buffer {
+        self.mean.as_ref().expect("reference technique used before build()")
+    }
+
+    fn variance_m2(&self) -> Option<&wgpu::Buffer> {
+        self.m2.as_ref()
+    }
+
+    fn params(&self) -> toml::Table {
+        let mut t = toml::Table::new();
+        t.insert("samples_per_frame".into(), (self.samples_per_frame as i64).into());
+        t.insert("max_depth".into(), (self.max_depth as i64).into());
+        t
+    }
+
+    fn set_params(&mut self, params: &toml::Table) -> Result<()> {
+        for (k, v) in params {
+            let n = v.as_integer().filter(|n| *n >= 0 && *n <= u32::MAX as i64);
+            match (k.as_str(), n) {
+                ("samples_per_frame", Some(n)) if n >= 1 => self.samples_per_frame = n as u32,
+                ("max_depth", Some(n)) => self.max_depth = n as u32,
+                ("samples_per_frame" | "max_depth", _) => bail!("reference: parameter '{k}' must be a non-negative integer (samples_per_frame >= 1), got {v}"),
+                _ => bail!("reference has no parameter '{k}' (known: samples_per_frame, max_depth)"),
+            }
+        }
+        Ok(())
+    }
+}
