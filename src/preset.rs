@@ -76,18 +76,28 @@ fn default_spp() -> u32 {
     64
 }
 fn default_techniques() -> Vec<TechniqueEntry> {
-    vec![TechniqueEntry { name: "reference".into(), params: toml::Table::new() }]
+    vec![TechniqueEntry {
+        name: "reference".into(),
+        params: toml::Table::new(),
+    }]
 }
 
 impl Default for RenderSettings {
     fn default() -> Self {
-        RenderSettings { size: default_size(), seed: default_seed(), spp: default_spp() }
+        RenderSettings {
+            size: default_size(),
+            seed: default_seed(),
+            spp: default_spp(),
+        }
     }
 }
 
 impl Default for TonemapSettings {
     fn default() -> Self {
-        TonemapSettings { operator: Operator::Aces, exposure: 0.0 }
+        TonemapSettings {
+            operator: Operator::Aces,
+            exposure: 0.0,
+        }
     }
 }
 
@@ -133,7 +143,10 @@ fn toml_error(path: &str, text: &str, e: &toml::de::Error) -> anyhow::Error {
         Some(span) => {
             let before = &text[..span.start.min(text.len())];
             let line = before.matches('\n').count() + 1;
-            let col = before.rfind('\n').map_or(before.chars().count(), |i| before[i + 1..].chars().count()) + 1;
+            let col = before
+                .rfind('\n')
+                .map_or(before.chars().count(), |i| before[i + 1..].chars().count())
+                + 1;
             anyhow!("{path}:{line}:{col}: {msg}")
         }
         None => anyhow!("{path}: {msg}"),
@@ -142,13 +155,20 @@ fn toml_error(path: &str, text: &str, e: &toml::de::Error) -> anyhow::Error {
 
 impl LoadedPreset {
     pub fn from_text(text: &str, path: Option<&Path>) -> Result<LoadedPreset> {
-        let label = path.map_or("<built-in default preset>".to_string(), |p| p.display().to_string());
+        let label = path.map_or("<built-in default preset>".to_string(), |p| {
+            p.display().to_string()
+        });
         let preset: Preset = toml::from_str(text).map_err(|e| toml_error(&label, text, &e))?;
-        Ok(LoadedPreset { preset, path: path.map(Path::to_path_buf), text: text.to_string() })
+        Ok(LoadedPreset {
+            preset,
+            path: path.map(Path::to_path_buf),
+            text: text.to_string(),
+        })
     }
 
     pub fn load(path: &Path) -> Result<LoadedPreset> {
-        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read preset {}", path.display()))?;
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read preset {}", path.display()))?;
         Self::from_text(&text, Some(path))
     }
 
@@ -170,19 +190,33 @@ impl LoadedPreset {
             }
             // Relative to where the user typed it, not to the preset.
             let p = Path::new(s);
-            if !builtin::is_builtin(s) && p.is_relative() {
+            if !builtin::is_builtin(s)
+                && p.is_relative()
+                && (p.extension().is_some() || p.components().count() > 1)
+            {
                 let abs = std::env::current_dir()?.join(p);
-                set_path(&mut doc, "scene.source", toml::Value::String(abs.display().to_string()))?;
+                set_path(
+                    &mut doc,
+                    "scene.source",
+                    toml::Value::String(abs.display().to_string()),
+                )?;
             }
         }
         if let Some(t) = &o.technique {
             let mut entry = toml::Table::new();
             entry.insert("name".into(), toml::Value::String(t.clone()));
-            doc.insert("techniques".into(), toml::Value::Array(vec![toml::Value::Table(entry)]));
+            doc.insert(
+                "techniques".into(),
+                toml::Value::Array(vec![toml::Value::Table(entry)]),
+            );
         }
         if let Some(size) = &o.size {
             let [w, h] = parse_size(size)?;
-            set_path(&mut doc, "render.size", toml::Value::Array(vec![(w as i64).into(), (h as i64).into()]))?;
+            set_path(
+                &mut doc,
+                "render.size",
+                toml::Value::Array(vec![(w as i64).into(), (h as i64).into()]),
+            )?;
         }
         if let Some(spp) = o.spp {
             set_path(&mut doc, "render.spp", (spp as i64).into())?;
@@ -191,7 +225,9 @@ impl LoadedPreset {
             set_path(&mut doc, "render.seed", (seed as i64).into())?;
         }
         for kv in &o.set {
-            let (k, v) = kv.split_once('=').ok_or_else(|| anyhow!("--set {kv}: expected KEY=VALUE"))?;
+            let (k, v) = kv
+                .split_once('=')
+                .ok_or_else(|| anyhow!("--set {kv}: expected KEY=VALUE"))?;
             let value = parse_value(v.trim());
             let k = k.trim();
             let top = k.split('.').next().unwrap_or("");
@@ -200,7 +236,9 @@ impl LoadedPreset {
             } else if let Some(toml::Value::Array(list)) = doc.get_mut("techniques") {
                 for t in list.iter_mut() {
                     if let toml::Value::Table(t) = t {
-                        let params = t.entry("params").or_insert_with(|| toml::Value::Table(Default::default()));
+                        let params = t
+                            .entry("params")
+                            .or_insert_with(|| toml::Value::Table(Default::default()));
                         if let toml::Value::Table(p) = params {
                             p.insert(k.to_string(), value.clone());
                         }
@@ -208,7 +246,12 @@ impl LoadedPreset {
                 }
             }
         }
-        self.preset = doc.try_into().map_err(|e: toml::de::Error| anyhow!("preset after command-line overrides: {}", e.message().replace('\n', " ")))?;
+        self.preset = doc.try_into().map_err(|e: toml::de::Error| {
+            anyhow!(
+                "preset after command-line overrides: {}",
+                e.message().replace('\n', " ")
+            )
+        })?;
         Ok(())
     }
 
@@ -223,16 +266,26 @@ impl LoadedPreset {
             (Some(preset_path), true) => preset_path.parent().unwrap_or(Path::new(".")).join(p),
             _ => p.to_path_buf(),
         };
-        let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .unwrap_or("")
+            .to_ascii_lowercase();
         if ext != "gltf" && ext != "glb" {
             if !path.exists() {
                 // Most likely a misspelt built-in name.
                 return builtin::build(src, &self.preset.scene.params);
             }
-            bail!("{}: unsupported scene format (expected .gltf or .glb)", path.display());
+            bail!(
+                "{}: unsupported scene format (expected .gltf or .glb)",
+                path.display()
+            );
         }
         if !self.preset.scene.params.is_empty() {
-            bail!("scene.params is only for built-in scenes, not {}", path.display());
+            bail!(
+                "scene.params is only for built-in scenes, not {}",
+                path.display()
+            );
         }
         gltf_load::load(&path)
     }
@@ -247,7 +300,12 @@ impl LoadedPreset {
 }
 
 pub fn parse_size(s: &str) -> Result<[u32; 2]> {
-    let parse = |v: &str| v.trim().parse::<u32>().ok().filter(|n| (1..=16384).contains(n));
+    let parse = |v: &str| {
+        v.trim()
+            .parse::<u32>()
+            .ok()
+            .filter(|n| (1..=16384).contains(n))
+    };
     let size = match s.split_once(['x', 'X']) {
         Some((w, h)) => parse(w).zip(parse(h)).map(|(w, h)| [w, h]),
         None => parse(s).map(|n| [n, n]),
@@ -271,14 +329,20 @@ fn set_path(doc: &mut toml::Table, key: &str, value: toml::Value) -> Result<()> 
             cur.insert(part.to_string(), value);
             return Ok(());
         }
-        let next = cur.entry(part.to_string()).or_insert_with(|| toml::Value::Table(Default::default()));
+        let next = cur
+            .entry(part.to_string())
+            .or_insert_with(|| toml::Value::Table(Default::default()));
         cur = match next {
             toml::Value::Table(t) => t,
             toml::Value::Array(a) => {
                 // `techniques.0.params.x`: index into the array.
-                let idx: usize = parts[i + 1].parse().map_err(|_| anyhow!("'{part}' is a list: use {part}.N"))?;
+                let idx: usize = parts[i + 1]
+                    .parse()
+                    .map_err(|_| anyhow!("'{part}' is a list: use {part}.N"))?;
                 let rest = parts[i + 2..].join(".");
-                let item = a.get_mut(idx).ok_or_else(|| anyhow!("{part}.{idx} does not exist"))?;
+                let item = a
+                    .get_mut(idx)
+                    .ok_or_else(|| anyhow!("{part}.{idx} does not exist"))?;
                 return match item {
                     toml::Value::Table(t) if !rest.is_empty() => set_path(t, &rest, value),
                     _ => {

@@ -10,6 +10,12 @@
 #import gilab::lights::{sample_light, triangle_emission, triangle_light_pdf}
 #import gilab::sampling::power_heuristic
 
+// Which sample of the frame this dispatch traces (one path per invocation per dispatch).
+struct DispatchSample {
+    index: u32,
+}
+@group(1) @binding(4) var<uniform> dispatch_sample: DispatchSample;
+
 // Per pixel: xyz = running mean radiance, w = sample count.
 @group(1) @binding(2) var<storage, read_write> accum_mean: array<vec4<f32>>;
 // Per pixel: xyz = Welford M2 (sum of squared deviations) per channel.
@@ -20,7 +26,17 @@
 const SAFETY_MAX_BOUNCES: u32 = 1024u;
 const RR_START_DEPTH: u32 = 3u;
 
-fn trace_path(pixel: vec2<u32>, sample_index: u32, counts: ptr<function, array<u32, 8>>) -> vec3<f32> {
+struct PathResult {
+    radiance: vec3<f32>,
+    camera_rays: u32,
+    shadow_rays: u32,
+    indirect_rays: u32,
+}
+
+fn trace_path(pixel: vec2<u32>, sample_index: u32) -> PathResult {
+    var camera_rays = 0u;
+    var shadow_rays = 0u;
+    var indirect_rays = 0u;
     var rng = rng_init(pixel, sample_index, frame.seed);
     let jitter = rand_pair(&rng);
     var origin = frame.camera_pos.xyz;
@@ -33,9 +49,9 @@ fn trace_path(pixel: vec2<u32>, sample_index: u32, counts: ptr<function, array<u
     for (var depth = 0u; depth <= max_bounces; depth++) {
         let hit = trace_closest(origin, dir, 0.0, 1e30);
         if depth == 0u {
-            (*counts)[RAY_CAMERA] += 1u;
+            camera_rays += 1u;
         } else {
-            (*counts)[RAY_INDIRECT] += 1u;
+            indirect_rays += 1u;
         }
         if hit.tri == NO_HIT {
             radiance += throughput * frame.sky.xyz;
@@ -65,7 +81,7 @@ fn trace_path(pixel: vec2<u32>, sample_index: u32, counts: ptr<function, array<u
                 if any(e.f > vec3<f32>(0.0)) {
                     let p = offset_ray_origin(surf.position, surf.geo_normal);
                     let t_max = select(ls.dist * (1.0 - 1e-4), 1e30, ls.is_delta && ls.dist >= 1e30);
-                    (*counts)[RAY_SHADOW] += 1u;
+                    shadow_rays += 1u;
                     if !trace_any(p, ls.wi, 0.0, t_max) {
                         let w = select(power_heuristic(ls.pdf, e.pdf), 1.0, ls.is_delta);
                         radiance += throughput * e.f * dot(surf.normal, ls.wi) * ls.radiance * (w / ls.pdf);
@@ -92,32 +108,33 @@ fn trace_path(pixel: vec2<u32>, sample_index: u32, counts: ptr<function, array<u
             throughput /= q;
         }
     }
-    return radiance;
+    return PathResult(radiance, camera_rays, shadow_rays, indirect_rays);
 }
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
+    // One path per invocation: the frame's samples are separate dispatches. Tracing several
+    // paths in a loop inside one invocation came out biased on lavapipe (Mesa 22.3): paths after
+    // the first were cut short (the white furnace at albedo 0.95 lost 8%); see the README.
     var counts = array<u32, 8>(0u, 0u, 0u, 0u, 0u, 0u, 0u, 0u);
-    let inside = gid.x < frame.size.x && gid.y < frame.size.y;
-    if inside {
+    if gid.x < frame.size.x && gid.y < frame.size.y {
         let idx = gid.y * frame.size.x + gid.x;
-        var mean = accum_mean[idx];
-        var m2 = accum_m2[idx];
-        for (var s = 0u; s < frame.samples_per_frame; s++) {
-            let l = trace_path(gid.xy, frame.sample_offset + s, &counts);
-            if !is_finite_vec(l) {
-                counts[COUNT_INVALID_SAMPLES] += 1u;
-                continue;
-            }
+        let path = trace_path(gid.xy, frame.sample_offset + dispatch_sample.index);
+        counts[RAY_CAMERA] = path.camera_rays;
+        counts[RAY_SHADOW] = path.shadow_rays;
+        counts[RAY_INDIRECT] = path.indirect_rays;
+        let l = path.radiance;
+        if is_finite_vec(l) {
             // Welford's update: numerically stable mean and M2 in float32.
+            let mean = accum_mean[idx];
             let n = mean.w + 1.0;
             let delta = l - mean.xyz;
             let new_mean = mean.xyz + delta / n;
-            m2 = vec4<f32>(m2.xyz + delta * (l - new_mean), 0.0);
-            mean = vec4<f32>(new_mean, n);
+            accum_m2[idx] = vec4<f32>(accum_m2[idx].xyz + delta * (l - new_mean), 0.0);
+            accum_mean[idx] = vec4<f32>(new_mean, n);
+        } else {
+            counts[COUNT_INVALID_SAMPLES] = 1u;
         }
-        accum_mean[idx] = mean;
-        accum_m2[idx] = m2;
     }
     flush_counts(local_index, counts);
 }

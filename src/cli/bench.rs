@@ -2,7 +2,10 @@
 //! technique's) and reference path tracer ms/frame, per scene. Prints numbers; asserts nothing.
 
 use crate::gpu::{shaders::ShaderLibrary, timing::PassTimer, Gpu};
-use crate::render::{create_technique, engine::Engine, engine::EngineSettings, pipelines, PassInfo, RenderContext, Technique};
+use crate::render::{
+    create_technique, engine::Engine, engine::EngineSettings, pipelines, PassInfo, RenderContext,
+    Technique,
+};
 use crate::scene::{builtin, features::SceneFeatures};
 use anyhow::Result;
 use std::sync::Arc;
@@ -19,23 +22,55 @@ impl Technique for TraceBench {
         "bench-trace"
     }
     fn passes(&self, _: &SceneFeatures) -> Vec<PassInfo> {
-        vec![PassInfo { name: "trace_rays", runs: true, why: "benchmark".into() }]
+        vec![PassInfo {
+            name: "trace_rays",
+            runs: true,
+            why: "benchmark".into(),
+        }]
     }
     fn build(&mut self, ctx: &RenderContext) -> Result<()> {
         let mut entries = ctx.frame_layout_entries.to_vec();
         entries.push(pipelines::storage_entry(2, false));
-        let layout = ctx.gpu.device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("bench"), entries: &entries });
-        let pipeline = pipelines::compute_pipeline(ctx.gpu, ctx.shaders, "bench/trace_rays.wgsl", &[&ctx.scene.layout, &layout])?;
-        let checksum = pipelines::storage_buffer(ctx.gpu, "bench checksum", (ctx.extent[0] * ctx.extent[1]) as u64 * 16);
-        self.bind_group = Some(ctx.gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("bench"),
-            layout: &layout,
-            entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: ctx.uniforms.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: ctx.counters.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 2, resource: checksum.as_entire_binding() },
-            ],
-        }));
+        let layout = ctx
+            .gpu
+            .device
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("bench"),
+                entries: &entries,
+            });
+        let pipeline = pipelines::compute_pipeline(
+            ctx.gpu,
+            ctx.shaders,
+            "bench/trace_rays.wgsl",
+            &[&ctx.scene.layout, &layout],
+        )?;
+        let checksum = pipelines::storage_buffer(
+            ctx.gpu,
+            "bench checksum",
+            (ctx.extent[0] * ctx.extent[1]) as u64 * 16,
+        );
+        self.bind_group = Some(
+            ctx.gpu
+                .device
+                .create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("bench"),
+                    layout: &layout,
+                    entries: &[
+                        wgpu::BindGroupEntry {
+                            binding: 0,
+                            resource: ctx.uniforms.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 1,
+                            resource: ctx.counters.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 2,
+                            resource: checksum.as_entire_binding(),
+                        },
+                    ],
+                }),
+        );
         self.pipeline = Some(pipeline);
         self.checksum = Some(checksum);
         Ok(())
@@ -44,9 +79,19 @@ impl Technique for TraceBench {
     fn samples_per_frame(&self) -> u32 {
         1
     }
-    fn render(&mut self, ctx: &RenderContext, enc: &mut wgpu::CommandEncoder, timer: &mut PassTimer) {
-        let (Some(p), Some(bg)) = (&self.pipeline, &self.bind_group) else { return };
-        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("trace_rays"), timestamp_writes: timer.compute_pass("trace_rays") });
+    fn render(
+        &mut self,
+        ctx: &RenderContext,
+        enc: &mut wgpu::CommandEncoder,
+        timer: &mut PassTimer,
+    ) {
+        let (Some(p), Some(bg)) = (&self.pipeline, &self.bind_group) else {
+            return;
+        };
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("trace_rays"),
+            timestamp_writes: timer.compute_pass("trace_rays"),
+        });
         pass.set_pipeline(p);
         pass.set_bind_group(0, &ctx.scene.bind_group, &[]);
         pass.set_bind_group(1, bg, &[]);
@@ -76,15 +121,36 @@ pub fn largest_builtin() -> Result<String> {
 }
 
 pub fn run(gpu: Arc<Gpu>, extent: [u32; 2], frames: u32, scenes: &[String]) -> Result<()> {
-    let scenes: Vec<String> = if scenes.is_empty() { vec!["cornell".into(), largest_builtin()?] } else { scenes.to_vec() };
-    println!("{:<12} {:>9} {:>12} {:>14} {:>16} {:>14}", "scene", "triangles", "size", "trace Mrays/s", "reference ms/fr", "ref rays/px/fr");
+    let scenes: Vec<String> = if scenes.is_empty() {
+        vec!["cornell".into(), largest_builtin()?]
+    } else {
+        scenes.to_vec()
+    };
+    println!(
+        "{:<12} {:>9} {:>12} {:>14} {:>16} {:>14}",
+        "scene", "triangles", "size", "trace Mrays/s", "reference ms/fr", "ref rays/px/fr"
+    );
     for name in scenes {
         let scene = builtin::build(&name, &toml::Table::new())?;
         let camera = scene.default_camera();
         let tris = scene.triangles.len();
-        let settings = || EngineSettings { extent, seed: 1, camera };
-        let bench = Box::new(TraceBench { pipeline: None, bind_group: None, checksum: None });
-        let mut e = Engine::new(gpu.clone(), ShaderLibrary::discover(), scene.clone(), bench, settings())?;
+        let settings = || EngineSettings {
+            extent,
+            seed: 1,
+            camera,
+        };
+        let bench = Box::new(TraceBench {
+            pipeline: None,
+            bind_group: None,
+            checksum: None,
+        });
+        let mut e = Engine::new(
+            gpu.clone(),
+            ShaderLibrary::discover(),
+            scene.clone(),
+            bench,
+            settings(),
+        )?;
         e.render_frame()?;
         e.reset();
         for _ in 0..frames {
@@ -95,7 +161,13 @@ pub fn run(gpu: Arc<Gpu>, extent: [u32; 2], frames: u32, scenes: &[String]) -> R
 
         let mut reference = create_technique("reference")?;
         reference.set_params(&toml::toml! { samples_per_frame = 1 })?;
-        let mut e = Engine::new(gpu.clone(), ShaderLibrary::discover(), scene, reference, settings())?;
+        let mut e = Engine::new(
+            gpu.clone(),
+            ShaderLibrary::discover(),
+            scene,
+            reference,
+            settings(),
+        )?;
         e.render_frame()?;
         e.reset();
         for _ in 0..frames {
@@ -103,8 +175,23 @@ pub fn run(gpu: Arc<Gpu>, extent: [u32; 2], frames: u32, scenes: &[String]) -> R
         }
         let ms = e.total_gpu_ms / frames as f64;
         let rpp = e.ray_counts()?.total() as f64 / (extent[0] * extent[1]) as f64 / frames as f64;
-        println!("{:<12} {:>9} {:>12} {:>14.2} {:>16.2} {:>14.2}", name, tris, format!("{}x{}", extent[0], extent[1]), mrays, ms, rpp);
+        println!(
+            "{:<12} {:>9} {:>12} {:>14.2} {:>16.2} {:>14.2}",
+            name,
+            tris,
+            format!("{}x{}", extent[0], extent[1]),
+            mrays,
+            ms,
+            rpp
+        );
     }
-    println!("(GPU time from timestamp queries: {})", if gpu.timestamp_period.is_some() { "yes" } else { "no, wall time" });
+    println!(
+        "(GPU time from timestamp queries: {})",
+        if gpu.timestamp_period.is_some() {
+            "yes"
+        } else {
+            "no, wall time"
+        }
+    );
     Ok(())
 }

@@ -12,7 +12,11 @@ use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 
 #[derive(Parser, Debug)]
-#[command(name = "gilab", version, about = "Real-time global illumination research sandbox")]
+#[command(
+    name = "gilab",
+    version,
+    about = "Real-time global illumination research sandbox"
+)]
 pub struct Cli {
     /// GPU backend: auto (Vulkan, else GL), vulkan or gl. Also GILAB_BACKEND.
     #[arg(long, global = true, default_value = "auto")]
@@ -72,14 +76,24 @@ pub fn run(cli: Cli) -> Result<()> {
             println!("\nThe interactive viewer is not built yet; render headless with `gilab shot [PRESET]`.");
             Ok(())
         }
-        Some(Command::Shot { preset, out, verbose, overrides }) => {
+        Some(Command::Shot {
+            preset,
+            out,
+            verbose,
+            overrides,
+        }) => {
             let mut p = LoadedPreset::load_or_default(preset.as_deref())?;
             p.apply(&overrides)?;
             let gpu = std::sync::Arc::new(Gpu::new(cli.backend)?);
             println!("adapter: {}", gpu.summary);
             render_job::shot(gpu, &p, &out, verbose)
         }
-        Some(Command::Reference { preset, cache, force, overrides }) => {
+        Some(Command::Reference {
+            preset,
+            cache,
+            force,
+            overrides,
+        }) => {
             let mut p = LoadedPreset::load_or_default(preset.as_deref())?;
             p.apply(&overrides)?;
             let gpu = std::sync::Arc::new(Gpu::new(cli.backend)?);
@@ -92,13 +106,25 @@ pub fn run(cli: Cli) -> Result<()> {
             let a = io::read_exr(&image)?;
             let b = io::read_exr(&reference)?;
             let m = metrics::compare(&a, &b)?;
-            println!("MSE {:.6e}  relMSE {:.6e}  SMAPE {:.6e}", m.mse, m.rel_mse, m.smape);
+            println!(
+                "MSE {:.6e}  relMSE {:.6e}  SMAPE {:.6e}",
+                m.mse, m.rel_mse, m.smape
+            );
             Ok(())
         }
-        Some(Command::Bench { size, frames, scene }) => {
+        Some(Command::Bench {
+            size,
+            frames,
+            scene,
+        }) => {
             let gpu = std::sync::Arc::new(Gpu::new(cli.backend)?);
             println!("adapter: {}", gpu.summary);
-            bench::run(gpu, crate::preset::parse_size(&size)?, frames.max(1), &scene)
+            bench::run(
+                gpu,
+                crate::preset::parse_size(&size)?,
+                frames.max(1),
+                &scene,
+            )
         }
     }
 }

@@ -4,7 +4,9 @@
 use crate::compare::{io, Image};
 use crate::gpu::{shaders::ShaderLibrary, Gpu};
 use crate::preset::LoadedPreset;
-use crate::render::{create_technique, engine::Engine, engine::EngineSettings, PassInfo, RayCounts};
+use crate::render::{
+    create_technique, engine::Engine, engine::EngineSettings, PassInfo, RayCounts,
+};
 use crate::scene::features::SceneFeatures;
 use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -40,23 +42,44 @@ pub struct ShotMetadata {
 }
 
 /// Renders one technique of a preset for `spp` samples; returns the image and its metadata.
-pub fn render_technique(gpu: Arc<Gpu>, p: &LoadedPreset, index: usize, quiet: bool) -> Result<(Image, ShotMetadata)> {
+pub fn render_technique(
+    gpu: Arc<Gpu>,
+    p: &LoadedPreset,
+    index: usize,
+    quiet: bool,
+) -> Result<(Image, ShotMetadata)> {
     let preset = &p.preset;
     let entry = &preset.techniques[index];
     let scene = p.load_scene()?;
     let camera = p.camera(&scene);
     let mut technique = create_technique(&entry.name)?;
     technique.set_params(&entry.params)?;
-    let settings = EngineSettings { extent: preset.render.size, seed: preset.render.seed, camera };
+    let settings = EngineSettings {
+        extent: preset.render.size,
+        seed: preset.render.seed,
+        camera,
+    };
     let scene_name = scene.name.clone();
-    let mut engine = Engine::new(gpu.clone(), ShaderLibrary::discover(), scene, technique, settings)?;
+    let mut engine = Engine::new(
+        gpu.clone(),
+        ShaderLibrary::discover(),
+        scene,
+        technique,
+        settings,
+    )?;
     let spf = engine.technique.samples_per_frame().max(1);
     let frames = preset.render.spp.div_ceil(spf).max(1);
-    let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(frames as u64) };
+    let bar = if quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(frames as u64)
+    };
     bar.set_style(
-        ProgressStyle::with_template("{prefix:>10} [{bar:30}] {pos}/{len} frames {elapsed_precise} eta {eta}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
+        ProgressStyle::with_template(
+            "{prefix:>10} [{bar:30}] {pos}/{len} frames {elapsed_precise} eta {eta}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
     );
     bar.set_prefix(entry.name.clone());
     let mut by_pass = std::collections::BTreeMap::new();
@@ -85,7 +108,11 @@ pub fn render_technique(gpu: Arc<Gpu>, p: &LoadedPreset, index: usize, quiet: bo
         spp: engine.samples,
         frames,
         rays,
-        rays_by_kind: rays.named().into_iter().map(|(k, v)| (k.to_string(), v)).collect(),
+        rays_by_kind: rays
+            .named()
+            .into_iter()
+            .map(|(k, v)| (k.to_string(), v))
+            .collect(),
         rays_per_pixel: rays.total() as f64 / pixels,
         gpu_ms_total: engine.total_gpu_ms,
         gpu_ms_per_frame: engine.total_gpu_ms / frames as f64,
@@ -99,17 +126,31 @@ pub fn render_technique(gpu: Arc<Gpu>, p: &LoadedPreset, index: usize, quiet: bo
 }
 
 fn preset_stem(p: &LoadedPreset) -> String {
-    p.path
-        .as_ref()
-        .and_then(|p| p.file_stem())
-        .map_or_else(|| "default".to_string(), |s| s.to_string_lossy().to_string())
+    p.path.as_ref().and_then(|p| p.file_stem()).map_or_else(
+        || "default".to_string(),
+        |s| s.to_string_lossy().to_string(),
+    )
 }
 
-pub fn write_outputs(dir: &Path, stem: &str, image: &Image, meta: &ShotMetadata, p: &LoadedPreset) -> Result<()> {
+pub fn write_outputs(
+    dir: &Path,
+    stem: &str,
+    image: &Image,
+    meta: &ShotMetadata,
+    p: &LoadedPreset,
+) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    io::write_png(&dir.join(format!("{stem}.png")), image, p.preset.tonemap.operator, p.preset.tonemap.exposure)?;
+    io::write_png(
+        &dir.join(format!("{stem}.png")),
+        image,
+        p.preset.tonemap.operator,
+        p.preset.tonemap.exposure,
+    )?;
     io::write_exr(&dir.join(format!("{stem}.exr")), image)?;
-    std::fs::write(dir.join(format!("{stem}.json")), serde_json::to_string_pretty(meta)?)?;
+    std::fs::write(
+        dir.join(format!("{stem}.json")),
+        serde_json::to_string_pretty(meta)?,
+    )?;
     Ok(())
 }
 
@@ -122,11 +163,21 @@ pub fn shot(gpu: Arc<Gpu>, p: &LoadedPreset, out: &Path, verbose: bool) -> Resul
         }
         if verbose {
             for pass in &meta.passes {
-                println!("  {:<10} {:<26} {:<4} {}", meta.technique, pass.name, if pass.runs { "runs" } else { "skip" }, pass.why);
+                println!(
+                    "  {:<10} {:<26} {:<4} {}",
+                    meta.technique,
+                    pass.name,
+                    if pass.runs { "runs" } else { "skip" },
+                    pass.why
+                );
             }
         }
         write_outputs(&dir, &meta.technique, &image, &meta, p)?;
-        let per_pass: Vec<String> = meta.gpu_ms_by_pass.iter().map(|(k, v)| format!("{k} {v:.2} ms")).collect();
+        let per_pass: Vec<String> = meta
+            .gpu_ms_by_pass
+            .iter()
+            .map(|(k, v)| format!("{k} {v:.2} ms"))
+            .collect();
         println!(
             "{}: {}x{} {} spp, {:.2} rays/pixel, {:.1} ms GPU/frame ({}), mean radiance [{:.4}, {:.4}, {:.4}], non-finite pixels {} -> {}",
             meta.technique,
@@ -151,7 +202,13 @@ pub fn reference_key(p: &LoadedPreset) -> Result<String> {
     use std::hash::Hasher;
     let scene = p.load_scene()?;
     let camera = p.camera(&scene);
-    let params = p.preset.techniques.iter().find(|t| t.name == "reference").map(|t| t.params.clone()).unwrap_or_default();
+    let params = p
+        .preset
+        .techniques
+        .iter()
+        .find(|t| t.name == "reference")
+        .map(|t| t.params.clone())
+        .unwrap_or_default();
     let canonical = serde_json::json!({
         "scene": p.preset.scene.source,
         "scene_params": p.preset.scene.params,
@@ -169,8 +226,17 @@ pub fn reference_key(p: &LoadedPreset) -> Result<String> {
 pub fn reference(gpu: Arc<Gpu>, p: &LoadedPreset, cache: &Path, force: bool) -> Result<PathBuf> {
     let mut p = p.clone();
     // Only the reference technique renders a reference, whatever the preset lists.
-    let params = p.preset.techniques.iter().find(|t| t.name == "reference").map(|t| t.params.clone()).unwrap_or_default();
-    p.preset.techniques = vec![crate::preset::TechniqueEntry { name: "reference".into(), params }];
+    let params = p
+        .preset
+        .techniques
+        .iter()
+        .find(|t| t.name == "reference")
+        .map(|t| t.params.clone())
+        .unwrap_or_default();
+    p.preset.techniques = vec![crate::preset::TechniqueEntry {
+        name: "reference".into(),
+        params,
+    }];
     let key = reference_key(&p)?;
     let path = cache.join(format!("{key}.exr"));
     if path.exists() && !force {

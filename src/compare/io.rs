@@ -30,13 +30,23 @@ pub fn read_exr(path: &Path) -> Result<HdrImage> {
     Ok(image.layer_data.channel_data.pixels)
 }
 
-pub fn write_png(path: &Path, img: &HdrImage, op: tonemap::Operator, exposure_ev: f32) -> Result<()> {
+pub fn write_png(
+    path: &Path,
+    img: &HdrImage,
+    op: tonemap::Operator,
+    exposure_ev: f32,
+) -> Result<()> {
     let rgba = tonemap::to_srgb8(img, op, exposure_ev);
     write_png_rgba(path, img.width, img.height, rgba)
 }
 
 pub fn write_png_rgba(path: &Path, width: u32, height: u32, rgba: Vec<u8>) -> Result<()> {
-    ensure!(rgba.len() == (width * height * 4) as usize, "PNG data size mismatch");
-    let buf = image::RgbaImage::from_raw(width, height, rgba).ok_or_else(|| anyhow!("PNG buffer size mismatch"))?;
-    buf.save(path).with_context(|| format!("writing {}", path.display()))
+    ensure!(
+        rgba.len() == (width * height * 4) as usize,
+        "PNG data size mismatch"
+    );
+    let buf = image::RgbaImage::from_raw(width, height, rgba)
+        .ok_or_else(|| anyhow!("PNG buffer size mismatch"))?;
+    buf.save(path)
+        .with_context(|| format!("writing {}", path.display()))
 }

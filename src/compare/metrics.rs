@@ -31,7 +31,11 @@ pub fn compare(image: &Image, reference: &Image) -> Result<Metrics> {
         smape += d.abs() / (x.abs() + y.abs() + 0.01);
     }
     let n = image.rgb.len().max(1) as f64;
-    Ok(Metrics { mse: mse / n, rel_mse: rel / n, smape: smape / n })
+    Ok(Metrics {
+        mse: mse / n,
+        rel_mse: rel / n,
+        smape: smape / n,
+    })
 }
 
 /// Per-pixel relMSE (mean over channels): the error heatmap whose mean is `compare().rel_mse`.

@@ -16,10 +16,18 @@ pub struct Image {
 
 impl Image {
     pub fn new(width: u32, height: u32) -> Image {
-        Image { width, height, rgb: vec![0.0; (width * height * 3) as usize] }
+        Image {
+            width,
+            height,
+            rgb: vec![0.0; (width * height * 3) as usize],
+        }
     }
     pub fn from_rgba(width: u32, height: u32, px: &[[f32; 4]]) -> Image {
-        Image { width, height, rgb: px.iter().flat_map(|p| [p[0], p[1], p[2]]).collect() }
+        Image {
+            width,
+            height,
+            rgb: px.iter().flat_map(|p| [p[0], p[1], p[2]]).collect(),
+        }
     }
     pub fn pixel(&self, x: u32, y: u32) -> [f32; 3] {
         let i = ((y * self.width + x) * 3) as usize;

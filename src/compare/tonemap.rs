@@ -18,7 +18,9 @@ pub enum Operator {
 pub fn curve(op: Operator, x: f32) -> f32 {
     let x = x.max(0.0);
     match op {
-        Operator::Aces => ((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14)).clamp(0.0, 1.0),
+        Operator::Aces => {
+            ((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14)).clamp(0.0, 1.0)
+        }
         Operator::Reinhard => x / (1.0 + x),
         Operator::Linear => x.min(1.0),
     }

@@ -9,7 +9,17 @@ use anyhow::{anyhow, bail, Context, Result};
 use std::sync::{Arc, Mutex};
 
 /// Which wgpu backend to use. `Auto` prefers Vulkan and falls back to GL.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    PartialEq,
+    Eq,
+    Default,
+    clap::ValueEnum,
+    serde::Serialize,
+    serde::Deserialize,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum BackendChoice {
     #[default]
@@ -52,7 +62,10 @@ impl ErrorLog {
         }
     }
     pub fn take(&self) -> Vec<String> {
-        self.0.lock().map(|mut v| std::mem::take(&mut *v)).unwrap_or_default()
+        self.0
+            .lock()
+            .map(|mut v| std::mem::take(&mut *v))
+            .unwrap_or_default()
     }
 }
 
@@ -68,7 +81,11 @@ pub struct AdapterSummary {
 
 impl std::fmt::Display for AdapterSummary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{} ({}, {}, {} {})", self.name, self.backend, self.device_type, self.driver, self.driver_info)
+        write!(
+            f,
+            "{} ({}, {}, {} {})",
+            self.name, self.backend, self.device_type, self.driver, self.driver_info
+        )
     }
 }
 
@@ -111,13 +128,15 @@ impl Gpu {
             let instance = wgpu::Instance::new(desc);
             let adapters = pollster::block_on(instance.enumerate_adapters(backends));
             // Prefer real GPUs, then CPU rasterisers (lavapipe/llvmpipe).
-            let best = adapters.into_iter().max_by_key(|a| match a.get_info().device_type {
-                wgpu::DeviceType::DiscreteGpu => 4,
-                wgpu::DeviceType::IntegratedGpu => 3,
-                wgpu::DeviceType::VirtualGpu => 2,
-                wgpu::DeviceType::Cpu => 1,
-                wgpu::DeviceType::Other => 0,
-            });
+            let best = adapters
+                .into_iter()
+                .max_by_key(|a| match a.get_info().device_type {
+                    wgpu::DeviceType::DiscreteGpu => 4,
+                    wgpu::DeviceType::IntegratedGpu => 3,
+                    wgpu::DeviceType::VirtualGpu => 2,
+                    wgpu::DeviceType::Cpu => 1,
+                    wgpu::DeviceType::Other => 0,
+                });
             match best {
                 Some(adapter) => return Self::from_adapter(instance, adapter),
                 None => tried.push(format!("{backends:?}")),
@@ -134,8 +153,15 @@ impl Gpu {
         let info = adapter.get_info();
         let features = adapter.features() & optional_features();
         let limits = adapter.limits();
-        if !adapter.get_downlevel_capabilities().flags.contains(wgpu::DownlevelFlags::COMPUTE_SHADERS) {
-            bail!("adapter {} has no compute shaders, which gilab requires", info.name);
+        if !adapter
+            .get_downlevel_capabilities()
+            .flags
+            .contains(wgpu::DownlevelFlags::COMPUTE_SHADERS)
+        {
+            bail!(
+                "adapter {} has no compute shaders, which gilab requires",
+                info.name
+            );
         }
         if limits.max_storage_buffers_per_shader_stage < 9 {
             bail!(
@@ -166,12 +192,22 @@ impl Gpu {
             driver_info: info.driver_info.clone(),
             timestamps,
         };
-        Ok(Gpu { instance, adapter, device, queue, summary, errors, timestamp_period })
+        Ok(Gpu {
+            instance,
+            adapter,
+            device,
+            queue,
+            summary,
+            errors,
+            timestamp_period,
+        })
     }
 
     /// Waits for all submitted work.
     pub fn wait(&self) -> Result<()> {
-        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("device poll failed: {e}"))?;
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| anyhow!("device poll failed: {e}"))?;
         Ok(())
     }
 

@@ -19,14 +19,24 @@ pub fn read_buffer_bytes(gpu: &Gpu, buffer: &wgpu::Buffer, size: u64) -> Result<
         let _ = tx.send(r);
     });
     gpu.wait()?;
-    rx.recv().map_err(|_| anyhow!("readback callback dropped"))?.map_err(|e| anyhow!("readback map failed: {e}"))?;
-    let bytes = staging.slice(..).get_mapped_range().map_err(|e| anyhow!("readback range: {e:?}"))?.to_vec();
+    rx.recv()
+        .map_err(|_| anyhow!("readback callback dropped"))?
+        .map_err(|e| anyhow!("readback map failed: {e}"))?;
+    let bytes = staging
+        .slice(..)
+        .get_mapped_range()
+        .map_err(|e| anyhow!("readback range: {e:?}"))?
+        .to_vec();
     staging.unmap();
     Ok(bytes)
 }
 
 /// Reads a buffer as plain-old-data values.
-pub fn read_buffer<T: bytemuck::Pod>(gpu: &Gpu, buffer: &wgpu::Buffer, count: usize) -> Result<Vec<T>> {
+pub fn read_buffer<T: bytemuck::Pod>(
+    gpu: &Gpu,
+    buffer: &wgpu::Buffer,
+    count: usize,
+) -> Result<Vec<T>> {
     let bytes = read_buffer_bytes(gpu, buffer, (count * std::mem::size_of::<T>()) as u64)?;
     Ok(bytemuck::pod_collect_to_vec(&bytes))
 }

@@ -11,8 +11,8 @@
 
 use include_dir::{include_dir, Dir};
 use naga_oil::compose::{
-    get_preprocessor_data, ComposableModuleDescriptor, Composer, ComposerError, NagaModuleDescriptor, ShaderLanguage,
-    ShaderType,
+    get_preprocessor_data, ComposableModuleDescriptor, Composer, ComposerError,
+    NagaModuleDescriptor, ShaderLanguage, ShaderType,
 };
 use std::collections::{BTreeMap, HashSet};
 use std::path::{Path, PathBuf};
@@ -45,18 +45,27 @@ impl ShaderLibrary {
         let candidates = [
             std::env::var_os("GILAB_SHADERS").map(PathBuf::from),
             Some(PathBuf::from("shaders")),
-            Some(PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/shaders"))),
+            Some(PathBuf::from(concat!(
+                env!("CARGO_MANIFEST_DIR"),
+                "/shaders"
+            ))),
         ];
         for c in candidates.into_iter().flatten() {
             if c.join("common").is_dir() {
-                return ShaderLibrary { source: ShaderSource::Disk(c) };
+                return ShaderLibrary {
+                    source: ShaderSource::Disk(c),
+                };
             }
         }
-        ShaderLibrary { source: ShaderSource::Embedded }
+        ShaderLibrary {
+            source: ShaderSource::Embedded,
+        }
     }
 
     pub fn embedded() -> ShaderLibrary {
-        ShaderLibrary { source: ShaderSource::Embedded }
+        ShaderLibrary {
+            source: ShaderSource::Embedded,
+        }
     }
 
     pub fn root(&self) -> Option<&Path> {
@@ -78,7 +87,11 @@ impl ShaderLibrary {
 
     /// Entry files: `.wgsl` files outside `common/`.
     pub fn entry_files(&self) -> Result<Vec<String>, ShaderError> {
-        Ok(self.files()?.into_keys().filter(|k| !k.starts_with("common/")).collect())
+        Ok(self
+            .files()?
+            .into_keys()
+            .filter(|k| !k.starts_with("common/"))
+            .collect())
     }
 
     /// Composes `entry` (e.g. "reference/path_trace.wgsl") and its imports into one validated module.
@@ -100,7 +113,13 @@ impl ShaderLibrary {
         let mut added = HashSet::new();
         let (_, imports, _) = get_preprocessor_data(source);
         for import in imports {
-            add_module_recursive(&mut composer, &modules, &import.import, &mut added, &mut Vec::new())?;
+            add_module_recursive(
+                &mut composer,
+                &modules,
+                &import.import,
+                &mut added,
+                &mut Vec::new(),
+            )?;
         }
         let file_path = format!("shaders/{entry}");
         composer
@@ -131,9 +150,15 @@ impl ShaderLibrary {
                 continue;
             }
             let mut seen = HashSet::new();
-            let mut stack: Vec<String> = get_preprocessor_data(&files[&entry]).1.into_iter().map(|i| i.import).collect();
+            let mut stack: Vec<String> = get_preprocessor_data(&files[&entry])
+                .1
+                .into_iter()
+                .map(|i| i.import)
+                .collect();
             while let Some(imp) = stack.pop() {
-                let Some(name) = resolve_module(&modules, &imp) else { continue };
+                let Some(name) = resolve_module(&modules, &imp) else {
+                    continue;
+                };
                 if !seen.insert(name.clone()) {
                     continue;
                 }
@@ -214,7 +239,11 @@ fn composer_error(composer: &Composer, e: &ComposerError) -> ShaderError {
         .lines()
         .find_map(|l| l.trim().strip_prefix("error: ").map(str::to_string))
         .unwrap_or_else(|| e.inner.to_string());
-    ShaderError { location, message, report: plain }
+    ShaderError {
+        location,
+        message,
+        report: plain,
+    }
 }
 
 fn strip_ansi(s: &str) -> String {
@@ -234,20 +263,31 @@ fn strip_ansi(s: &str) -> String {
     out
 }
 
-fn collect_disk(root: &Path, dir: &Path, out: &mut BTreeMap<String, String>) -> Result<(), ShaderError> {
+fn collect_disk(
+    root: &Path,
+    dir: &Path,
+    out: &mut BTreeMap<String, String>,
+) -> Result<(), ShaderError> {
     let io_err = |p: &Path, e: std::io::Error| ShaderError {
         location: p.display().to_string(),
         message: e.to_string(),
         report: String::new(),
     };
-    let mut entries: Vec<_> = std::fs::read_dir(dir).map_err(|e| io_err(dir, e))?.flatten().collect();
+    let mut entries: Vec<_> = std::fs::read_dir(dir)
+        .map_err(|e| io_err(dir, e))?
+        .flatten()
+        .collect();
     entries.sort_by_key(|e| e.path());
     for entry in entries {
         let p = entry.path();
         if p.is_dir() {
             collect_disk(root, &p, out)?;
         } else if p.extension().is_some_and(|e| e == "wgsl") {
-            let rel = p.strip_prefix(root).unwrap_or(&p).to_string_lossy().replace('\\', "/");
+            let rel = p
+                .strip_prefix(root)
+                .unwrap_or(&p)
+                .to_string_lossy()
+                .replace('\\', "/");
             out.insert(rel, std::fs::read_to_string(&p).map_err(|e| io_err(&p, e))?);
         }
     }
@@ -258,7 +298,10 @@ fn collect_embedded(dir: &Dir<'static>, out: &mut BTreeMap<String, String>) {
     for f in dir.files() {
         if f.path().extension().is_some_and(|e| e == "wgsl") {
             if let Some(text) = f.contents_utf8() {
-                out.insert(f.path().to_string_lossy().replace('\\', "/"), text.to_string());
+                out.insert(
+                    f.path().to_string_lossy().replace('\\', "/"),
+                    text.to_string(),
+                );
             }
         }
     }

@@ -29,7 +29,11 @@ impl PassTimer {
         } else {
             (None, None)
         };
-        PassTimer { query_set, resolve, names: Vec::new() }
+        PassTimer {
+            query_set,
+            resolve,
+            names: Vec::new(),
+        }
     }
 
     /// Starts a new frame's set of passes.
@@ -38,7 +42,10 @@ impl PassTimer {
     }
 
     /// Timestamp writes for a compute pass named `name` (None when unsupported or full).
-    pub fn compute_pass(&mut self, name: &'static str) -> Option<wgpu::ComputePassTimestampWrites<'_>> {
+    pub fn compute_pass(
+        &mut self,
+        name: &'static str,
+    ) -> Option<wgpu::ComputePassTimestampWrites<'_>> {
         let i = self.next_index(name)?;
         Some(wgpu::ComputePassTimestampWrites {
             query_set: self.query_set.as_ref()?,
@@ -47,7 +54,10 @@ impl PassTimer {
         })
     }
 
-    pub fn render_pass(&mut self, name: &'static str) -> Option<wgpu::RenderPassTimestampWrites<'_>> {
+    pub fn render_pass(
+        &mut self,
+        name: &'static str,
+    ) -> Option<wgpu::RenderPassTimestampWrites<'_>> {
         let i = self.next_index(name)?;
         Some(wgpu::RenderPassTimestampWrites {
             query_set: self.query_set.as_ref()?,

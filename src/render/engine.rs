@@ -1,7 +1,10 @@
 //! The headless engine: one scene, one camera, one technique; renders frames, reads results
 //! back and accounts rays and GPU time. The CLI, the tests and (later) the viewer all use it.
 
-use super::{gbuffer::GBuffer, pipelines, FrameUniforms, PassInfo, RayCounts, RenderContext, Technique, COUNTER_SLOTS};
+use super::{
+    gbuffer::GBuffer, pipelines, FrameUniforms, PassInfo, RayCounts, RenderContext, Technique,
+    COUNTER_SLOTS,
+};
 use crate::compare::Image;
 use crate::gpu::{readback, shaders::ShaderLibrary, timing::PassTimer, Gpu};
 use crate::scene::{gpu_scene::GpuScene, Camera, Scene};
@@ -66,21 +69,39 @@ pub struct Engine {
 }
 
 impl Engine {
-    pub fn new(gpu: Arc<Gpu>, shaders: ShaderLibrary, scene: Scene, technique: Box<dyn Technique>, settings: EngineSettings) -> Result<Engine> {
-        anyhow::ensure!(settings.extent[0] > 0 && settings.extent[1] > 0, "image size must be positive");
+    pub fn new(
+        gpu: Arc<Gpu>,
+        shaders: ShaderLibrary,
+        scene: Scene,
+        technique: Box<dyn Technique>,
+        settings: EngineSettings,
+    ) -> Result<Engine> {
+        anyhow::ensure!(
+            settings.extent[0] > 0 && settings.extent[1] > 0,
+            "image size must be positive"
+        );
         let max = gpu.device.limits().max_texture_dimension_2d;
-        anyhow::ensure!(settings.extent[0] <= max && settings.extent[1] <= max, "image size exceeds the adapter's limit of {max}");
+        anyhow::ensure!(
+            settings.extent[0] <= max && settings.extent[1] <= max,
+            "image size exceeds the adapter's limit of {max}"
+        );
         let gpu_scene = GpuScene::upload(&gpu, &scene);
-        let uniforms = gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("frame uniforms"),
-            contents: bytemuck::bytes_of(&FrameUniforms::default()),
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-        });
-        let counters = gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("ray counters"),
-            contents: bytemuck::cast_slice(&[0u32; COUNTER_SLOTS * 2]),
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
-        });
+        let uniforms = gpu
+            .device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("frame uniforms"),
+                contents: bytemuck::bytes_of(&FrameUniforms::default()),
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            });
+        let counters = gpu
+            .device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("ray counters"),
+                contents: bytemuck::cast_slice(&[0u32; COUNTER_SLOTS * 2]),
+                usage: wgpu::BufferUsages::STORAGE
+                    | wgpu::BufferUsages::COPY_SRC
+                    | wgpu::BufferUsages::COPY_DST,
+            });
         let frame_layout_entries = vec![
             pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE),
             pipelines::storage_entry(1, false),
@@ -107,7 +128,10 @@ impl Engine {
             total_wall_ms: 0.0,
         };
         let id = engine.technique.id();
-        engine.technique.build(&render_context!(engine)).with_context(|| format!("building technique '{id}'"))?;
+        engine
+            .technique
+            .build(&render_context!(engine))
+            .with_context(|| format!("building technique '{id}'"))?;
         engine.gpu.check_errors()?;
         engine.reset();
         Ok(engine)
@@ -121,7 +145,11 @@ impl Engine {
     /// Clears history and counters (camera cut, scene edit, parameter change).
     pub fn reset(&mut self) {
         self.technique.reset_history(&self.gpu);
-        self.gpu.queue.write_buffer(&self.counters, 0, bytemuck::cast_slice(&[0u32; COUNTER_SLOTS * 2]));
+        self.gpu.queue.write_buffer(
+            &self.counters,
+            0,
+            bytemuck::cast_slice(&[0u32; COUNTER_SLOTS * 2]),
+        );
         self.frame_index = 0;
         self.samples = 0;
         self.total_gpu_ms = 0.0;
@@ -151,7 +179,10 @@ impl Engine {
         let tan = (self.camera.fov_y.clamp(0.01, 179.0).to_radians() * 0.5).tan();
         FrameUniforms {
             clip_from_world: self.camera.clip_from_world(aspect, near).to_cols_array_2d(),
-            prev_clip_from_world: self.prev_camera.clip_from_world(aspect, near).to_cols_array_2d(),
+            prev_clip_from_world: self
+                .prev_camera
+                .clip_from_world(aspect, near)
+                .to_cols_array_2d(),
             camera_pos: self.camera.position.extend(1.0).to_array(),
             camera_right: (right * tan * aspect).extend(0.0).to_array(),
             camera_up: (up * tan).extend(0.0).to_array(),
@@ -171,20 +202,35 @@ impl Engine {
     pub fn render_frame(&mut self) -> Result<FrameReport> {
         let start = Instant::now();
         let uniforms = self.uniforms_for_frame();
-        self.gpu.queue.write_buffer(&self.uniforms, 0, bytemuck::bytes_of(&uniforms));
-        let mut enc = self.gpu.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("frame") });
+        self.gpu
+            .queue
+            .write_buffer(&self.uniforms, 0, bytemuck::bytes_of(&uniforms));
+        let mut enc = self
+            .gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("frame"),
+            });
         self.timer.begin_frame();
-        self.technique.render(&render_context!(self), &mut enc, &mut self.timer);
+        self.technique
+            .render(&render_context!(self), &mut enc, &mut self.timer);
         self.timer.resolve(&mut enc);
         self.gpu.queue.submit([enc.finish()]);
         self.gpu.wait()?;
         let wall_ms = start.elapsed().as_secs_f64() * 1e3;
         let passes = self.timer.read(&self.gpu)?;
         self.gpu.check_errors()?;
-        let gpu_ms = if passes.is_empty() { wall_ms } else { passes.iter().map(|p| p.1).sum() };
+        let gpu_ms = if passes.is_empty() {
+            wall_ms
+        } else {
+            passes.iter().map(|p| p.1).sum()
+        };
         let report = FrameReport {
             frame_index: self.frame_index,
-            gpu_ms_by_pass: passes.into_iter().map(|(n, ms)| (n.to_string(), ms)).collect(),
+            gpu_ms_by_pass: passes
+                .into_iter()
+                .map(|(n, ms)| (n.to_string(), ms))
+                .collect(),
             gpu_ms,
             wall_ms,
         };
@@ -198,11 +244,23 @@ impl Engine {
 
     /// Renders the G-buffer for the current camera (for techniques that consume it, tests and debug views).
     pub fn render_gbuffer(&mut self) -> Result<&GBuffer> {
-        if self.gbuffer.as_ref().is_none_or(|g| g.extent != self.extent) {
-            self.gbuffer = Some(GBuffer::new(&self.gpu, &self.shaders, &self.gpu_scene, &self.uniforms, self.extent)?);
+        if self
+            .gbuffer
+            .as_ref()
+            .is_none_or(|g| g.extent != self.extent)
+        {
+            self.gbuffer = Some(GBuffer::new(
+                &self.gpu,
+                &self.shaders,
+                &self.gpu_scene,
+                &self.uniforms,
+                self.extent,
+            )?);
         }
         let uniforms = self.uniforms_for_frame();
-        self.gpu.queue.write_buffer(&self.uniforms, 0, bytemuck::bytes_of(&uniforms));
+        self.gpu
+            .queue
+            .write_buffer(&self.uniforms, 0, bytemuck::bytes_of(&uniforms));
         let mut enc = self.gpu.device.create_command_encoder(&Default::default());
         let mut timer = PassTimer::new(&self.gpu);
         let gbuffer = self.gbuffer.as_ref().expect("created above");
@@ -216,15 +274,19 @@ impl Engine {
     /// Linear HDR radiance of the technique's output.
     pub fn read_output(&self) -> Result<Image> {
         let [w, h] = self.extent;
-        let px: Vec<[f32; 4]> = readback::read_buffer(&self.gpu, self.technique.output(), (w * h) as usize)?;
+        let px: Vec<[f32; 4]> =
+            readback::read_buffer(&self.gpu, self.technique.output(), (w * h) as usize)?;
         Ok(Image::from_rgba(w, h, &px))
     }
 
     /// Per-pixel sample variance (rgb) from the Welford M2, if the technique accumulates.
     pub fn read_variance(&self) -> Result<Option<Image>> {
-        let Some(m2) = self.technique.variance_m2() else { return Ok(None) };
+        let Some(m2) = self.technique.variance_m2() else {
+            return Ok(None);
+        };
         let [w, h] = self.extent;
-        let mean: Vec<[f32; 4]> = readback::read_buffer(&self.gpu, self.technique.output(), (w * h) as usize)?;
+        let mean: Vec<[f32; 4]> =
+            readback::read_buffer(&self.gpu, self.technique.output(), (w * h) as usize)?;
         let m2: Vec<[f32; 4]> = readback::read_buffer(&self.gpu, m2, (w * h) as usize)?;
         let var: Vec<[f32; 4]> = mean
             .iter()

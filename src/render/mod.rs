@@ -52,10 +52,18 @@ impl RayCounts {
         for (k, v) in by_kind.iter_mut().enumerate() {
             *v = get(k);
         }
-        RayCounts { by_kind, invalid_samples: get(COUNTER_INVALID_SAMPLES) }
+        RayCounts {
+            by_kind,
+            invalid_samples: get(COUNTER_INVALID_SAMPLES),
+        }
     }
     pub fn named(&self) -> Vec<(&'static str, u64)> {
-        RAY_KINDS.iter().copied().zip(self.by_kind).filter(|(_, v)| *v > 0).collect()
+        RAY_KINDS
+            .iter()
+            .copied()
+            .zip(self.by_kind)
+            .filter(|(_, v)| *v > 0)
+            .collect()
     }
 }
 
@@ -94,7 +102,12 @@ pub trait Technique {
     fn max_depth(&self) -> u32 {
         0
     }
-    fn render(&mut self, ctx: &RenderContext, enc: &mut wgpu::CommandEncoder, timer: &mut PassTimer);
+    fn render(
+        &mut self,
+        ctx: &RenderContext,
+        enc: &mut wgpu::CommandEncoder,
+        timer: &mut PassTimer,
+    );
     /// Linear HDR radiance, one vec4<f32> per pixel (rgb; w = samples behind the value).
     fn output(&self) -> &wgpu::Buffer;
     /// Per-pixel Welford M2 (rgb) when the technique accumulates samples; None otherwise.
@@ -105,14 +118,22 @@ pub trait Technique {
     fn set_params(&mut self, params: &toml::Table) -> Result<()>;
 }
 
-pub const TECHNIQUES: &[(&str, &str)] = &[("reference", "progressive unbiased path tracer (ground truth)")];
+pub const TECHNIQUES: &[(&str, &str)] = &[(
+    "reference",
+    "progressive unbiased path tracer (ground truth)",
+)];
 
 pub fn create_technique(name: &str) -> Result<Box<dyn Technique>> {
     match name {
-        "reference" => Ok(Box::new(crate::techniques::reference::ReferencePathTracer::default())),
+        "reference" => Ok(Box::new(
+            crate::techniques::reference::ReferencePathTracer::default(),
+        )),
         other => {
             let names: Vec<&str> = TECHNIQUES.iter().map(|t| t.0).collect();
-            anyhow::bail!("unknown technique '{other}' (available: {})", names.join(", "))
+            anyhow::bail!(
+                "unknown technique '{other}' (available: {})",
+                names.join(", ")
+            )
         }
     }
 }

@@ -5,13 +5,18 @@ use crate::gpu::{shaders::ShaderLibrary, Gpu};
 use anyhow::{anyhow, Result};
 use std::borrow::Cow;
 
-pub fn shader_module(gpu: &Gpu, shaders: &ShaderLibrary, entry: &str) -> Result<wgpu::ShaderModule> {
+pub fn shader_module(
+    gpu: &Gpu,
+    shaders: &ShaderLibrary,
+    entry: &str,
+) -> Result<wgpu::ShaderModule> {
     let module = shaders.compose(entry).map_err(|e| anyhow!("{e}"))?;
     gpu.scoped(&format!("shader module shaders/{entry}"), || {
-        gpu.device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some(entry),
-            source: wgpu::ShaderSource::Naga(Cow::Owned(module)),
-        })
+        gpu.device
+            .create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(entry),
+                source: wgpu::ShaderSource::Naga(Cow::Owned(module)),
+            })
     })
 }
 
@@ -22,21 +27,25 @@ pub fn compute_pipeline(
     layouts: &[&wgpu::BindGroupLayout],
 ) -> Result<wgpu::ComputePipeline> {
     let module = shader_module(gpu, shaders, entry)?;
-    let bind_group_layouts: Vec<Option<&wgpu::BindGroupLayout>> = layouts.iter().map(|l| Some(*l)).collect();
+    let bind_group_layouts: Vec<Option<&wgpu::BindGroupLayout>> =
+        layouts.iter().map(|l| Some(*l)).collect();
     gpu.scoped(&format!("compute pipeline shaders/{entry}"), || {
-        let layout = gpu.device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some(entry),
-            bind_group_layouts: &bind_group_layouts,
-            immediate_size: 0,
-        });
-        gpu.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some(entry),
-            layout: Some(&layout),
-            module: &module,
-            entry_point: Some("main"),
-            compilation_options: Default::default(),
-            cache: None,
-        })
+        let layout = gpu
+            .device
+            .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some(entry),
+                bind_group_layouts: &bind_group_layouts,
+                immediate_size: 0,
+            });
+        gpu.device
+            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(entry),
+                layout: Some(&layout),
+                module: &module,
+                entry_point: Some("main"),
+                compilation_options: Default::default(),
+                cache: None,
+            })
     })
 }
 
@@ -57,7 +66,11 @@ pub fn uniform_entry(binding: u32, visibility: wgpu::ShaderStages) -> wgpu::Bind
     wgpu::BindGroupLayoutEntry {
         binding,
         visibility,
-        ty: wgpu::BindingType::Buffer { ty: wgpu::BufferBindingType::Uniform, has_dynamic_offset: false, min_binding_size: None },
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Uniform,
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
         count: None,
     }
 }
@@ -66,7 +79,9 @@ pub fn storage_buffer(gpu: &Gpu, label: &str, size: u64) -> wgpu::Buffer {
     gpu.device.create_buffer(&wgpu::BufferDescriptor {
         label: Some(label),
         size: size.max(16),
-        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+        usage: wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::COPY_SRC
+            | wgpu::BufferUsages::COPY_DST,
         mapped_at_creation: false,
     })
 }

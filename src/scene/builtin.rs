@@ -28,7 +28,10 @@ impl<'a> Params<'a> {
             None => Ok(default),
             Some(toml::Value::Float(f)) => Ok(*f as f32),
             Some(toml::Value::Integer(i)) => Ok(*i as f32),
-            Some(v) => bail!("scene '{}': parameter '{key}' must be a number, got {v}", self.scene),
+            Some(v) => bail!(
+                "scene '{}': parameter '{key}' must be a number, got {v}",
+                self.scene
+            ),
         }
     }
     fn u32(&mut self, key: &'static str, default: u32) -> Result<u32> {
@@ -36,13 +39,20 @@ impl<'a> Params<'a> {
         match self.table.get(key) {
             None => Ok(default),
             Some(toml::Value::Integer(i)) if *i >= 0 && *i <= u32::MAX as i64 => Ok(*i as u32),
-            Some(v) => bail!("scene '{}': parameter '{key}' must be a non-negative integer, got {v}", self.scene),
+            Some(v) => bail!(
+                "scene '{}': parameter '{key}' must be a non-negative integer, got {v}",
+                self.scene
+            ),
         }
     }
     fn finish(self) -> Result<()> {
         for k in self.table.keys() {
             if !self.known.contains(&k.as_str()) {
-                bail!("scene '{}' has no parameter '{k}' (known: {})", self.scene, self.known.join(", "));
+                bail!(
+                    "scene '{}' has no parameter '{k}' (known: {})",
+                    self.scene,
+                    self.known.join(", ")
+                );
             }
         }
         Ok(())
@@ -54,7 +64,11 @@ pub fn is_builtin(name: &str) -> bool {
 }
 
 pub fn build(name: &str, params: &toml::Table) -> Result<Scene> {
-    let mut p = Params { scene: name, table: params, known: Vec::new() };
+    let mut p = Params {
+        scene: name,
+        table: params,
+        known: Vec::new(),
+    };
     let scene = match name {
         "cornell" => cornell(),
         "furnace" => {
@@ -76,7 +90,10 @@ pub fn build(name: &str, params: &toml::Table) -> Result<Scene> {
         "hard-cases" => hard_cases(p.f32("emission", 1e6)?),
         other => {
             let names: Vec<&str> = NAMES.iter().map(|(n, _)| *n).collect();
-            bail!("unknown built-in scene '{other}' (built-ins: {}; or give a .gltf/.glb path)", names.join(", "))
+            bail!(
+                "unknown built-in scene '{other}' (built-ins: {}; or give a .gltf/.glb path)",
+                names.join(", ")
+            )
         }
     };
     p.finish()?;
@@ -86,6 +103,7 @@ pub fn build(name: &str, params: &toml::Table) -> Result<Scene> {
 
 /// The Cornell box after the Cornell program's measured data (units: 1 = 100 mm), with the
 /// colours and light of Mitsuba's version: pure Lambert walls so external renderers can match.
+#[allow(clippy::approx_constant)] // 3.14 is a measured Cornell box coordinate, not pi.
 pub fn cornell() -> Scene {
     let mut s = Scene::new("cornell");
     let white = s.add_material(Material::lambert("white", Vec3::new(0.725, 0.71, 0.68)));
@@ -94,20 +112,74 @@ pub fn cornell() -> Scene {
     let light = s.add_material(Material::emitter("light", Vec3::new(17.0, 12.0, 4.0)));
     let (w, h, l) = (5.56, 5.488, 5.592);
     let v = Vec3::new;
-    s.add_quad(v(0.0, 0.0, 0.0), v(0.0, 0.0, l), v(w, 0.0, l), v(w, 0.0, 0.0), white); // floor
-    s.add_quad(v(0.0, h, 0.0), v(w, h, 0.0), v(w, h, l), v(0.0, h, l), white); // ceiling
-    s.add_quad(v(0.0, 0.0, l), v(0.0, h, l), v(w, h, l), v(w, 0.0, l), white); // back
-    s.add_quad(v(0.0, 0.0, 0.0), v(0.0, h, 0.0), v(0.0, h, l), v(0.0, 0.0, l), green); // x = 0: right as seen
+    s.add_quad(
+        v(0.0, 0.0, 0.0),
+        v(0.0, 0.0, l),
+        v(w, 0.0, l),
+        v(w, 0.0, 0.0),
+        white,
+    ); // floor
+    s.add_quad(
+        v(0.0, h, 0.0),
+        v(w, h, 0.0),
+        v(w, h, l),
+        v(0.0, h, l),
+        white,
+    ); // ceiling
+    s.add_quad(
+        v(0.0, 0.0, l),
+        v(0.0, h, l),
+        v(w, h, l),
+        v(w, 0.0, l),
+        white,
+    ); // back
+    s.add_quad(
+        v(0.0, 0.0, 0.0),
+        v(0.0, h, 0.0),
+        v(0.0, h, l),
+        v(0.0, 0.0, l),
+        green,
+    ); // x = 0: right as seen
     s.add_quad(v(w, 0.0, 0.0), v(w, 0.0, l), v(w, h, l), v(w, h, 0.0), red); // x = w: left as seen
     let y = h - 0.001;
-    s.add_quad(v(2.13, y, 2.27), v(3.43, y, 2.27), v(3.43, y, 3.32), v(2.13, y, 3.32), light);
+    s.add_quad(
+        v(2.13, y, 2.27),
+        v(3.43, y, 2.27),
+        v(3.43, y, 3.32),
+        v(2.13, y, 3.32),
+        light,
+    );
     let block = |s: &mut Scene, top: [Vec3; 4]| {
         let b = top.map(|t| Vec3::new(t.x, 0.0, t.z));
-        s.add_box([b[0], b[1], b[2], b[3], top[0], top[1], top[2], top[3]], white);
+        s.add_box(
+            [b[0], b[1], b[2], b[3], top[0], top[1], top[2], top[3]],
+            white,
+        );
     };
-    block(&mut s, [v(1.30, 1.65, 0.65), v(0.82, 1.65, 2.25), v(2.40, 1.65, 2.72), v(2.90, 1.65, 1.14)]);
-    block(&mut s, [v(4.23, 3.30, 2.47), v(2.65, 3.30, 2.96), v(3.14, 3.30, 4.56), v(4.72, 3.30, 4.06)]);
-    s.camera = Some(Camera { position: v(2.78, 2.73, -8.0), target: v(2.78, 2.73, 0.0), up: Vec3::Y, fov_y: 39.3 });
+    block(
+        &mut s,
+        [
+            v(1.30, 1.65, 0.65),
+            v(0.82, 1.65, 2.25),
+            v(2.40, 1.65, 2.72),
+            v(2.90, 1.65, 1.14),
+        ],
+    );
+    block(
+        &mut s,
+        [
+            v(4.23, 3.30, 2.47),
+            v(2.65, 3.30, 2.96),
+            v(3.14, 3.30, 4.56),
+            v(4.72, 3.30, 4.06),
+        ],
+    );
+    s.camera = Some(Camera {
+        position: v(2.78, 2.73, -8.0),
+        target: v(2.78, 2.73, 0.0),
+        up: Vec3::Y,
+        fov_y: 39.3,
+    });
     s
 }
 
@@ -115,19 +187,48 @@ pub fn cornell() -> Scene {
 pub fn icosphere(subdivisions: u32) -> Vec<[Vec3; 3]> {
     let t = (1.0 + 5f32.sqrt()) / 2.0;
     let verts: Vec<Vec3> = [
-        [-1.0, t, 0.0], [1.0, t, 0.0], [-1.0, -t, 0.0], [1.0, -t, 0.0],
-        [0.0, -1.0, t], [0.0, 1.0, t], [0.0, -1.0, -t], [0.0, 1.0, -t],
-        [t, 0.0, -1.0], [t, 0.0, 1.0], [-t, 0.0, -1.0], [-t, 0.0, 1.0],
+        [-1.0, t, 0.0],
+        [1.0, t, 0.0],
+        [-1.0, -t, 0.0],
+        [1.0, -t, 0.0],
+        [0.0, -1.0, t],
+        [0.0, 1.0, t],
+        [0.0, -1.0, -t],
+        [0.0, 1.0, -t],
+        [t, 0.0, -1.0],
+        [t, 0.0, 1.0],
+        [-t, 0.0, -1.0],
+        [-t, 0.0, 1.0],
     ]
     .iter()
     .map(|p| Vec3::from_array(*p).normalize())
     .collect();
     let faces = [
-        [0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2], [10, 7, 6],
-        [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10],
-        [8, 6, 7], [9, 8, 1],
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
     ];
-    let mut tris: Vec<[Vec3; 3]> = faces.iter().map(|f| [verts[f[0]], verts[f[1]], verts[f[2]]]).collect();
+    let mut tris: Vec<[Vec3; 3]> = faces
+        .iter()
+        .map(|f| [verts[f[0]], verts[f[1]], verts[f[2]]])
+        .collect();
     for _ in 0..subdivisions {
         tris = tris
             .iter()
@@ -145,12 +246,20 @@ pub fn icosphere(subdivisions: u32) -> Vec<[Vec3; 3]> {
 /// White furnace: a closed sphere, uniform albedo a and emission E, flat normals facing inward.
 pub fn furnace(albedo: f32, emission: f32, subdivisions: u32) -> Scene {
     let mut s = Scene::new("furnace");
-    let m = s.add_material(Material { emissive: Vec3::splat(emission), ..Material::lambert("furnace", Vec3::splat(albedo)) });
+    let m = s.add_material(Material {
+        emissive: Vec3::splat(emission),
+        ..Material::lambert("furnace", Vec3::splat(albedo))
+    });
     for [a, b, c] in icosphere(subdivisions) {
         // Outward winding reversed: normals (and single-sided emission) face the centre.
         s.add_triangle([a * 2.0, c * 2.0, b * 2.0], m);
     }
-    s.camera = Some(Camera { position: Vec3::ZERO, target: Vec3::new(0.0, 0.0, -1.0), up: Vec3::Y, fov_y: 70.0 });
+    s.camera = Some(Camera {
+        position: Vec3::ZERO,
+        target: Vec3::new(0.0, 0.0, -1.0),
+        up: Vec3::Y,
+        fov_y: 70.0,
+    });
     s
 }
 
@@ -171,18 +280,59 @@ pub fn many_lights(count: u32, seed: u32) -> Scene {
     let floor = s.add_material(Material::glossy("floor", Vec3::splat(0.5), 0.0, 0.4));
     let (half, h) = (12.0f32, 6.0f32);
     let v = Vec3::new;
-    s.add_quad(v(-half, 0.0, -half), v(-half, 0.0, half), v(half, 0.0, half), v(half, 0.0, -half), floor);
-    s.add_quad(v(-half, h, -half), v(half, h, -half), v(half, h, half), v(-half, h, half), grey);
-    s.add_quad(v(-half, 0.0, -half), v(half, 0.0, -half), v(half, h, -half), v(-half, h, -half), grey);
-    s.add_quad(v(-half, 0.0, half), v(-half, h, half), v(half, h, half), v(half, 0.0, half), grey);
-    s.add_quad(v(-half, 0.0, -half), v(-half, h, -half), v(-half, h, half), v(-half, 0.0, half), grey);
-    s.add_quad(v(half, 0.0, -half), v(half, 0.0, half), v(half, h, half), v(half, h, -half), grey);
+    s.add_quad(
+        v(-half, 0.0, -half),
+        v(-half, 0.0, half),
+        v(half, 0.0, half),
+        v(half, 0.0, -half),
+        floor,
+    );
+    s.add_quad(
+        v(-half, h, -half),
+        v(half, h, -half),
+        v(half, h, half),
+        v(-half, h, half),
+        grey,
+    );
+    s.add_quad(
+        v(-half, 0.0, -half),
+        v(half, 0.0, -half),
+        v(half, h, -half),
+        v(-half, h, -half),
+        grey,
+    );
+    s.add_quad(
+        v(-half, 0.0, half),
+        v(-half, h, half),
+        v(half, h, half),
+        v(half, 0.0, half),
+        grey,
+    );
+    s.add_quad(
+        v(-half, 0.0, -half),
+        v(-half, h, -half),
+        v(-half, h, half),
+        v(-half, 0.0, half),
+        grey,
+    );
+    s.add_quad(
+        v(half, 0.0, -half),
+        v(half, 0.0, half),
+        v(half, h, half),
+        v(half, h, -half),
+        grey,
+    );
     // Pillars: occluders that make visibility matter.
     for i in 0..5 {
         for j in 0..5 {
             let c = v(-9.6 + 4.8 * i as f32, 0.0, -9.6 + 4.8 * j as f32);
             let r = 0.35;
-            let b = [c + v(-r, 0.0, -r), c + v(-r, 0.0, r), c + v(r, 0.0, r), c + v(r, 0.0, -r)];
+            let b = [
+                c + v(-r, 0.0, -r),
+                c + v(-r, 0.0, r),
+                c + v(r, 0.0, r),
+                c + v(r, 0.0, -r),
+            ];
             let t = b.map(|p| p + v(0.0, h, 0.0));
             s.add_box([b[0], b[1], b[2], b[3], t[0], t[1], t[2], t[3]], grey);
         }
@@ -195,16 +345,27 @@ pub fn many_lights(count: u32, seed: u32) -> Scene {
         let hue = hash01(3 * i + 2, seed);
         let strength = 20.0 + 180.0 * hash01(7 * i + 5, seed).powi(3);
         let colour = v(
-            0.5 + 0.5 * (6.2832 * hue).cos(),
-            0.5 + 0.5 * (6.2832 * (hue + 0.33)).cos(),
-            0.5 + 0.5 * (6.2832 * (hue + 0.67)).cos(),
+            0.5 + 0.5 * (std::f32::consts::TAU * hue).cos(),
+            0.5 + 0.5 * (std::f32::consts::TAU * (hue + 0.33)).cos(),
+            0.5 + 0.5 * (std::f32::consts::TAU * (hue + 0.67)).cos(),
         ) * strength
             + Vec3::splat(2.0);
         let m = s.add_material(Material::emitter(&format!("light{i}"), colour));
         let y = h - 0.05;
-        s.add_quad(v(x, y, z), v(x + size, y, z), v(x + size, y, z + size), v(x, y, z + size), m);
+        s.add_quad(
+            v(x, y, z),
+            v(x + size, y, z),
+            v(x + size, y, z + size),
+            v(x, y, z + size),
+            m,
+        );
     }
-    s.camera = Some(Camera { position: v(-10.5, 1.7, 10.5), target: v(2.0, 2.2, -2.0), up: Vec3::Y, fov_y: 60.0 });
+    s.camera = Some(Camera {
+        position: v(-10.5, 1.7, 8.0),
+        target: v(3.0, 2.5, -6.0),
+        up: Vec3::Y,
+        fov_y: 60.0,
+    });
     s
 }
 
@@ -215,13 +376,37 @@ pub fn thin_wall(interior_light: f32) -> Scene {
     let ground = s.add_material(Material::lambert("ground", Vec3::splat(0.5)));
     let wall = s.add_material(Material::lambert("wall", Vec3::splat(0.75)));
     let v = Vec3::new;
-    s.add_quad(v(-50.0, -0.01, -50.0), v(-50.0, -0.01, 50.0), v(50.0, -0.01, 50.0), v(50.0, -0.01, -50.0), ground);
+    s.add_quad(
+        v(-50.0, -0.01, -50.0),
+        v(-50.0, -0.01, 50.0),
+        v(50.0, -0.01, 50.0),
+        v(50.0, -0.01, -50.0),
+        ground,
+    );
     let (a, h) = (2.0f32, 3.0f32);
-    s.add_quad(v(-a, 0.0, -a), v(-a, 0.0, a), v(a, 0.0, a), v(a, 0.0, -a), wall); // floor
+    s.add_quad(
+        v(-a, 0.0, -a),
+        v(-a, 0.0, a),
+        v(a, 0.0, a),
+        v(a, 0.0, -a),
+        wall,
+    ); // floor
     s.add_quad(v(-a, h, -a), v(a, h, -a), v(a, h, a), v(-a, h, a), wall); // roof
-    s.add_quad(v(-a, 0.0, -a), v(a, 0.0, -a), v(a, h, -a), v(-a, h, -a), wall); // the sunlit wall
+    s.add_quad(
+        v(-a, 0.0, -a),
+        v(a, 0.0, -a),
+        v(a, h, -a),
+        v(-a, h, -a),
+        wall,
+    ); // the sunlit wall
     s.add_quad(v(-a, 0.0, a), v(-a, h, a), v(a, h, a), v(a, 0.0, a), wall);
-    s.add_quad(v(-a, 0.0, -a), v(-a, h, -a), v(-a, h, a), v(-a, 0.0, a), wall);
+    s.add_quad(
+        v(-a, 0.0, -a),
+        v(-a, h, -a),
+        v(-a, h, a),
+        v(-a, 0.0, a),
+        wall,
+    );
     s.add_quad(v(a, 0.0, -a), v(a, 0.0, a), v(a, h, a), v(a, h, -a), wall);
     s.sky = v(0.5, 0.65, 1.0) * 2.0;
     s.lights.push(PunctualLight {
@@ -242,16 +427,32 @@ pub fn thin_wall(interior_light: f32) -> Scene {
             outer_cone: 0.0,
         });
     }
-    s.camera = Some(Camera { position: v(0.0, 1.5, 1.8), target: v(0.0, 1.3, -2.0), up: Vec3::Y, fov_y: 75.0 });
+    s.camera = Some(Camera {
+        position: v(0.0, 1.5, 1.8),
+        target: v(0.0, 1.3, -2.0),
+        up: Vec3::Y,
+        fov_y: 75.0,
+    });
     s
 }
 
 /// UV sphere with smooth normals and UVs.
-pub fn add_uv_sphere(s: &mut Scene, center: Vec3, radius: f32, material: u32, rings: u32, segments: u32) {
+pub fn add_uv_sphere(
+    s: &mut Scene,
+    center: Vec3,
+    radius: f32,
+    material: u32,
+    rings: u32,
+    segments: u32,
+) {
     let point = |i: u32, j: u32| {
         let theta = std::f32::consts::PI * i as f32 / rings as f32;
         let phi = std::f32::consts::TAU * j as f32 / segments as f32;
-        Vec3::new(theta.sin() * phi.cos(), theta.cos(), theta.sin() * phi.sin())
+        Vec3::new(
+            theta.sin() * phi.cos(),
+            theta.cos(),
+            theta.sin() * phi.sin(),
+        )
     };
     let base = s.positions.len() as u32;
     for i in 0..=rings {
@@ -259,7 +460,10 @@ pub fn add_uv_sphere(s: &mut Scene, center: Vec3, radius: f32, material: u32, ri
             let n = point(i, j);
             s.positions.push(center + n * radius);
             s.normals.push(n);
-            s.uvs.push(Vec2::new(j as f32 / segments as f32, i as f32 / rings as f32));
+            s.uvs.push(Vec2::new(
+                j as f32 / segments as f32,
+                i as f32 / rings as f32,
+            ));
         }
     }
     let idx = |i: u32, j: u32| base + i * (segments + 1) + j;
@@ -282,18 +486,63 @@ pub fn glossy() -> Scene {
     let wall = s.add_material(Material::lambert("wall", Vec3::new(0.6, 0.55, 0.5)));
     let light = s.add_material(Material::emitter("light", Vec3::splat(12.0)));
     let v = Vec3::new;
-    s.add_quad(v(-6.0, 0.0, -4.0), v(-6.0, 0.0, 4.0), v(6.0, 0.0, 4.0), v(6.0, 0.0, -4.0), floor);
-    s.add_quad(v(-6.0, 0.0, -3.0), v(6.0, 0.0, -3.0), v(6.0, 4.0, -3.0), v(-6.0, 4.0, -3.0), mirror);
-    s.add_quad(v(-6.0, 0.0, -4.0), v(-6.0, 4.0, -4.0), v(-6.0, 4.0, 4.0), v(-6.0, 0.0, 4.0), wall);
-    s.add_quad(v(6.0, 0.0, -4.0), v(6.0, 0.0, 4.0), v(6.0, 4.0, 4.0), v(6.0, 4.0, -4.0), wall);
-    s.add_quad(v(-2.0, 3.99, -1.0), v(2.0, 3.99, -1.0), v(2.0, 3.99, 1.0), v(-2.0, 3.99, 1.0), light);
-    let colours = [v(0.95, 0.95, 0.95), v(1.0, 0.78, 0.34), v(0.95, 0.64, 0.54), v(0.56, 0.57, 0.58)];
+    s.add_quad(
+        v(-6.0, 0.0, -4.0),
+        v(-6.0, 0.0, 4.0),
+        v(6.0, 0.0, 4.0),
+        v(6.0, 0.0, -4.0),
+        floor,
+    );
+    s.add_quad(
+        v(-6.0, 0.0, -3.0),
+        v(6.0, 0.0, -3.0),
+        v(6.0, 4.0, -3.0),
+        v(-6.0, 4.0, -3.0),
+        mirror,
+    );
+    s.add_quad(
+        v(-6.0, 0.0, -4.0),
+        v(-6.0, 4.0, -4.0),
+        v(-6.0, 4.0, 4.0),
+        v(-6.0, 0.0, 4.0),
+        wall,
+    );
+    s.add_quad(
+        v(6.0, 0.0, -4.0),
+        v(6.0, 0.0, 4.0),
+        v(6.0, 4.0, 4.0),
+        v(6.0, 4.0, -4.0),
+        wall,
+    );
+    s.add_quad(
+        v(-2.0, 3.99, -1.0),
+        v(2.0, 3.99, -1.0),
+        v(2.0, 3.99, 1.0),
+        v(-2.0, 3.99, 1.0),
+        light,
+    );
+    let colours = [
+        v(0.95, 0.95, 0.95),
+        v(1.0, 0.78, 0.34),
+        v(0.95, 0.64, 0.54),
+        v(0.56, 0.57, 0.58),
+    ];
     for (i, rough) in [0.0f32, 0.1, 0.3, 0.7].iter().enumerate() {
-        let m = s.add_material(Material::glossy(&format!("metal r{rough}"), colours[i], 1.0, *rough));
+        let m = s.add_material(Material::glossy(
+            &format!("metal r{rough}"),
+            colours[i],
+            1.0,
+            *rough,
+        ));
         add_uv_sphere(&mut s, v(-3.3 + 2.2 * i as f32, 0.9, -0.5), 0.9, m, 24, 48);
     }
     s.sky = Vec3::splat(0.15);
-    s.camera = Some(Camera { position: v(0.0, 2.2, 7.0), target: v(0.0, 1.0, -1.0), up: Vec3::Y, fov_y: 50.0 });
+    s.camera = Some(Camera {
+        position: v(0.0, 2.2, 7.0),
+        target: v(0.0, 1.0, -1.0),
+        up: Vec3::Y,
+        fov_y: 50.0,
+    });
     s
 }
 
@@ -301,21 +550,57 @@ pub fn glossy() -> Scene {
 pub fn hard_cases(emission: f32) -> Scene {
     let mut s = Scene::new("hard-cases");
     let white = s.add_material(Material::lambert("white", Vec3::splat(0.7)));
-    let mirror = s.add_material(Material::glossy("rough0-metal1", Vec3::splat(1.0), 1.0, 0.0));
-    let rough1 = s.add_material(Material::glossy("rough1", Vec3::new(0.8, 0.3, 0.2), 0.0, 1.0));
-    let metal_rough1 = s.add_material(Material::glossy("metal-rough1", Vec3::new(0.9, 0.8, 0.5), 1.0, 1.0));
+    let mirror = s.add_material(Material::glossy(
+        "rough0-metal1",
+        Vec3::splat(1.0),
+        1.0,
+        0.0,
+    ));
+    let rough1 = s.add_material(Material::glossy(
+        "rough1",
+        Vec3::new(0.8, 0.3, 0.2),
+        0.0,
+        1.0,
+    ));
+    let metal_rough1 = s.add_material(Material::glossy(
+        "metal-rough1",
+        Vec3::new(0.9, 0.8, 0.5),
+        1.0,
+        1.0,
+    ));
     let dark = s.add_material(Material::emitter("emission0", Vec3::ZERO));
     let hot = s.add_material(Material::emitter("emission-hot", Vec3::splat(emission)));
     let v = Vec3::new;
-    s.add_quad(v(-5.0, 0.0, -5.0), v(-5.0, 0.0, 5.0), v(5.0, 0.0, 5.0), v(5.0, 0.0, -5.0), white);
+    s.add_quad(
+        v(-5.0, 0.0, -5.0),
+        v(-5.0, 0.0, 5.0),
+        v(5.0, 0.0, 5.0),
+        v(5.0, 0.0, -5.0),
+        white,
+    );
     // The wall the camera grazes.
-    s.add_quad(v(-5.0, 0.0, -5.0), v(5.0, 0.0, -5.0), v(5.0, 4.0, -5.0), v(-5.0, 4.0, -5.0), white);
-    s.add_quad(v(-4.0, 0.0, -4.9), v(-2.0, 0.0, -4.9), v(-2.0, 2.0, -4.9), v(-4.0, 2.0, -4.9), mirror);
+    s.add_quad(
+        v(-5.0, 0.0, -5.0),
+        v(5.0, 0.0, -5.0),
+        v(5.0, 4.0, -5.0),
+        v(-5.0, 4.0, -5.0),
+        white,
+    );
+    s.add_quad(
+        v(-4.0, 0.0, -4.9),
+        v(-2.0, 0.0, -4.9),
+        v(-2.0, 2.0, -4.9),
+        v(-4.0, 2.0, -4.9),
+        mirror,
+    );
     add_uv_sphere(&mut s, v(-1.0, 0.8, -2.0), 0.8, rough1, 12, 24);
     add_uv_sphere(&mut s, v(1.2, 0.8, -2.0), 0.8, metal_rough1, 12, 24);
     // Zero-area triangles: a point and a line.
     s.add_triangle([v(0.0, 1.0, 0.0); 3], white);
-    s.add_triangle([v(0.0, 1.0, 0.0), v(1.0, 1.0, 0.0), v(2.0, 1.0, 0.0)], white);
+    s.add_triangle(
+        [v(0.0, 1.0, 0.0), v(1.0, 1.0, 0.0), v(2.0, 1.0, 0.0)],
+        white,
+    );
     // Triangles with zero (missing) normals.
     let base = s.positions.len() as u32;
     for p in [v(2.0, 0.0, 1.0), v(3.0, 0.0, 1.0), v(2.5, 1.5, 1.0)] {
@@ -326,12 +611,29 @@ pub fn hard_cases(emission: f32) -> Scene {
     s.triangles.push([base, base + 1, base + 2]);
     s.triangle_material.push(white);
     // A tiny, extremely bright emitter and a black one.
-    s.add_quad(v(3.0, 2.0, -3.0), v(3.0, 2.1, -3.0), v(3.0, 2.1, -2.9), v(3.0, 2.0, -2.9), hot);
-    s.add_quad(v(-3.0, 2.0, -3.0), v(-3.0, 2.5, -3.0), v(-3.0, 2.5, -2.5), v(-3.0, 2.0, -2.5), dark);
+    s.add_quad(
+        v(3.0, 2.0, -3.0),
+        v(3.0, 2.1, -3.0),
+        v(3.0, 2.1, -2.9),
+        v(3.0, 2.0, -2.9),
+        hot,
+    );
+    s.add_quad(
+        v(-3.0, 2.0, -3.0),
+        v(-3.0, 2.5, -3.0),
+        v(-3.0, 2.5, -2.5),
+        v(-3.0, 2.0, -2.5),
+        dark,
+    );
     // A point light sealed inside a box: contributes nothing outside.
     let c = v(3.5, 0.0, 2.5);
     let r = 0.4;
-    let b = [c + v(-r, 0.0, -r), c + v(-r, 0.0, r), c + v(r, 0.0, r), c + v(r, 0.0, -r)];
+    let b = [
+        c + v(-r, 0.0, -r),
+        c + v(-r, 0.0, r),
+        c + v(r, 0.0, r),
+        c + v(r, 0.0, -r),
+    ];
     let t = b.map(|p| p + v(0.0, 0.8, 0.0));
     s.add_box([b[0], b[1], b[2], b[3], t[0], t[1], t[2], t[3]], white);
     s.lights.push(PunctualLight {
@@ -352,6 +654,11 @@ pub fn hard_cases(emission: f32) -> Scene {
     });
     s.sky = Vec3::splat(0.3);
     // Grazing: the camera sits 1 mm in front of the back wall, looking along it.
-    s.camera = Some(Camera { position: v(4.5, 1.5, -4.999), target: v(-5.0, 1.2, -4.99), up: Vec3::Y, fov_y: 70.0 });
+    s.camera = Some(Camera {
+        position: v(4.5, 1.5, -4.999),
+        target: v(-5.0, 1.2, -4.99),
+        up: Vec3::Y,
+        fov_y: 70.0,
+    });
     s
 }

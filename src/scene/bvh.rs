@@ -60,7 +60,10 @@ struct Aabb {
 }
 
 impl Aabb {
-    const EMPTY: Aabb = Aabb { min: Vec3::splat(f32::MAX), max: Vec3::splat(f32::MIN) };
+    const EMPTY: Aabb = Aabb {
+        min: Vec3::splat(f32::MAX),
+        max: Vec3::splat(f32::MIN),
+    };
     fn grow(&mut self, p: Vec3) {
         self.min = self.min.min(p);
         self.max = self.max.max(p);
@@ -104,7 +107,12 @@ impl Bvh {
                 cbounds.grow(centroids[t as usize]);
             }
             let leaf = |nodes: &mut Vec<BuildNode>| {
-                nodes[ni] = BuildNode { min: bounds.min.to_array(), max: bounds.max.to_array(), left_or_first: first as u32, count: count as u32 };
+                nodes[ni] = BuildNode {
+                    min: bounds.min.to_array(),
+                    max: bounds.max.to_array(),
+                    left_or_first: first as u32,
+                    count: count as u32,
+                };
             };
             if count <= 1 {
                 leaf(&mut nodes);
@@ -114,7 +122,9 @@ impl Bvh {
             let leaf_cost = count as f32;
             let mid = match split {
                 Some((axis, pos, cost)) if cost < leaf_cost || count > MAX_LEAF => {
-                    partition(&mut order[first..first + count], |t| centroids[t as usize][axis] < pos)
+                    partition(&mut order[first..first + count], |t| {
+                        centroids[t as usize][axis] < pos
+                    })
                 }
                 _ if count <= MAX_LEAF => {
                     leaf(&mut nodes);
@@ -123,30 +133,59 @@ impl Bvh {
                 _ => 0,
             };
             // Degenerate split (all centroids equal): halve the range so the tree still shrinks.
-            let mid = if mid == 0 || mid == count { count / 2 } else { mid };
+            let mid = if mid == 0 || mid == count {
+                count / 2
+            } else {
+                mid
+            };
             let left = nodes.len();
             nodes.push(BuildNode::default());
             nodes.push(BuildNode::default());
-            nodes[ni] = BuildNode { min: bounds.min.to_array(), max: bounds.max.to_array(), left_or_first: left as u32, count: 0 };
+            nodes[ni] = BuildNode {
+                min: bounds.min.to_array(),
+                max: bounds.max.to_array(),
+                left_or_first: left as u32,
+                count: 0,
+            };
             work.push((left + 1, first + mid, count - mid, depth + 1));
             work.push((left, first, mid, depth + 1));
         }
         if n == 0 {
             // Nothing to hit: no nodes at all, traversal ends at once.
-            return Bvh { nodes: Vec::new(), order, depth: 0 };
+            return Bvh {
+                nodes: Vec::new(),
+                order,
+                depth: 0,
+            };
         }
-        Bvh { nodes: flatten_depth_first(&nodes), order, depth: max_depth }
+        Bvh {
+            nodes: flatten_depth_first(&nodes),
+            order,
+            depth: max_depth,
+        }
     }
 
     /// CPU closest hit, the same algorithm as the WGSL traversal: (t, original triangle index).
-    pub fn closest_hit(&self, tris: &[[Vec3; 3]], origin: Vec3, dir: Vec3, t_max: f32) -> Option<(f32, u32)> {
+    pub fn closest_hit(
+        &self,
+        tris: &[[Vec3; 3]],
+        origin: Vec3,
+        dir: Vec3,
+        t_max: f32,
+    ) -> Option<(f32, u32)> {
         let mut best: Option<(f32, u32)> = None;
         let mut t_best = t_max;
         let inv = Vec3::ONE / dir;
         let mut i = 0usize;
         while i < self.nodes.len() {
             let node = &self.nodes[i];
-            if !ray_box(origin, inv, Vec3::from(node.min), Vec3::from(node.max), t_best) {
+            if !ray_box(
+                origin,
+                inv,
+                Vec3::from(node.min),
+                Vec3::from(node.max),
+                t_best,
+            ) {
                 i = node.skip as usize;
                 continue;
             }
@@ -182,8 +221,17 @@ fn flatten_depth_first(build: &[BuildNode]) -> Vec<BvhNode> {
         match v {
             Visit::Enter(bi) => {
                 let b = &build[bi];
-                let tris = if b.count > 0 { (b.left_or_first << 8) | b.count.min(255) } else { 0 };
-                out.push(BvhNode { min: b.min, skip: 0, max: b.max, tris });
+                let tris = if b.count > 0 {
+                    (b.left_or_first << 8) | b.count.min(255)
+                } else {
+                    0
+                };
+                out.push(BvhNode {
+                    min: b.min,
+                    skip: 0,
+                    max: b.max,
+                    tris,
+                });
                 let oi = out.len() - 1;
                 work.push(Visit::Exit(oi));
                 if b.count == 0 {
@@ -197,7 +245,13 @@ fn flatten_depth_first(build: &[BuildNode]) -> Vec<BvhNode> {
     out
 }
 
-fn best_split(refs: &[u32], boxes: &[Aabb], centroids: &[Vec3], cbounds: &Aabb) -> Option<(usize, f32, f32)> {
+#[allow(clippy::needless_range_loop)] // `axis` indexes vectors, not one array.
+fn best_split(
+    refs: &[u32],
+    boxes: &[Aabb],
+    centroids: &[Vec3],
+    cbounds: &Aabb,
+) -> Option<(usize, f32, f32)> {
     let mut best: Option<(usize, f32, f32)> = None;
     let mut parent = Aabb::EMPTY;
     refs.iter().for_each(|&t| parent.merge(&boxes[t as usize]));
@@ -234,7 +288,9 @@ fn best_split(refs: &[u32], boxes: &[Aabb], centroids: &[Vec3], cbounds: &Aabb) 
             if left_count == 0 || right_count[i + 1] == 0 {
                 continue;
             }
-            let cost = 1.0 + (left.area() * left_count as f32 + right_area[i + 1] * right_count[i + 1] as f32) / parent_area;
+            let cost = 1.0
+                + (left.area() * left_count as f32 + right_area[i + 1] * right_count[i + 1] as f32)
+                    / parent_area;
             if best.is_none_or(|b| cost < b.2) {
                 best = Some((axis, lo + extent * (i + 1) as f32 / BINS as f32, cost));
             }

@@ -36,7 +36,10 @@ pub struct SceneFeatures {
 
 impl SceneFeatures {
     pub fn light_count(&self) -> usize {
-        self.emissive_triangle_count + self.point_lights + self.spot_lights + self.directional_lights
+        self.emissive_triangle_count
+            + self.point_lights
+            + self.spot_lights
+            + self.directional_lights
     }
     pub fn has_emissive(&self) -> bool {
         self.emissive_triangle_count > 0
@@ -46,14 +49,18 @@ impl SceneFeatures {
     }
 
     pub fn compute(scene: &Scene, bvh: &Bvh, tris: &[[Vec3; 3]]) -> SceneFeatures {
-        let mut f = SceneFeatures { triangle_count: scene.triangles.len(), ..Default::default() };
+        let mut f = SceneFeatures {
+            triangle_count: scene.triangles.len(),
+            ..Default::default()
+        };
         for (i, t) in tris.iter().enumerate() {
             let m = &scene.materials[scene.triangle_material[i] as usize];
             let lum = luminance(m.emissive);
             let area = 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length();
             if lum > 0.0 && area > 0.0 {
                 f.emissive_triangle_count += 1;
-                f.emissive_power += std::f32::consts::PI * area * lum * if m.double_sided { 2.0 } else { 1.0 };
+                f.emissive_power +=
+                    std::f32::consts::PI * area * lum * if m.double_sided { 2.0 } else { 1.0 };
             }
         }
         for l in &scene.lights {
@@ -63,17 +70,23 @@ impl SceneFeatures {
                 PunctualKind::Directional => f.directional_lights += 1,
             }
         }
-        let used: std::collections::BTreeSet<u32> = scene.triangle_material.iter().copied().collect();
+        let used: std::collections::BTreeSet<u32> =
+            scene.triangle_material.iter().copied().collect();
         for &mi in &used {
             let m = &scene.materials[mi as usize];
             if m.metallic > 0.0 || m.specular > 0.0 {
-                f.min_specular_roughness = Some(f.min_specular_roughness.map_or(m.roughness, |r: f32| r.min(m.roughness)));
+                f.min_specular_roughness = Some(
+                    f.min_specular_roughness
+                        .map_or(m.roughness, |r: f32| r.min(m.roughness)),
+                );
             }
             if m.base_color_texture.is_some() {
                 f.textured_materials += 1;
             }
         }
-        f.has_glossy = f.min_specular_roughness.is_some_and(|r| r < GLOSSY_ROUGHNESS);
+        f.has_glossy = f
+            .min_specular_roughness
+            .is_some_and(|r| r < GLOSSY_ROUGHNESS);
         f.has_mirror = f.min_specular_roughness.is_some_and(|r| r * r < 1e-3);
         f.texture_count = scene.textures.len();
         f.many_lights = f.light_count() > MANY_LIGHTS;

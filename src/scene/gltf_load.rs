@@ -18,7 +18,12 @@ pub fn load(path: &Path) -> Result<Scene> {
 
 fn load_inner(path: &Path) -> Result<Scene> {
     let (doc, buffers, images) = gltf::import(path).map_err(|e| anyhow!("{e}"))?;
-    let mut scene = Scene::new(&path.file_stem().map(|s| s.to_string_lossy().to_string()).unwrap_or_default());
+    let mut scene = Scene::new(
+        &path
+            .file_stem()
+            .map(|s| s.to_string_lossy().to_string())
+            .unwrap_or_default(),
+    );
 
     for img in &images {
         scene.textures.push(to_rgba8(img)?);
@@ -39,8 +44,12 @@ fn load_inner(path: &Path) -> Result<Scene> {
         double_sided: false,
     });
 
-    let gltf_scene = doc.default_scene().or_else(|| doc.scenes().next()).ok_or_else(|| anyhow!("file has no scene"))?;
-    let mut stack: Vec<(gltf::Node, Mat4)> = gltf_scene.nodes().map(|n| (n, Mat4::IDENTITY)).collect();
+    let gltf_scene = doc
+        .default_scene()
+        .or_else(|| doc.scenes().next())
+        .ok_or_else(|| anyhow!("file has no scene"))?;
+    let mut stack: Vec<(gltf::Node, Mat4)> =
+        gltf_scene.nodes().map(|n| (n, Mat4::IDENTITY)).collect();
     let mut visited = 0usize;
     while let Some((node, parent)) = stack.pop() {
         visited += 1;
@@ -60,7 +69,12 @@ fn load_inner(path: &Path) -> Result<Scene> {
                 let fwd = world.transform_vector3(Vec3::NEG_Z).normalize_or_zero();
                 let up = world.transform_vector3(Vec3::Y).normalize_or_zero();
                 if fwd != Vec3::ZERO {
-                    scene.camera = Some(Camera { position: pos, target: pos + fwd, up, fov_y: p.yfov().to_degrees() });
+                    scene.camera = Some(Camera {
+                        position: pos,
+                        target: pos + fwd,
+                        up,
+                        fov_y: p.yfov().to_degrees(),
+                    });
                 }
             }
         }
@@ -81,7 +95,10 @@ fn read_material(m: &gltf::Material, image_count: usize) -> Result<Material> {
         Some(info) => {
             let idx = info.texture().source().index();
             if idx >= image_count {
-                bail!("material '{}' references missing image {idx}", m.name().unwrap_or("?"));
+                bail!(
+                    "material '{}' references missing image {idx}",
+                    m.name().unwrap_or("?")
+                );
             }
             Some(idx)
         }
@@ -91,7 +108,10 @@ fn read_material(m: &gltf::Material, image_count: usize) -> Result<Material> {
     let specular = m.specular().map(|s| s.specular_factor()).unwrap_or(1.0);
     let emissive = Vec3::from_array(m.emissive_factor()) * strength;
     if !emissive.is_finite() {
-        bail!("material '{}' has a non-finite emission", m.name().unwrap_or("?"));
+        bail!(
+            "material '{}' has a non-finite emission",
+            m.name().unwrap_or("?")
+        );
     }
     Ok(Material {
         name: m.name().unwrap_or("unnamed").to_string(),
@@ -105,23 +125,40 @@ fn read_material(m: &gltf::Material, image_count: usize) -> Result<Material> {
     })
 }
 
-fn add_mesh(scene: &mut Scene, mesh: &gltf::Mesh, world: Mat4, buffers: &[gltf::buffer::Data], default_material: u32) -> Result<()> {
+fn add_mesh(
+    scene: &mut Scene,
+    mesh: &gltf::Mesh,
+    world: Mat4,
+    buffers: &[gltf::buffer::Data],
+    default_material: u32,
+) -> Result<()> {
     let normal_matrix = Mat3::from_mat4(world).inverse().transpose();
     let flip = Mat3::from_mat4(world).determinant() < 0.0;
     for prim in mesh.primitives() {
         if prim.mode() != gltf::mesh::Mode::Triangles {
-            log::warn!("mesh '{}': skipping a {:?} primitive (only triangles are rendered)", mesh.name().unwrap_or("?"), prim.mode());
+            log::warn!(
+                "mesh '{}': skipping a {:?} primitive (only triangles are rendered)",
+                mesh.name().unwrap_or("?"),
+                prim.mode()
+            );
             continue;
         }
         let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
         let positions: Vec<Vec3> = reader
             .read_positions()
-            .ok_or_else(|| anyhow!("mesh '{}' has a primitive without positions", mesh.name().unwrap_or("?")))?
+            .ok_or_else(|| {
+                anyhow!(
+                    "mesh '{}' has a primitive without positions",
+                    mesh.name().unwrap_or("?")
+                )
+            })?
             .map(|p| world.transform_point3(Vec3::from_array(p)))
             .collect();
         let n = positions.len();
         let normals: Vec<Vec3> = match reader.read_normals() {
-            Some(it) => it.map(|v| (normal_matrix * Vec3::from_array(v)).normalize_or_zero()).collect(),
+            Some(it) => it
+                .map(|v| (normal_matrix * Vec3::from_array(v)).normalize_or_zero())
+                .collect(),
             None => vec![Vec3::ZERO; n],
         };
         let uvs: Vec<Vec2> = match reader.read_tex_coords(0) {
@@ -129,26 +166,43 @@ fn add_mesh(scene: &mut Scene, mesh: &gltf::Mesh, world: Mat4, buffers: &[gltf::
             None => vec![Vec2::ZERO; n],
         };
         if normals.len() != n || uvs.len() != n {
-            bail!("mesh '{}': attribute counts differ from the position count", mesh.name().unwrap_or("?"));
+            bail!(
+                "mesh '{}': attribute counts differ from the position count",
+                mesh.name().unwrap_or("?")
+            );
         }
         let indices: Vec<u32> = match reader.read_indices() {
             Some(it) => it.into_u32().collect(),
             None => (0..n as u32).collect(),
         };
         if let Some(bad) = indices.iter().find(|&&i| i as usize >= n) {
-            bail!("mesh '{}': index {bad} is out of range ({n} vertices)", mesh.name().unwrap_or("?"));
+            bail!(
+                "mesh '{}': index {bad} is out of range ({n} vertices)",
+                mesh.name().unwrap_or("?")
+            );
         }
-        let material = prim.material().index().map_or(default_material, |i| i as u32);
+        let material = prim
+            .material()
+            .index()
+            .map_or(default_material, |i| i as u32);
         let missing_normals = reader.read_normals().is_none();
         for tri in indices.chunks_exact(3) {
-            let t = if flip { [tri[0], tri[2], tri[1]] } else { [tri[0], tri[1], tri[2]] };
+            let t = if flip {
+                [tri[0], tri[2], tri[1]]
+            } else {
+                [tri[0], tri[1], tri[2]]
+            };
             let base = scene.positions.len() as u32;
             let p = t.map(|i| positions[i as usize]);
             // Unshared vertices: generated flat normals stay per triangle.
             let flat = (p[1] - p[0]).cross(p[2] - p[0]).normalize_or_zero();
             for (k, &i) in t.iter().enumerate() {
                 scene.positions.push(p[k]);
-                scene.normals.push(if missing_normals { flat } else { normals[i as usize] });
+                scene.normals.push(if missing_normals {
+                    flat
+                } else {
+                    normals[i as usize]
+                });
                 scene.uvs.push(uvs[i as usize]);
             }
             scene.triangles.push([base, base + 1, base + 2]);
@@ -162,13 +216,26 @@ fn read_light(light: &gltf::khr_lights_punctual::Light, world: Mat4) -> Punctual
     use gltf::khr_lights_punctual::Kind;
     let intensity = Vec3::from_array(light.color()) * light.intensity();
     let position = world.transform_point3(Vec3::ZERO);
-    let direction = world.transform_vector3(Vec3::NEG_Z).try_normalize().unwrap_or(Vec3::NEG_Z);
+    let direction = world
+        .transform_vector3(Vec3::NEG_Z)
+        .try_normalize()
+        .unwrap_or(Vec3::NEG_Z);
     let (kind, inner, outer) = match light.kind() {
         Kind::Directional => (PunctualKind::Directional, 0.0, 0.0),
         Kind::Point => (PunctualKind::Point, 0.0, 0.0),
-        Kind::Spot { inner_cone_angle, outer_cone_angle } => (PunctualKind::Spot, inner_cone_angle, outer_cone_angle),
+        Kind::Spot {
+            inner_cone_angle,
+            outer_cone_angle,
+        } => (PunctualKind::Spot, inner_cone_angle, outer_cone_angle),
     };
-    PunctualLight { kind, position, direction, intensity, inner_cone: inner, outer_cone: outer }
+    PunctualLight {
+        kind,
+        position,
+        direction,
+        intensity,
+        inner_cone: inner,
+        outer_cone: outer,
+    }
 }
 
 fn to_rgba8(img: &gltf::image::Data) -> Result<Texture> {
@@ -177,13 +244,27 @@ fn to_rgba8(img: &gltf::image::Data) -> Result<Texture> {
     let src = &img.pixels;
     let rgba8: Vec<u8> = match img.format {
         Format::R8 => src.iter().flat_map(|&r| [r, r, r, 255]).collect(),
-        Format::R8G8 => src.chunks_exact(2).flat_map(|c| [c[0], c[1], 0, 255]).collect(),
-        Format::R8G8B8 => src.chunks_exact(3).flat_map(|c| [c[0], c[1], c[2], 255]).collect(),
+        Format::R8G8 => src
+            .chunks_exact(2)
+            .flat_map(|c| [c[0], c[1], 0, 255])
+            .collect(),
+        Format::R8G8B8 => src
+            .chunks_exact(3)
+            .flat_map(|c| [c[0], c[1], c[2], 255])
+            .collect(),
         Format::R8G8B8A8 => src.clone(),
         other => bail!("unsupported texture format {other:?} (8-bit textures only)"),
     };
     if rgba8.len() != px * 4 {
-        bail!("texture data size does not match {}x{}", img.width, img.height);
+        bail!(
+            "texture data size does not match {}x{}",
+            img.width,
+            img.height
+        );
     }
-    Ok(Texture { width: img.width, height: img.height, rgba8 })
+    Ok(Texture {
+        width: img.width,
+        height: img.height,
+        rgba8,
+    })
 }

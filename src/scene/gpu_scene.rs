@@ -88,7 +88,11 @@ impl SceneData {
         let mut tex_offset = Vec::new();
         for t in &scene.textures {
             tex_offset.push(texels.len() as u32);
-            texels.extend(t.rgba8.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])));
+            texels.extend(
+                t.rgba8
+                    .chunks_exact(4)
+                    .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])),
+            );
         }
         if texels.is_empty() {
             texels.push(0);
@@ -98,13 +102,26 @@ impl SceneData {
             .iter()
             .map(|m| {
                 let base_tex = match m.base_color_texture {
-                    Some(i) => [tex_offset[i], scene.textures[i].width, scene.textures[i].height, 1],
+                    Some(i) => [
+                        tex_offset[i],
+                        scene.textures[i].width,
+                        scene.textures[i].height,
+                        1,
+                    ],
                     None => [0; 4],
                 };
                 GpuMaterial {
                     base_color: m.base_color.to_array(),
-                    emissive: m.emissive.extend(if m.double_sided { 1.0 } else { 0.0 }).to_array(),
-                    params: [m.metallic.clamp(0.0, 1.0), m.roughness.clamp(0.0, 1.0), m.specular.clamp(0.0, 1.0), 0.0],
+                    emissive: m
+                        .emissive
+                        .extend(if m.double_sided { 1.0 } else { 0.0 })
+                        .to_array(),
+                    params: [
+                        m.metallic.clamp(0.0, 1.0),
+                        m.roughness.clamp(0.0, 1.0),
+                        m.specular.clamp(0.0, 1.0),
+                        0.0,
+                    ],
                     base_tex,
                 }
             })
@@ -120,10 +137,17 @@ impl SceneData {
             let m = &scene.materials[scene.triangle_material[orig as usize] as usize];
             let t = &tris[orig as usize];
             let area = 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length();
-            let power = std::f32::consts::PI * area * luminance(m.emissive) * if m.double_sided { 2.0 } else { 1.0 };
+            let power = std::f32::consts::PI
+                * area
+                * luminance(m.emissive)
+                * if m.double_sided { 2.0 } else { 1.0 };
             if power > 0.0 && power.is_finite() {
                 tri_light_power[bvh_index] = power;
-                lights.push(GpuLight { kind: LIGHT_TRIANGLE, tri: bvh_index as u32, ..Default::default() });
+                lights.push(GpuLight {
+                    kind: LIGHT_TRIANGLE,
+                    tri: bvh_index as u32,
+                    ..Default::default()
+                });
                 powers.push(power);
             }
         }
@@ -136,7 +160,10 @@ impl SceneData {
                 PunctualKind::Point => (LIGHT_POINT, 4.0 * std::f32::consts::PI * lum),
                 PunctualKind::Spot => (LIGHT_SPOT, 4.0 * std::f32::consts::PI * lum),
                 // Power through a disc the size of the scene.
-                PunctualKind::Directional => (LIGHT_DIRECTIONAL, std::f32::consts::PI * scene_radius * scene_radius * lum),
+                PunctualKind::Directional => (
+                    LIGHT_DIRECTIONAL,
+                    std::f32::consts::PI * scene_radius * scene_radius * lum,
+                ),
             };
             // glTF spot falloff: smooth between cos(outer) and cos(inner).
             let (co, ci) = (l.outer_cone.cos(), l.inner_cone.cos());
@@ -173,7 +200,11 @@ impl SceneData {
             let n = idx.map(|i| scene.normals[i as usize]);
             let uv = idx.map(|i| scene.uvs[i as usize]);
             let material = scene.triangle_material[orig as usize];
-            let pmf = if total > 0.0 { (tri_light_power[bvh_index] as f64 / total) as f32 } else { 0.0 };
+            let pmf = if total > 0.0 {
+                (tri_light_power[bvh_index] as f64 / total) as f32
+            } else {
+                0.0
+            };
             tri_geom.push(GpuTriGeom {
                 v0: p[0].extend(0.0).to_array(),
                 e1: (p[1] - p[0]).extend(0.0).to_array(),
@@ -187,10 +218,25 @@ impl SceneData {
                 uv2: [uv[2].x, uv[2].y, 0.0, 0.0],
             });
             for k in 0..3 {
-                vertices.push(RasterVertex { position: p[k].to_array(), normal: n[k].to_array(), uv: uv[k].to_array(), material });
+                vertices.push(RasterVertex {
+                    position: p[k].to_array(),
+                    normal: n[k].to_array(),
+                    uv: uv[k].to_array(),
+                    material,
+                });
             }
         }
-        SceneData { tris, bvh, tri_geom, tri_attr, materials, texels, lights, vertices, features }
+        SceneData {
+            tris,
+            bvh,
+            tri_geom,
+            tri_attr,
+            materials,
+            texels,
+            lights,
+            vertices,
+            features,
+        }
     }
 }
 
@@ -217,7 +263,11 @@ impl GpuScene {
                 count: None,
             })
             .collect();
-        gpu.device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("scene"), entries: &entries })
+        gpu.device
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("scene"),
+                entries: &entries,
+            })
     }
 
     pub fn upload(gpu: &Gpu, scene: &Scene) -> GpuScene {
@@ -228,11 +278,12 @@ impl GpuScene {
             if v.len() < 16 {
                 v.resize(16, 0);
             }
-            gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(label),
-                contents: &v,
-                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
-            })
+            gpu.device
+                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some(label),
+                    contents: &v,
+                    usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+                })
         };
         let nodes = storage("bvh nodes", bytemuck::cast_slice(&data.bvh.nodes));
         let geom = storage("tri geom", bytemuck::cast_slice(&data.tri_geom));
@@ -240,8 +291,17 @@ impl GpuScene {
         let mats = storage("materials", bytemuck::cast_slice(&data.materials));
         let texels = storage("texels", bytemuck::cast_slice(&data.texels));
         let mut light_bytes: Vec<u8> = Vec::new();
-        let emissive = data.lights.iter().filter(|l| l.kind == LIGHT_TRIANGLE).count() as u32;
-        let header = [data.lights.len() as u32, emissive, data.lights.len() as u32 - emissive, 0];
+        let emissive = data
+            .lights
+            .iter()
+            .filter(|l| l.kind == LIGHT_TRIANGLE)
+            .count() as u32;
+        let header = [
+            data.lights.len() as u32,
+            emissive,
+            data.lights.len() as u32 - emissive,
+            0,
+        ];
         light_bytes.extend_from_slice(bytemuck::cast_slice(&header));
         light_bytes.extend_from_slice(bytemuck::cast_slice(&data.lights));
         if data.lights.is_empty() {
@@ -253,19 +313,35 @@ impl GpuScene {
         let entries: Vec<wgpu::BindGroupEntry> = bufs
             .iter()
             .enumerate()
-            .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
+            .map(|(i, b)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource: b.as_entire_binding(),
+            })
             .collect();
-        let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some("scene"), layout: &layout, entries: &entries });
+        let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("scene"),
+            layout: &layout,
+            entries: &entries,
+        });
         let mut vbytes = bytemuck::cast_slice::<RasterVertex, u8>(&data.vertices).to_vec();
         if vbytes.is_empty() {
             vbytes.resize(std::mem::size_of::<RasterVertex>(), 0);
         }
-        let vertex_buffer = gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("raster vertices"),
-            contents: &vbytes,
-            usage: wgpu::BufferUsages::VERTEX,
-        });
+        let vertex_buffer = gpu
+            .device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("raster vertices"),
+                contents: &vbytes,
+                usage: wgpu::BufferUsages::VERTEX,
+            });
         let vertex_count = data.vertices.len() as u32;
-        GpuScene { data, sky: scene.sky, layout, bind_group, vertex_buffer, vertex_count }
+        GpuScene {
+            data,
+            sky: scene.sky,
+            layout,
+            bind_group,
+            vertex_buffer,
+            vertex_count,
+        }
     }
 }

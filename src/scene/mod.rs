@@ -41,10 +41,18 @@ impl Material {
         }
     }
     pub fn emitter(name: &str, radiance: Vec3) -> Material {
-        Material { emissive: radiance, ..Material::lambert(name, Vec3::ZERO) }
+        Material {
+            emissive: radiance,
+            ..Material::lambert(name, Vec3::ZERO)
+        }
     }
     pub fn glossy(name: &str, base: Vec3, metallic: f32, roughness: f32) -> Material {
-        Material { metallic, roughness, specular: 1.0, ..Material::lambert(name, base) }
+        Material {
+            metallic,
+            roughness,
+            specular: 1.0,
+            ..Material::lambert(name, base)
+        }
     }
 }
 
@@ -93,7 +101,9 @@ fn default_up() -> Vec3 {
 
 impl Camera {
     pub fn forward(&self) -> Vec3 {
-        (self.target - self.position).try_normalize().unwrap_or(Vec3::NEG_Z)
+        (self.target - self.position)
+            .try_normalize()
+            .unwrap_or(Vec3::NEG_Z)
     }
     /// Right and up vectors, robust to `up` parallel to the view direction.
     pub fn basis(&self) -> (Vec3, Vec3, Vec3) {
@@ -112,7 +122,8 @@ impl Camera {
     pub fn clip_from_world(&self, aspect: f32, near: f32) -> glam::Mat4 {
         let fov = self.fov_y.clamp(0.01, 179.0).to_radians();
         // wgpu's NDC: y up, depth in [0, 1] (the "directx" convention).
-        glam::camera::rh::proj::directx::perspective_infinite(fov, aspect, near) * self.view_from_world()
+        glam::camera::rh::proj::directx::perspective_infinite(fov, aspect, near)
+            * self.view_from_world()
     }
 }
 
@@ -136,7 +147,10 @@ pub struct Scene {
 
 impl Scene {
     pub fn new(name: &str) -> Scene {
-        Scene { name: name.into(), ..Default::default() }
+        Scene {
+            name: name.into(),
+            ..Default::default()
+        }
     }
 
     pub fn add_material(&mut self, m: Material) -> u32 {
@@ -199,25 +213,51 @@ impl Scene {
         let (lo, hi) = self.bounds();
         let center = (lo + hi) * 0.5;
         let radius = ((hi - lo).length() * 0.5).max(1e-3);
-        Camera { position: center + Vec3::new(0.0, 0.3, 1.0).normalize() * radius * 2.2, target: center, up: Vec3::Y, fov_y: 45.0 }
+        Camera {
+            position: center + Vec3::new(0.0, 0.3, 1.0).normalize() * radius * 2.2,
+            target: center,
+            up: Vec3::Y,
+            fov_y: 45.0,
+        }
     }
 
     /// Checks internal consistency; loaders call it so bad data never reaches the GPU.
     pub fn validate(&self) -> Result<()> {
         let nv = self.positions.len();
-        anyhow::ensure!(self.triangles.len() < bvh::MAX_TRIANGLES, "{} triangles exceed the limit of {}", self.triangles.len(), bvh::MAX_TRIANGLES);
-        anyhow::ensure!(self.normals.len() == nv && self.uvs.len() == nv, "vertex attribute arrays differ in length");
-        anyhow::ensure!(self.triangle_material.len() == self.triangles.len(), "one material per triangle expected");
+        anyhow::ensure!(
+            self.triangles.len() < bvh::MAX_TRIANGLES,
+            "{} triangles exceed the limit of {}",
+            self.triangles.len(),
+            bvh::MAX_TRIANGLES
+        );
+        anyhow::ensure!(
+            self.normals.len() == nv && self.uvs.len() == nv,
+            "vertex attribute arrays differ in length"
+        );
+        anyhow::ensure!(
+            self.triangle_material.len() == self.triangles.len(),
+            "one material per triangle expected"
+        );
         for (i, t) in self.triangles.iter().enumerate() {
-            anyhow::ensure!(t.iter().all(|&v| (v as usize) < nv), "triangle {i} indexes a vertex out of range");
-            anyhow::ensure!((self.triangle_material[i] as usize) < self.materials.len(), "triangle {i} has no material");
+            anyhow::ensure!(
+                t.iter().all(|&v| (v as usize) < nv),
+                "triangle {i} indexes a vertex out of range"
+            );
+            anyhow::ensure!(
+                (self.triangle_material[i] as usize) < self.materials.len(),
+                "triangle {i} has no material"
+            );
         }
         for p in &self.positions {
             anyhow::ensure!(p.is_finite(), "vertex position is not finite");
         }
         for m in &self.materials {
             if let Some(t) = m.base_color_texture {
-                anyhow::ensure!(t < self.textures.len(), "material '{}' references a missing texture", m.name);
+                anyhow::ensure!(
+                    t < self.textures.len(),
+                    "material '{}' references a missing texture",
+                    m.name
+                );
             }
         }
         Ok(())

@@ -24,12 +24,27 @@ pub struct ReferencePathTracer {
     bind_group: Option<wgpu::BindGroup>,
     mean: Option<wgpu::Buffer>,
     m2: Option<wgpu::Buffer>,
+    /// One 256-byte slot per sample of a frame, bound with a dynamic offset per dispatch.
+    sample_slots: Option<wgpu::Buffer>,
     extent: [u32; 2],
 }
 
+/// Most samples one frame can take (one dispatch each).
+pub const MAX_SAMPLES_PER_FRAME: u32 = 64;
+const SLOT_BYTES: u64 = 256;
+
 impl Default for ReferencePathTracer {
     fn default() -> Self {
-        ReferencePathTracer { samples_per_frame: 1, max_depth: 0, pipeline: None, bind_group: None, mean: None, m2: None, extent: [0, 0] }
+        ReferencePathTracer {
+            samples_per_frame: 1,
+            max_depth: 0,
+            pipeline: None,
+            bind_group: None,
+            mean: None,
+            m2: None,
+            sample_slots: None,
+            extent: [0, 0],
+        }
     }
 }
 
@@ -39,12 +54,19 @@ impl Technique for ReferencePathTracer {
     }
 
     fn passes(&self, f: &SceneFeatures) -> Vec<PassInfo> {
-        let mut v = vec![PassInfo { name: "path_trace", runs: true, why: "one kernel traces camera, shadow and bounce rays".into() }];
+        let mut v = vec![PassInfo {
+            name: "path_trace",
+            runs: true,
+            why: "one kernel traces camera, shadow and bounce rays".into(),
+        }];
         v.push(PassInfo {
             name: "nee: emissive triangles",
             runs: f.has_emissive(),
             why: if f.has_emissive() {
-                format!("{} emissive triangles in the light pool", f.emissive_triangle_count)
+                format!(
+                    "{} emissive triangles in the light pool",
+                    f.emissive_triangle_count
+                )
             } else {
                 "no emissive triangles".into()
             },
@@ -52,14 +74,26 @@ impl Technique for ReferencePathTracer {
         v.push(PassInfo {
             name: "nee: punctual lights",
             runs: f.has_punctual(),
-            why: if f.has_punctual() { "punctual lights in the light pool".into() } else { "no punctual lights".into() },
+            why: if f.has_punctual() {
+                "punctual lights in the light pool".into()
+            } else {
+                "no punctual lights".into()
+            },
         });
         v.push(PassInfo {
             name: "sky",
             runs: f.sky_visible,
-            why: if f.sky_visible { "sky radiance reachable from the camera".into() } else { "sky black or enclosed".into() },
+            why: if f.sky_visible {
+                "sky radiance reachable from the camera".into()
+            } else {
+                "sky black or enclosed".into()
+            },
         });
-        v.push(PassInfo { name: "gbuffer", runs: false, why: "traces its own jittered camera rays for antialiasing".into() });
+        v.push(PassInfo {
+            name: "gbuffer",
+            runs: false,
+            why: "traces its own jittered camera rays for antialiasing".into(),
+        });
         v
     }
 
@@ -68,29 +102,91 @@ impl Technique for ReferencePathTracer {
         let mut entries = ctx.frame_layout_entries.to_vec();
         entries.push(pipelines::storage_entry(2, false));
         entries.push(pipelines::storage_entry(3, false));
-        let layout = gpu.device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("reference"), entries: &entries });
+        entries.push(wgpu::BindGroupLayoutEntry {
+            binding: 4,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Uniform,
+                has_dynamic_offset: true,
+                min_binding_size: wgpu::BufferSize::new(16),
+            },
+            count: None,
+        });
+        let layout = gpu
+            .device
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("reference"),
+                entries: &entries,
+            });
         // Build everything first so a failure leaves the previous pipeline in place.
-        let pipeline = pipelines::compute_pipeline(gpu, ctx.shaders, "reference/path_trace.wgsl", &[&ctx.scene.layout, &layout])?;
+        let pipeline = pipelines::compute_pipeline(
+            gpu,
+            ctx.shaders,
+            "reference/path_trace.wgsl",
+            &[&ctx.scene.layout, &layout],
+        )?;
         let pixels = (ctx.extent[0] * ctx.extent[1]) as u64;
         let (mean, m2) = if self.extent == ctx.extent && self.mean.is_some() {
-            (self.mean.take().expect("checked"), self.m2.take().expect("checked"))
+            (
+                self.mean.take().expect("checked"),
+                self.m2.take().expect("checked"),
+            )
         } else {
-            (pipelines::storage_buffer(gpu, "reference mean", pixels * 16), pipelines::storage_buffer(gpu, "reference m2", pixels * 16))
+            (
+                pipelines::storage_buffer(gpu, "reference mean", pixels * 16),
+                pipelines::storage_buffer(gpu, "reference m2", pixels * 16),
+            )
         };
+        let slots = self.sample_slots.take().unwrap_or_else(|| {
+            let mut bytes = vec![0u8; (SLOT_BYTES * MAX_SAMPLES_PER_FRAME as u64) as usize];
+            for i in 0..MAX_SAMPLES_PER_FRAME {
+                let at = (i as u64 * SLOT_BYTES) as usize;
+                bytes[at..at + 4].copy_from_slice(&i.to_le_bytes());
+            }
+            wgpu::util::DeviceExt::create_buffer_init(
+                &gpu.device,
+                &wgpu::util::BufferInitDescriptor {
+                    label: Some("reference sample slots"),
+                    contents: &bytes,
+                    usage: wgpu::BufferUsages::UNIFORM,
+                },
+            )
+        });
         let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("reference"),
             layout: &layout,
             entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: ctx.uniforms.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: ctx.counters.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 2, resource: mean.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 3, resource: m2.as_entire_binding() },
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: ctx.uniforms.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: ctx.counters.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: mean.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 3,
+                    resource: m2.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 4,
+                    resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                        buffer: &slots,
+                        offset: 0,
+                        size: wgpu::BufferSize::new(16),
+                    }),
+                },
             ],
         });
         self.pipeline = Some(pipeline);
         self.bind_group = Some(bind_group);
         self.mean = Some(mean);
         self.m2 = Some(m2);
+        self.sample_slots = Some(slots);
         self.extent = ctx.extent;
         Ok(())
     }
@@ -111,20 +207,31 @@ impl Technique for ReferencePathTracer {
         self.max_depth
     }
 
-    fn render(&mut self, ctx: &RenderContext, enc: &mut wgpu::CommandEncoder, timer: &mut PassTimer) {
-        let (Some(pipeline), Some(bg)) = (&self.pipeline, &self.bind_group) else { return };
+    fn render(
+        &mut self,
+        ctx: &RenderContext,
+        enc: &mut wgpu::CommandEncoder,
+        timer: &mut PassTimer,
+    ) {
+        let (Some(pipeline), Some(bg)) = (&self.pipeline, &self.bind_group) else {
+            return;
+        };
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("reference path_trace"),
             timestamp_writes: timer.compute_pass("path_trace"),
         });
         pass.set_pipeline(pipeline);
         pass.set_bind_group(0, &ctx.scene.bind_group, &[]);
-        pass.set_bind_group(1, bg, &[]);
-        pass.dispatch_workgroups(ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1);
+        for i in 0..self.samples_per_frame {
+            pass.set_bind_group(1, bg, &[(i as u64 * SLOT_BYTES) as u32]);
+            pass.dispatch_workgroups(ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1);
+        }
     }
 
     fn output(&self) -> &wgpu::Buffer {
-        self.mean.as_ref().expect("reference technique used before build()")
+        self.mean
+            .as_ref()
+            .expect("reference technique used before build()")
     }
 
     fn variance_m2(&self) -> Option<&wgpu::Buffer> {
@@ -133,7 +240,10 @@ impl Technique for ReferencePathTracer {
 
     fn params(&self) -> toml::Table {
         let mut t = toml::Table::new();
-        t.insert("samples_per_frame".into(), (self.samples_per_frame as i64).into());
+        t.insert(
+            "samples_per_frame".into(),
+            (self.samples_per_frame as i64).into(),
+        );
         t.insert("max_depth".into(), (self.max_depth as i64).into());
         t
     }
@@ -142,9 +252,9 @@ impl Technique for ReferencePathTracer {
         for (k, v) in params {
             let n = v.as_integer().filter(|n| *n >= 0 && *n <= u32::MAX as i64);
             match (k.as_str(), n) {
-                ("samples_per_frame", Some(n)) if n >= 1 => self.samples_per_frame = n as u32,
+                ("samples_per_frame", Some(n)) if (1..=MAX_SAMPLES_PER_FRAME as i64).contains(&n) => self.samples_per_frame = n as u32,
                 ("max_depth", Some(n)) => self.max_depth = n as u32,
-                ("samples_per_frame" | "max_depth", _) => bail!("reference: parameter '{k}' must be a non-negative integer (samples_per_frame >= 1), got {v}"),
+                ("samples_per_frame" | "max_depth", _) => bail!("reference: parameter '{k}' must be a non-negative integer (samples_per_frame 1..={MAX_SAMPLES_PER_FRAME}), got {v}"),
                 _ => bail!("reference has no parameter '{k}' (known: samples_per_frame, max_depth)"),
             }
         }

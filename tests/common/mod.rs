@@ -1,0 +1,72 @@
+//! Shared helpers for the integration tests: one GPU device per test binary, small renders.
+#![allow(dead_code)]
+
+use gilab::compare::Image;
+use gilab::gpu::{shaders::ShaderLibrary, BackendChoice, Gpu};
+use gilab::render::{create_technique, engine::Engine, engine::EngineSettings, RayCounts};
+use gilab::scene::Scene;
+use std::sync::{Arc, OnceLock};
+
+/// The device every GPU test shares (lavapipe in CI). Tests fail, not skip, without one.
+pub fn gpu() -> Arc<Gpu> {
+    static GPU: OnceLock<Arc<Gpu>> = OnceLock::new();
+    GPU.get_or_init(|| {
+        let gpu = Gpu::new(BackendChoice::Auto)
+            .expect("a GPU adapter (install mesa-vulkan-drivers for lavapipe)");
+        eprintln!("test adapter: {}", gpu.summary);
+        Arc::new(gpu)
+    })
+    .clone()
+}
+
+pub struct Render {
+    pub image: Image,
+    pub variance: Option<Image>,
+    pub rays: RayCounts,
+    pub engine: Engine,
+}
+
+/// Renders `scene` with the reference path tracer: `spp` samples per pixel in frames of `spf`.
+pub fn render_reference(
+    scene: Scene,
+    size: [u32; 2],
+    spp: u32,
+    spf: u32,
+    seed: u32,
+    max_depth: u32,
+) -> Render {
+    let mut technique = create_technique("reference").unwrap();
+    let mut params = toml::Table::new();
+    params.insert("samples_per_frame".into(), (spf as i64).into());
+    params.insert("max_depth".into(), (max_depth as i64).into());
+    technique.set_params(&params).unwrap();
+    let camera = scene.default_camera();
+    let mut engine = Engine::new(
+        gpu(),
+        ShaderLibrary::discover(),
+        scene,
+        technique,
+        EngineSettings {
+            extent: size,
+            seed,
+            camera,
+        },
+    )
+    .unwrap();
+    for _ in 0..spp.div_ceil(spf) {
+        engine.render_frame().unwrap();
+    }
+    let image = engine.read_output().unwrap();
+    let variance = engine.read_variance().unwrap();
+    let rays = engine.ray_counts().unwrap();
+    Render {
+        image,
+        variance,
+        rays,
+        engine,
+    }
+}
+
+pub fn luminance(p: [f64; 3]) -> f64 {
+    0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]
+}

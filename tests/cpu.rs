@@ -1,0 +1,455 @@
+//! GPU-free tests: shaders validate with naga, CPU/GPU layouts agree, the BVH matches brute
+//! force, presets parse and round-trip, glTF loading and its errors, metrics.
+
+use gilab::compare::{metrics, Image};
+use gilab::gpu::shaders::ShaderLibrary;
+use gilab::preset::{LoadedPreset, Overrides};
+use gilab::scene::{builtin, bvh, gltf_load};
+use glam::Vec3;
+use std::path::Path;
+
+#[test]
+fn every_wgsl_entry_file_validates() {
+    for lib in [ShaderLibrary::discover(), ShaderLibrary::embedded()] {
+        let entries = lib.entry_files().unwrap();
+        assert!(entries.len() >= 3, "entry files: {entries:?}");
+        for entry in entries {
+            let module = lib
+                .compose(&entry)
+                .unwrap_or_else(|e| panic!("{e}\n{}", e.report));
+            naga::valid::Validator::new(
+                naga::valid::ValidationFlags::all(),
+                naga::valid::Capabilities::default(),
+            )
+            .validate(&module)
+            .unwrap_or_else(|e| panic!("shaders/{entry}: {e:?}"));
+        }
+    }
+}
+
+#[test]
+fn shader_errors_name_file_and_line() {
+    let dir = std::env::temp_dir().join(format!("gilab-shader-err-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    copy_dir(Path::new("shaders"), &dir);
+    let path = dir.join("common/math.wgsl");
+    let text = std::fs::read_to_string(&path).unwrap();
+    std::fs::write(
+        &path,
+        text.replace(
+            "fn luminance(c: vec3<f32>) -> f32 {",
+            "fn luminance(c: vec3<f32>) -> f32 {\n    let broken: u32 = 1.5;",
+        ),
+    )
+    .unwrap();
+    let lib = ShaderLibrary {
+        source: gilab::gpu::shaders::ShaderSource::Disk(dir.clone()),
+    };
+    let err = lib.compose("reference/path_trace.wgsl").unwrap_err();
+    assert!(
+        err.location.contains("common/math.wgsl:"),
+        "location: {}",
+        err.location
+    );
+    let line: usize = err.location.split(':').nth(1).unwrap().parse().unwrap();
+    let expected = text
+        .lines()
+        .position(|l| l.starts_with("fn luminance"))
+        .unwrap()
+        + 2;
+    assert_eq!(line, expected, "{err}");
+    // Hot reload must know which entry files to rebuild.
+    let deps = lib.dependents("common/math.wgsl").unwrap();
+    assert!(
+        deps.contains(&"reference/path_trace.wgsl".to_string())
+            && deps.contains(&"bench/trace_rays.wgsl".to_string()),
+        "{deps:?}"
+    );
+    assert!(!lib
+        .dependents("reference/path_trace.wgsl")
+        .unwrap()
+        .contains(&"bench/trace_rays.wgsl".to_string()));
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap().flatten() {
+        let p = e.path();
+        if p.is_dir() {
+            copy_dir(&p, &to.join(e.file_name()));
+        } else {
+            std::fs::copy(&p, to.join(e.file_name())).unwrap();
+        }
+    }
+}
+
+/// Struct sizes seen by naga (the GPU) equal the Rust #[repr(C)] sizes (the CPU).
+#[test]
+fn gpu_struct_layouts_match_rust() {
+    use gilab::scene::gpu_scene::*;
+    let module = ShaderLibrary::discover()
+        .compose("reference/path_trace.wgsl")
+        .unwrap();
+    let mut layouter = naga::proc::Layouter::default();
+    layouter.update(module.to_ctx()).unwrap();
+    let size_of = |name: &str| {
+        let (h, _) = module
+            .types
+            .iter()
+            .find(|(_, t)| {
+                t.name
+                    .as_deref()
+                    .is_some_and(|n| n == name || n.starts_with(&format!("{name}X_naga_oil")))
+            })
+            .unwrap_or_else(|| panic!("type {name} not in module"));
+        layouter[h].size as usize
+    };
+    assert_eq!(size_of("BvhNode"), std::mem::size_of::<bvh::BvhNode>());
+    assert_eq!(size_of("TriGeom"), std::mem::size_of::<GpuTriGeom>());
+    assert_eq!(size_of("TriAttr"), std::mem::size_of::<GpuTriAttr>());
+    assert_eq!(size_of("Material"), std::mem::size_of::<GpuMaterial>());
+    assert_eq!(size_of("Light"), std::mem::size_of::<GpuLight>());
+    assert_eq!(
+        size_of("FrameUniforms"),
+        std::mem::size_of::<gilab::render::FrameUniforms>()
+    );
+}
+
+fn random_rays(n: usize, lo: Vec3, hi: Vec3, seed: u64) -> Vec<(Vec3, Vec3)> {
+    let mut s = seed;
+    let mut next = move || {
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((s >> 40) as f32) / (1u64 << 24) as f32
+    };
+    (0..n)
+        .map(|_| {
+            let o = lo + (hi - lo) * Vec3::new(next(), next(), next());
+            let d = Vec3::new(next() - 0.5, next() - 0.5, next() - 0.5).normalize_or(Vec3::X);
+            (o, d)
+        })
+        .collect()
+}
+
+#[test]
+fn bvh_matches_brute_force_on_random_rays() {
+    for name in ["cornell", "glossy", "many-lights", "hard-cases"] {
+        let scene = builtin::build(name, &toml::Table::new()).unwrap();
+        let tris: Vec<[Vec3; 3]> = scene
+            .triangles
+            .iter()
+            .map(|t| t.map(|i| scene.positions[i as usize]))
+            .collect();
+        let bvh = bvh::Bvh::build(&tris);
+        // Every triangle is in exactly one leaf.
+        let mut seen = vec![0; tris.len()];
+        for n in &bvh.nodes {
+            for k in n.first_tri()..n.first_tri() + n.tri_count() {
+                seen[bvh.order[k as usize] as usize] += 1;
+            }
+            assert!(n.tri_count() as usize <= bvh::MAX_LEAF);
+        }
+        assert!(
+            seen.iter().all(|&c| c == 1),
+            "{name}: triangles missing or duplicated in leaves"
+        );
+        let (lo, hi) = scene.bounds();
+        for (o, d) in random_rays(3000, lo, hi, 7) {
+            let a = bvh.closest_hit(&tris, o, d, f32::MAX);
+            let b = bvh::brute_force_closest(&tris, o, d);
+            match (a, b) {
+                (None, None) => {}
+                (Some(a), Some(b)) => assert!(
+                    (a.0 - b.0).abs() <= 1e-5 * b.0.max(1.0),
+                    "{name}: t {a:?} vs {b:?}"
+                ),
+                _ => panic!("{name}: BVH {a:?} vs brute force {b:?}"),
+            }
+        }
+    }
+}
+
+#[test]
+fn every_shipped_preset_parses_and_round_trips() {
+    let mut count = 0;
+    for e in std::fs::read_dir("presets").unwrap().flatten() {
+        let p = e.path();
+        if p.extension().is_some_and(|x| x == "toml") {
+            let loaded = LoadedPreset::load(&p).unwrap();
+            let text = loaded.to_toml().unwrap();
+            let again = LoadedPreset::from_text(&text, Some(&p)).unwrap();
+            assert_eq!(loaded.preset, again.preset, "{}", p.display());
+            loaded.load_scene().unwrap();
+            count += 1;
+        }
+    }
+    assert!(count >= 5, "presets found: {count}");
+}
+
+#[test]
+fn preset_typo_reports_line_and_column() {
+    let text = "[scene]\nsource = \"cornell\"\n\n[render]\nsize = [64, 64]\nsed = 3\n";
+    let err = LoadedPreset::from_text(text, Some(Path::new("presets/typo.toml")))
+        .unwrap_err()
+        .to_string();
+    assert!(err.starts_with("presets/typo.toml:6:1:"), "{err}");
+    assert!(err.contains("sed") && !err.contains('\n'), "{err}");
+    let err = LoadedPreset::from_text("[scene\nsource = 1", Some(Path::new("p.toml")))
+        .unwrap_err()
+        .to_string();
+    assert!(err.starts_with("p.toml:1:"), "{err}");
+}
+
+#[test]
+fn overrides_apply_to_presets() {
+    let mut p = LoadedPreset::load_or_default(None).unwrap();
+    p.apply(&Overrides {
+        scene: Some("furnace".into()),
+        technique: Some("reference".into()),
+        size: Some("40x30".into()),
+        spp: Some(3),
+        seed: Some(9),
+        set: vec![
+            "scene.params.albedo=0.5".into(),
+            "max_depth=2".into(),
+            "tonemap.exposure=1.5".into(),
+        ],
+    })
+    .unwrap();
+    assert_eq!(p.preset.scene.source, "furnace");
+    assert_eq!(p.preset.render.size, [40, 30]);
+    assert_eq!((p.preset.render.spp, p.preset.render.seed), (3, 9));
+    assert_eq!(
+        p.preset.techniques[0].params["max_depth"].as_integer(),
+        Some(2)
+    );
+    assert_eq!(p.preset.tonemap.exposure, 1.5);
+    assert_eq!(p.load_scene().unwrap().materials[0].base_color.x, 0.5);
+    let mut bad = LoadedPreset::load_or_default(None).unwrap();
+    assert!(bad
+        .apply(&Overrides {
+            set: vec!["render.sizee=3".into()],
+            ..Default::default()
+        })
+        .is_err());
+    assert!(bad
+        .apply(&Overrides {
+            size: Some("0x5".into()),
+            ..Default::default()
+        })
+        .is_err());
+    let mut unknown = LoadedPreset::load_or_default(None).unwrap();
+    unknown
+        .apply(&Overrides {
+            scene: Some("cornel".into()),
+            ..Default::default()
+        })
+        .unwrap();
+    let err = unknown.load_scene().unwrap_err().to_string();
+    assert!(err.contains("unknown built-in scene 'cornel'"), "{err}");
+}
+
+#[test]
+fn gltf_scene_loads_with_extensions() {
+    for file in [
+        "scenes/box-room/box-room.gltf",
+        "scenes/box-room/box-room.glb",
+    ] {
+        let s = gltf_load::load(Path::new(file)).unwrap();
+        assert_eq!(s.triangles.len(), 16, "{file}");
+        let panel = s
+            .materials
+            .iter()
+            .find(|m| m.name == "panel light")
+            .unwrap();
+        assert!(
+            (panel.emissive - Vec3::new(6.0, 5.4, 4.8))
+                .abs()
+                .max_element()
+                < 1e-5,
+            "emissive strength: {:?}",
+            panel.emissive
+        );
+        let cube = s
+            .materials
+            .iter()
+            .find(|m| m.name == "lambert cube")
+            .unwrap();
+        assert_eq!(cube.specular, 0.0);
+        assert!(s.materials.iter().any(|m| m.base_color_texture == Some(0)));
+        assert_eq!((s.textures[0].width, s.textures[0].height), (8, 8));
+        assert_eq!(s.lights.len(), 1);
+        assert!((s.lights[0].position - Vec3::new(-1.5, 1.5, 1.0)).length() < 1e-5);
+        let cam = s.camera.unwrap();
+        assert!((cam.position - Vec3::new(0.0, 1.6, 5.0)).length() < 1e-5);
+        // Cube normals were missing: generated ones are unit length and face out of the cube.
+        let centre = Vec3::new(0.8, 0.75, -0.5);
+        for (t, &m) in s.triangles.iter().zip(&s.triangle_material) {
+            if s.materials[m as usize].name == "lambert cube" {
+                let p = s.positions[t[0] as usize];
+                let n = s.normals[t[0] as usize];
+                assert!((n.length() - 1.0).abs() < 1e-4 && n.dot(p - centre) > 0.0);
+            }
+        }
+        // Node transform: the panel sits at y = 3.
+        let panel_idx = s
+            .materials
+            .iter()
+            .position(|m| m.name == "panel light")
+            .unwrap() as u32;
+        let t = s
+            .triangles
+            .iter()
+            .zip(&s.triangle_material)
+            .find(|(_, &m)| m == panel_idx)
+            .unwrap()
+            .0;
+        assert!((s.positions[t[0] as usize].y - 3.0).abs() < 1e-6);
+    }
+}
+
+#[test]
+fn malformed_gltf_gives_clear_errors() {
+    let dir = std::env::temp_dir().join(format!("gilab-gltf-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let glb = std::fs::read("scenes/box-room/box-room.glb").unwrap();
+    let truncated = dir.join("truncated.glb");
+    std::fs::write(&truncated, &glb[..glb.len() / 2]).unwrap();
+    let err = format!("{:#}", gltf_load::load(&truncated).unwrap_err());
+    assert!(err.contains("truncated.glb"), "{err}");
+
+    let text = std::fs::read_to_string("scenes/box-room/box-room.gltf").unwrap();
+    let bad_accessor = dir.join("bad-accessor.gltf");
+    std::fs::write(
+        &bad_accessor,
+        text.replacen("\"indices\": 3", "\"indices\": 99", 1),
+    )
+    .unwrap();
+    let err = format!("{:#}", gltf_load::load(&bad_accessor).unwrap_err());
+    assert!(err.contains("bad-accessor.gltf"), "{err}");
+
+    // An index value past the vertex count: patch the first u16 index of the floor to 999.
+    let mut doc: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let uri = doc["buffers"][0]["uri"].as_str().unwrap().to_string();
+    use base64_decode::decode;
+    let mut bytes = decode(uri.split(',').nth(1).unwrap());
+    let view = doc["accessors"][3]["bufferView"].as_u64().unwrap() as usize;
+    let off = doc["bufferViews"][view]["byteOffset"].as_u64().unwrap() as usize;
+    bytes[off..off + 2].copy_from_slice(&999u16.to_le_bytes());
+    doc["buffers"][0]["uri"] = format!(
+        "data:application/octet-stream;base64,{}",
+        base64_decode::encode(&bytes)
+    )
+    .into();
+    let bad_index = dir.join("bad-index.gltf");
+    std::fs::write(&bad_index, doc.to_string()).unwrap();
+    let err = format!("{:#}", gltf_load::load(&bad_index).unwrap_err());
+    assert!(
+        err.contains("bad-index.gltf") && err.contains("out of range"),
+        "{err}"
+    );
+
+    let missing = format!(
+        "{:#}",
+        gltf_load::load(&dir.join("missing.gltf")).unwrap_err()
+    );
+    assert!(missing.contains("missing.gltf"), "{missing}");
+}
+
+/// Minimal base64 for the test fixture above (standard alphabet, padded).
+mod base64_decode {
+    const A: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    pub fn decode(s: &str) -> Vec<u8> {
+        let val = |c: u8| A.iter().position(|&a| a == c).unwrap() as u32;
+        let clean: Vec<u8> = s.bytes().filter(|&c| c != b'=').collect();
+        let mut out = Vec::new();
+        for chunk in clean.chunks(4) {
+            let mut n = 0u32;
+            for (i, &c) in chunk.iter().enumerate() {
+                n |= val(c) << (18 - 6 * i);
+            }
+            let bytes = [(n >> 16) as u8, (n >> 8) as u8, n as u8];
+            out.extend_from_slice(&bytes[..chunk.len() - 1]);
+        }
+        out
+    }
+    pub fn encode(b: &[u8]) -> String {
+        let mut out = String::new();
+        for chunk in b.chunks(3) {
+            let n = (chunk[0] as u32) << 16
+                | (*chunk.get(1).unwrap_or(&0) as u32) << 8
+                | *chunk.get(2).unwrap_or(&0) as u32;
+            for i in 0..4 {
+                if i <= chunk.len() {
+                    out.push(A[((n >> (18 - 6 * i)) & 63) as usize] as char);
+                } else {
+                    out.push('=');
+                }
+            }
+        }
+        out
+    }
+}
+
+#[test]
+fn metrics_follow_their_definitions() {
+    let reference = Image {
+        width: 2,
+        height: 1,
+        rgb: vec![1.0, 0.0, 2.0, 0.5, 0.5, 0.5],
+    };
+    let image = Image {
+        width: 2,
+        height: 1,
+        rgb: vec![1.5, 0.0, 2.0, 0.5, 0.0, 1.0],
+    };
+    let m = metrics::compare(&image, &reference).unwrap();
+    let d2 = [0.25, 0.0, 0.0, 0.0, 0.25, 0.25];
+    let y = [1.0f64, 0.0, 2.0, 0.5, 0.5, 0.5];
+    let x = [1.5f64, 0.0, 2.0, 0.5, 0.0, 1.0];
+    let mse = d2.iter().sum::<f64>() / 6.0;
+    let rel = (0..6).map(|i| d2[i] / (y[i] * y[i] + 0.01)).sum::<f64>() / 6.0;
+    let smape = (0..6)
+        .map(|i| (x[i] - y[i]).abs() / (x[i].abs() + y[i].abs() + 0.01))
+        .sum::<f64>()
+        / 6.0;
+    assert!(
+        (m.mse - mse).abs() < 1e-12
+            && (m.rel_mse - rel).abs() < 1e-12
+            && (m.smape - smape).abs() < 1e-12
+    );
+    let map = metrics::rel_mse_map(&image, &reference);
+    let mean = map.iter().map(|v| *v as f64).sum::<f64>() / map.len() as f64;
+    assert!(
+        (mean - m.rel_mse).abs() < 1e-6,
+        "heatmap mean {mean} vs relMSE {}",
+        m.rel_mse
+    );
+    assert!(metrics::compare(&image, &Image::new(3, 1)).is_err());
+}
+
+#[test]
+fn builtin_scene_parameters_are_checked() {
+    let mut t = toml::Table::new();
+    t.insert("albdo".into(), 0.5.into());
+    let err = builtin::build("furnace", &t).unwrap_err().to_string();
+    assert!(err.contains("albdo"), "{err}");
+    t.clear();
+    t.insert("albedo".into(), 1.0.into());
+    assert!(
+        builtin::build("furnace", &t).is_err(),
+        "albedo 1 has no finite furnace solution"
+    );
+    for (name, _) in builtin::NAMES {
+        builtin::build(name, &toml::Table::new()).unwrap();
+    }
+    assert!(
+        builtin::many_lights(1024, 7)
+            .materials
+            .iter()
+            .filter(|m| m.emissive.max_element() > 0.0)
+            .count()
+            >= 1000
+    );
+}
