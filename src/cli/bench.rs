@@ -120,6 +120,16 @@ pub fn largest_builtin() -> Result<String> {
     Ok(best.0)
 }
 
+/// One warm-up frame (pipeline compilation happens lazily on some drivers), then `frames` timed ones.
+fn timed_frames(mut e: Engine, frames: u32) -> Result<Engine> {
+    e.render_frame()?;
+    e.reset();
+    for _ in 0..frames {
+        e.render_frame()?;
+    }
+    Ok(e)
+}
+
 pub fn run(gpu: Arc<Gpu>, extent: [u32; 2], frames: u32, scenes: &[String]) -> Result<()> {
     let scenes: Vec<String> = if scenes.is_empty() {
         vec!["cornell".into(), largest_builtin()?]
@@ -144,35 +154,31 @@ pub fn run(gpu: Arc<Gpu>, extent: [u32; 2], frames: u32, scenes: &[String]) -> R
             bind_group: None,
             checksum: None,
         });
-        let mut e = Engine::new(
-            gpu.clone(),
-            ShaderLibrary::discover(),
-            scene.clone(),
-            bench,
-            settings(),
+        let e = timed_frames(
+            Engine::new(
+                gpu.clone(),
+                ShaderLibrary::discover(),
+                scene.clone(),
+                bench,
+                settings(),
+            )?,
+            frames,
         )?;
-        e.render_frame()?;
-        e.reset();
-        for _ in 0..frames {
-            e.render_frame()?;
-        }
         let rays = e.ray_counts()?.total() as f64;
         let mrays = rays / (e.total_gpu_ms * 1e-3) / 1e6;
 
         let mut reference = create_technique("reference")?;
         reference.set_params(&toml::toml! { samples_per_frame = 1 })?;
-        let mut e = Engine::new(
-            gpu.clone(),
-            ShaderLibrary::discover(),
-            scene,
-            reference,
-            settings(),
+        let e = timed_frames(
+            Engine::new(
+                gpu.clone(),
+                ShaderLibrary::discover(),
+                scene,
+                reference,
+                settings(),
+            )?,
+            frames,
         )?;
-        e.render_frame()?;
-        e.reset();
-        for _ in 0..frames {
-            e.render_frame()?;
-        }
         let ms = e.total_gpu_ms / frames as f64;
         let rpp = e.ray_counts()?.total() as f64 / (extent[0] * extent[1]) as f64 / frames as f64;
         println!(

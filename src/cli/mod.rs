@@ -68,6 +68,19 @@ pub enum Command {
     },
 }
 
+/// Loads the preset with its overrides first (bad input fails before any GPU work), then the device.
+fn preset_and_gpu(
+    preset: Option<PathBuf>,
+    overrides: &Overrides,
+    backend: BackendChoice,
+) -> Result<(LoadedPreset, std::sync::Arc<Gpu>)> {
+    let mut p = LoadedPreset::load_or_default(preset.as_deref())?;
+    p.apply(overrides)?;
+    let gpu = std::sync::Arc::new(Gpu::new(backend)?);
+    println!("adapter: {}", gpu.summary);
+    Ok((p, gpu))
+}
+
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         None => {
@@ -82,10 +95,7 @@ pub fn run(cli: Cli) -> Result<()> {
             verbose,
             overrides,
         }) => {
-            let mut p = LoadedPreset::load_or_default(preset.as_deref())?;
-            p.apply(&overrides)?;
-            let gpu = std::sync::Arc::new(Gpu::new(cli.backend)?);
-            println!("adapter: {}", gpu.summary);
+            let (p, gpu) = preset_and_gpu(preset, &overrides, cli.backend)?;
             render_job::shot(gpu, &p, &out, verbose)
         }
         Some(Command::Reference {
@@ -94,10 +104,7 @@ pub fn run(cli: Cli) -> Result<()> {
             force,
             overrides,
         }) => {
-            let mut p = LoadedPreset::load_or_default(preset.as_deref())?;
-            p.apply(&overrides)?;
-            let gpu = std::sync::Arc::new(Gpu::new(cli.backend)?);
-            println!("adapter: {}", gpu.summary);
+            let (p, gpu) = preset_and_gpu(preset, &overrides, cli.backend)?;
             let path = render_job::reference(gpu, &p, &cache, force)?;
             println!("reference: {}", path.display());
             Ok(())
