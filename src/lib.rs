@@ -2,6 +2,7 @@
 //! one scene from one camera; each reports rays traced, GPU time per pass and error against a
 //! reference path tracer, counted the same way for all. See README.md and shared/DESIGN.md.
 
+pub mod app;
 pub mod cli;
 pub mod compare;
 pub mod gpu;

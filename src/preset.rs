@@ -22,6 +22,117 @@ pub struct Preset {
     pub tonemap: TonemapSettings,
     #[serde(default = "default_techniques")]
     pub techniques: Vec<TechniqueEntry>,
+    /// How the viewer shows the techniques (ignored by headless commands).
+    #[serde(default)]
+    pub view: ViewSettings,
+}
+
+/// The viewer's arrangement of panes.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Layout {
+    Single,
+    #[default]
+    SideBySide,
+    Grid,
+    /// One image split by a draggable line between two techniques.
+    Wipe,
+}
+
+impl Layout {
+    pub const ALL: [Layout; 4] = [
+        Layout::Single,
+        Layout::SideBySide,
+        Layout::Grid,
+        Layout::Wipe,
+    ];
+    /// Panes the layout shows.
+    pub fn pane_count(self) -> usize {
+        match self {
+            Layout::Single => 1,
+            Layout::SideBySide | Layout::Wipe => 2,
+            Layout::Grid => 4,
+        }
+    }
+    pub fn label(self) -> &'static str {
+        match self {
+            Layout::Single => "Single",
+            Layout::SideBySide => "Side by side",
+            Layout::Grid => "2x2 grid",
+            Layout::Wipe => "Wipe",
+        }
+    }
+}
+
+/// What a pane shows of its technique.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum DisplayMode {
+    /// Tonemapped linear radiance.
+    #[default]
+    Radiance,
+    /// Per-pixel sample variance (mean of r, g, b), log scale.
+    Variance,
+    /// Per-pixel relMSE against the reference, log scale.
+    Error,
+    /// Samples accumulated per pixel (debug).
+    Samples,
+}
+
+impl DisplayMode {
+    pub const ALL: [DisplayMode; 4] = [
+        DisplayMode::Radiance,
+        DisplayMode::Variance,
+        DisplayMode::Error,
+        DisplayMode::Samples,
+    ];
+    pub fn label(self) -> &'static str {
+        match self {
+            DisplayMode::Radiance => "Radiance",
+            DisplayMode::Variance => "Variance heatmap",
+            DisplayMode::Error => "Error heatmap",
+            DisplayMode::Samples => "Samples per pixel",
+        }
+    }
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ViewSettings {
+    #[serde(default)]
+    pub layout: Layout,
+    /// Panes in reading order; each shows one entry of `techniques` (by index).
+    #[serde(default = "default_panes")]
+    pub panes: Vec<PaneSettings>,
+}
+
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PaneSettings {
+    /// Index into the preset's `techniques` list.
+    pub technique: usize,
+    #[serde(default)]
+    pub display: DisplayMode,
+}
+
+fn default_panes() -> Vec<PaneSettings> {
+    [
+        (0, DisplayMode::Radiance),
+        (1, DisplayMode::Radiance),
+        (0, DisplayMode::Variance),
+        (0, DisplayMode::Error),
+    ]
+    .map(|(technique, display)| PaneSettings { technique, display })
+    .to_vec()
+}
+
+impl Default for ViewSettings {
+    fn default() -> Self {
+        ViewSettings {
+            layout: Layout::default(),
+            panes: default_panes(),
+        }
+    }
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -46,6 +157,10 @@ pub struct RenderSettings {
     /// Samples per pixel a `shot` accumulates (frames = spp / samples_per_frame).
     #[serde(default = "default_spp")]
     pub spp: u32,
+    /// Samples per pixel of the reference that errors are measured against (`gilab
+    /// reference`, the viewer's background reference).
+    #[serde(default = "default_reference_spp")]
+    pub reference_spp: u32,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -62,12 +177,36 @@ pub struct TonemapSettings {
 #[serde(deny_unknown_fields)]
 pub struct TechniqueEntry {
     pub name: String,
+    /// Name shown in the viewer and used for output files (default: `name`); needed when a
+    /// preset lists one technique twice with different parameters.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub label: Option<String>,
     #[serde(default)]
     pub params: toml::Table,
+    /// Ray budget in rays per pixel per frame the viewer's slider last asked for.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub budget: Option<f64>,
+}
+
+impl TechniqueEntry {
+    pub fn new(name: &str) -> TechniqueEntry {
+        TechniqueEntry {
+            name: name.to_string(),
+            label: None,
+            params: toml::Table::new(),
+            budget: None,
+        }
+    }
+    pub fn display_name(&self) -> &str {
+        self.label.as_deref().unwrap_or(&self.name)
+    }
 }
 
 fn default_size() -> [u32; 2] {
     [256, 256]
+}
+fn default_reference_spp() -> u32 {
+    1024
 }
 fn default_seed() -> u32 {
     1
@@ -76,10 +215,7 @@ fn default_spp() -> u32 {
     64
 }
 fn default_techniques() -> Vec<TechniqueEntry> {
-    vec![TechniqueEntry {
-        name: "reference".into(),
-        params: toml::Table::new(),
-    }]
+    vec![TechniqueEntry::new("reference")]
 }
 
 impl Default for RenderSettings {
@@ -88,6 +224,7 @@ impl Default for RenderSettings {
             size: default_size(),
             seed: default_seed(),
             spp: default_spp(),
+            reference_spp: default_reference_spp(),
         }
     }
 }
@@ -231,7 +368,7 @@ impl LoadedPreset {
             let value = parse_value(v.trim());
             let k = k.trim();
             let top = k.split('.').next().unwrap_or("");
-            if ["scene", "camera", "render", "tonemap", "techniques"].contains(&top) {
+            if ["scene", "camera", "render", "tonemap", "techniques", "view"].contains(&top) {
                 set_path(&mut doc, k, value).with_context(|| format!("--set {kv}"))?;
             } else if let Some(toml::Value::Array(list)) = doc.get_mut("techniques") {
                 for t in list.iter_mut() {
@@ -255,16 +392,25 @@ impl LoadedPreset {
         Ok(())
     }
 
+    /// The scene file the preset names (None for built-in scenes); relative paths are
+    /// relative to the preset file.
+    pub fn scene_path(&self) -> Option<PathBuf> {
+        let src = &self.preset.scene.source;
+        if builtin::is_builtin(src) {
+            return None;
+        }
+        let p = Path::new(src);
+        Some(match (&self.path, p.is_relative()) {
+            (Some(preset_path), true) => preset_path.parent().unwrap_or(Path::new(".")).join(p),
+            _ => p.to_path_buf(),
+        })
+    }
+
     /// Builds the scene the preset names.
     pub fn load_scene(&self) -> Result<Scene> {
         let src = &self.preset.scene.source;
-        if builtin::is_builtin(src) {
+        let Some(path) = self.scene_path() else {
             return builtin::build(src, &self.preset.scene.params);
-        }
-        let p = Path::new(src);
-        let path = match (&self.path, p.is_relative()) {
-            (Some(preset_path), true) => preset_path.parent().unwrap_or(Path::new(".")).join(p),
-            _ => p.to_path_buf(),
         };
         let ext = path
             .extension()

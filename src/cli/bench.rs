@@ -75,6 +75,9 @@ impl Technique for TraceBench {
         self.checksum = Some(checksum);
         Ok(())
     }
+    fn shader_files(&self) -> &'static [&'static str] {
+        &["bench/trace_rays.wgsl"]
+    }
     fn reset_history(&mut self, _: &Gpu) {}
     fn samples_per_frame(&self) -> u32 {
         1

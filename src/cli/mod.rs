@@ -1,8 +1,9 @@
-//! Command-line interface: `shot`, `reference`, `compare`, `bench`. Every rendering subcommand
+//! Command-line interface: the viewer (no subcommand, or `view`), `shot`, `reference`,
+//! `compare`, `bench`. Every rendering subcommand
 //! takes a preset (optional: the built-in default is the Cornell box) and overrides for it.
 
-mod bench;
-mod render_job;
+pub mod bench;
+pub mod render_job;
 
 use crate::compare::{io, metrics};
 use crate::gpu::{BackendChoice, Gpu};
@@ -27,6 +28,16 @@ pub struct Cli {
 
 #[derive(Subcommand, Debug)]
 pub enum Command {
+    /// Open the interactive viewer (the default when no subcommand is given).
+    View {
+        /// Preset file (default: the built-in Cornell box preset).
+        preset: Option<PathBuf>,
+        /// Do not watch shaders/ and presets/ for changes.
+        #[arg(long)]
+        no_watch: bool,
+        #[command(flatten)]
+        overrides: Overrides,
+    },
     /// Render a preset: tonemapped PNG, linear EXR and JSON metadata per technique.
     Shot {
         /// Preset file (default: the built-in Cornell box preset).
@@ -81,14 +92,31 @@ fn preset_and_gpu(
     Ok((p, gpu))
 }
 
+fn view(
+    preset: Option<PathBuf>,
+    no_watch: bool,
+    overrides: &Overrides,
+    backend: BackendChoice,
+) -> Result<()> {
+    // The default preset from its file when run in the repository, so edits hot-reload.
+    let default_file = PathBuf::from("presets/cornell.toml");
+    let preset = preset.or_else(|| default_file.exists().then_some(default_file));
+    let mut p = LoadedPreset::load_or_default(preset.as_deref())?;
+    p.apply(overrides)?;
+    let mut options = crate::app::ViewerOptions::new(p);
+    options.watch = !no_watch;
+    options.backend = backend;
+    crate::app::run(options)
+}
+
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        None => {
-            use clap::CommandFactory;
-            Cli::command().print_help()?;
-            println!("\nThe interactive viewer is not built yet; render headless with `gilab shot [PRESET]`.");
-            Ok(())
-        }
+        None => view(None, false, &Overrides::default(), cli.backend),
+        Some(Command::View {
+            preset,
+            no_watch,
+            overrides,
+        }) => view(preset, no_watch, &overrides, cli.backend),
         Some(Command::Shot {
             preset,
             out,

@@ -3,7 +3,7 @@
 
 use crate::compare::{io, Image};
 use crate::gpu::{shaders::ShaderLibrary, Gpu};
-use crate::preset::LoadedPreset;
+use crate::preset::{LoadedPreset, TechniqueEntry};
 use crate::render::{
     create_technique, engine::Engine, engine::EngineSettings, PassInfo, RayCounts,
 };
@@ -18,6 +18,9 @@ use std::sync::Arc;
 #[derive(Serialize)]
 pub struct ShotMetadata {
     pub technique: String,
+    /// File stem and viewer name (the preset entry's label, else the technique id).
+    pub label: String,
+    pub params: toml::Table,
     pub preset: serde_json::Value,
     pub preset_file: Option<String>,
     pub adapter: crate::gpu::AdapterSummary,
@@ -59,7 +62,6 @@ pub fn render_technique(
         seed: preset.render.seed,
         camera,
     };
-    let scene_name = scene.name.clone();
     let mut engine = Engine::new(
         gpu.clone(),
         ShaderLibrary::discover(),
@@ -92,21 +94,37 @@ pub fn render_technique(
     }
     bar.finish_and_clear();
     let image = engine.read_output()?;
+    let meta = metadata(&engine, p, entry, &image, by_pass)?;
+    Ok((image, meta))
+}
+
+/// The JSON record of an engine's state: what `shot` and the viewer's A/B save write.
+pub fn metadata(
+    engine: &Engine,
+    p: &LoadedPreset,
+    entry: &TechniqueEntry,
+    image: &Image,
+    gpu_ms_by_pass: std::collections::BTreeMap<String, f64>,
+) -> Result<ShotMetadata> {
     let rays = engine.ray_counts()?;
-    let pixels = (preset.render.size[0] * preset.render.size[1]) as f64;
-    let meta = ShotMetadata {
+    let [w, h] = engine.extent;
+    let pixels = (w * h) as f64;
+    let frames = engine.frame_index.max(1);
+    Ok(ShotMetadata {
         technique: entry.name.clone(),
-        preset: serde_json::to_value(preset)?,
+        label: entry.display_name().to_string(),
+        params: engine.technique.params(),
+        preset: serde_json::to_value(&p.preset)?,
         preset_file: p.path.as_ref().map(|p| p.display().to_string()),
-        adapter: gpu.summary.clone(),
-        scene: scene_name,
+        adapter: engine.gpu.summary.clone(),
+        scene: engine.scene.name.clone(),
         scene_features: engine.gpu_scene.data.features.clone(),
         passes: engine.passes(),
-        camera,
-        size: preset.render.size,
-        seed: preset.render.seed,
+        camera: engine.camera,
+        size: engine.extent,
+        seed: engine.seed,
         spp: engine.samples,
-        frames,
+        frames: engine.frame_index,
         rays,
         rays_by_kind: rays
             .named()
@@ -116,13 +134,12 @@ pub fn render_technique(
         rays_per_pixel: rays.total() as f64 / pixels,
         gpu_ms_total: engine.total_gpu_ms,
         gpu_ms_per_frame: engine.total_gpu_ms / frames as f64,
-        gpu_ms_by_pass: by_pass,
+        gpu_ms_by_pass,
         wall_ms_total: engine.total_wall_ms,
-        timestamps: gpu.timestamp_period.is_some(),
+        timestamps: engine.gpu.timestamp_period.is_some(),
         mean_radiance: image.mean(),
         non_finite_pixels: image.non_finite_count(),
-    };
-    Ok((image, meta))
+    })
 }
 
 fn preset_stem(p: &LoadedPreset) -> String {
@@ -172,7 +189,7 @@ pub fn shot(gpu: Arc<Gpu>, p: &LoadedPreset, out: &Path, verbose: bool) -> Resul
                 );
             }
         }
-        write_outputs(&dir, &meta.technique, &image, &meta, p)?;
+        write_outputs(&dir, &meta.label, &image, &meta, p)?;
         let per_pass: Vec<String> = meta
             .gpu_ms_by_pass
             .iter()
@@ -180,7 +197,7 @@ pub fn shot(gpu: Arc<Gpu>, p: &LoadedPreset, out: &Path, verbose: bool) -> Resul
             .collect();
         println!(
             "{}: {}x{} {} spp, {:.2} rays/pixel, {:.1} ms GPU/frame ({}), mean radiance [{:.4}, {:.4}, {:.4}], non-finite pixels {} -> {}",
-            meta.technique,
+            meta.label,
             meta.size[0],
             meta.size[1],
             meta.spp,
@@ -191,53 +208,76 @@ pub fn shot(gpu: Arc<Gpu>, p: &LoadedPreset, out: &Path, verbose: bool) -> Resul
             meta.mean_radiance[1],
             meta.mean_radiance[2],
             meta.non_finite_pixels,
-            dir.join(format!("{}.png", meta.technique)).display()
+            dir.join(format!("{}.png", meta.label)).display()
         );
     }
     Ok(())
 }
 
-/// Cache key of a reference render: scene, camera, size, reference parameters, spp and seed.
+/// How a preset's reference is rendered: the reference path tracer with the preset's
+/// `max_depth`, `render.reference_spp` samples and a seed derived from the preset's, so the
+/// reference's noise is independent of a technique run with the preset seed.
+pub struct ReferenceSetup {
+    pub params: toml::Table,
+    pub spp: u32,
+    pub seed: u32,
+}
+
+pub fn reference_setup(p: &LoadedPreset) -> ReferenceSetup {
+    let mut params = toml::Table::new();
+    let entry = p.preset.techniques.iter().find(|t| t.name == "reference");
+    if let Some(d) = entry.and_then(|t| t.params.get("max_depth")) {
+        params.insert("max_depth".into(), d.clone());
+    }
+    ReferenceSetup {
+        params,
+        spp: p.preset.render.reference_spp.max(1),
+        seed: p.preset.render.seed.wrapping_mul(0x9E37_79B9) ^ 0x5BD1_E995,
+    }
+}
+
+/// Cache key of a reference render: scene, camera, size, reference spp, seed and max_depth.
+/// Samples per frame are left out: results do not depend on how samples are split in frames.
 pub fn reference_key(p: &LoadedPreset) -> Result<String> {
-    use std::hash::Hasher;
     let scene = p.load_scene()?;
-    let camera = p.camera(&scene);
-    let params = p
-        .preset
-        .techniques
-        .iter()
-        .find(|t| t.name == "reference")
-        .map(|t| t.params.clone())
-        .unwrap_or_default();
+    Ok(reference_key_for_camera(p, &p.camera(&scene)))
+}
+
+/// `reference_key` at another camera (the viewer's, after the user moved it).
+pub fn reference_key_for_camera(p: &LoadedPreset, camera: &crate::scene::Camera) -> String {
+    use std::hash::Hasher;
+    let setup = reference_setup(p);
     let canonical = serde_json::json!({
         "scene": p.preset.scene.source,
         "scene_params": p.preset.scene.params,
         "camera": camera,
         "size": p.preset.render.size,
-        "spp": p.preset.render.spp,
-        "seed": p.preset.render.seed,
-        "reference": params,
+        "spp": setup.spp,
+        "seed": setup.seed,
+        "reference": setup.params,
     });
     let mut h = fnv::FnvHasher::default();
     h.write(canonical.to_string().as_bytes());
-    Ok(format!("{:016x}", h.finish()))
+    format!("{:016x}", h.finish())
 }
 
 pub fn reference(gpu: Arc<Gpu>, p: &LoadedPreset, cache: &Path, force: bool) -> Result<PathBuf> {
+    let key = reference_key(p)?;
+    let setup = reference_setup(p);
     let mut p = p.clone();
-    // Only the reference technique renders a reference, whatever the preset lists.
-    let params = p
-        .preset
-        .techniques
-        .iter()
-        .find(|t| t.name == "reference")
-        .map(|t| t.params.clone())
-        .unwrap_or_default();
-    p.preset.techniques = vec![crate::preset::TechniqueEntry {
-        name: "reference".into(),
+    // Only the reference technique renders a reference, whatever the preset lists; frames
+    // of up to 16 samples keep the progress bar moving.
+    let mut params = setup.params;
+    params.insert(
+        "samples_per_frame".into(),
+        (setup.spp.min(16) as i64).into(),
+    );
+    p.preset.techniques = vec![TechniqueEntry {
         params,
+        ..TechniqueEntry::new("reference")
     }];
-    let key = reference_key(&p)?;
+    p.preset.render.spp = setup.spp;
+    p.preset.render.seed = setup.seed;
     let path = cache.join(format!("{key}.exr"));
     if path.exists() && !force {
         println!("cached (use --force to render again)");

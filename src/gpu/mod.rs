@@ -105,38 +105,63 @@ fn optional_features() -> wgpu::Features {
     wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::TIMESTAMP_QUERY_INSIDE_ENCODERS
 }
 
+/// The device gilab asks for: the adapter's own limits (storage buffer counts, sizes) and
+/// timestamp queries when present. Shared by the headless path and eframe's device.
+pub fn device_descriptor(adapter: &wgpu::Adapter) -> wgpu::DeviceDescriptor<'static> {
+    wgpu::DeviceDescriptor {
+        label: Some("gilab"),
+        required_features: adapter.features() & optional_features(),
+        required_limits: adapter.limits(),
+        experimental_features: wgpu::ExperimentalFeatures::disabled(),
+        memory_hints: wgpu::MemoryHints::Performance,
+        trace: wgpu::Trace::Off,
+    }
+}
+
+/// Sets `XDG_RUNTIME_DIR` when missing (lavapipe prints an error line without it).
+pub fn ensure_runtime_dir() {
+    if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
+        let dir = std::env::temp_dir().join(format!("gilab-xdg-{}", std::process::id()));
+        let _ = std::fs::create_dir_all(&dir);
+        // SAFETY: called at start-up, before we start threads that read the environment.
+        unsafe { std::env::set_var("XDG_RUNTIME_DIR", &dir) };
+    }
+}
+
+/// Adapter preference: real GPUs first, then CPU rasterisers (lavapipe/llvmpipe).
+pub fn adapter_rank(adapter: &wgpu::Adapter) -> u32 {
+    match adapter.get_info().device_type {
+        wgpu::DeviceType::DiscreteGpu => 4,
+        wgpu::DeviceType::IntegratedGpu => 3,
+        wgpu::DeviceType::VirtualGpu => 2,
+        wgpu::DeviceType::Cpu => 1,
+        wgpu::DeviceType::Other => 0,
+    }
+}
+
+impl BackendChoice {
+    /// Backends to try, in order.
+    pub fn order(self) -> &'static [wgpu::Backends] {
+        match self {
+            BackendChoice::Auto => &[wgpu::Backends::VULKAN, wgpu::Backends::GL],
+            BackendChoice::Vulkan => &[wgpu::Backends::VULKAN],
+            BackendChoice::Gl => &[wgpu::Backends::GL],
+        }
+    }
+}
+
 impl Gpu {
     /// Creates a headless device. Errors (not panics) if no adapter fits.
     pub fn new(choice: BackendChoice) -> Result<Gpu> {
         let choice = choice.resolve_env()?;
-        if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
-            // lavapipe prints an error line without it; a private temp dir is enough.
-            let dir = std::env::temp_dir().join(format!("gilab-xdg-{}", std::process::id()));
-            let _ = std::fs::create_dir_all(&dir);
-            // SAFETY: set before any thread that reads the environment is started by us.
-            unsafe { std::env::set_var("XDG_RUNTIME_DIR", &dir) };
-        }
-        let order: &[wgpu::Backends] = match choice {
-            BackendChoice::Auto => &[wgpu::Backends::VULKAN, wgpu::Backends::GL],
-            BackendChoice::Vulkan => &[wgpu::Backends::VULKAN],
-            BackendChoice::Gl => &[wgpu::Backends::GL],
-        };
+        ensure_runtime_dir();
         let mut tried = Vec::new();
-        for &backends in order {
+        for &backends in choice.order() {
             let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
             desc.backends = backends;
             let instance = wgpu::Instance::new(desc);
             let adapters = pollster::block_on(instance.enumerate_adapters(backends));
-            // Prefer real GPUs, then CPU rasterisers (lavapipe/llvmpipe).
-            let best = adapters
-                .into_iter()
-                .max_by_key(|a| match a.get_info().device_type {
-                    wgpu::DeviceType::DiscreteGpu => 4,
-                    wgpu::DeviceType::IntegratedGpu => 3,
-                    wgpu::DeviceType::VirtualGpu => 2,
-                    wgpu::DeviceType::Cpu => 1,
-                    wgpu::DeviceType::Other => 0,
-                });
+            let best = adapters.into_iter().max_by_key(adapter_rank);
             match best {
                 Some(adapter) => return Self::from_adapter(instance, adapter),
                 None => tried.push(format!("{backends:?}")),
@@ -149,10 +174,9 @@ impl Gpu {
         ))
     }
 
-    fn from_adapter(instance: wgpu::Instance, adapter: wgpu::Adapter) -> Result<Gpu> {
+    /// Checks that an adapter can run gilab at all (compute shaders, enough storage buffers).
+    pub fn check_adapter(adapter: &wgpu::Adapter) -> Result<()> {
         let info = adapter.get_info();
-        let features = adapter.features() & optional_features();
-        let limits = adapter.limits();
         if !adapter
             .get_downlevel_capabilities()
             .flags
@@ -163,6 +187,7 @@ impl Gpu {
                 info.name
             );
         }
+        let limits = adapter.limits();
         if limits.max_storage_buffers_per_shader_stage < 9 {
             bail!(
                 "adapter {} allows {} storage buffers per stage; gilab needs 9",
@@ -170,19 +195,30 @@ impl Gpu {
                 limits.max_storage_buffers_per_shader_stage
             );
         }
-        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
-            label: Some("gilab"),
-            required_features: features,
-            required_limits: limits,
-            experimental_features: wgpu::ExperimentalFeatures::disabled(),
-            memory_hints: wgpu::MemoryHints::Performance,
-            trace: wgpu::Trace::Off,
-        }))
-        .with_context(|| format!("requesting a device from {}", info.name))?;
+        Ok(())
+    }
+
+    fn from_adapter(instance: wgpu::Instance, adapter: wgpu::Adapter) -> Result<Gpu> {
+        Self::check_adapter(&adapter)?;
+        let (device, queue) =
+            pollster::block_on(adapter.request_device(&device_descriptor(&adapter)))
+                .with_context(|| format!("requesting a device from {}", adapter.get_info().name))?;
+        Ok(Self::from_device(instance, adapter, device, queue))
+    }
+
+    /// Wraps a device someone else created (the viewer shares eframe's device). The device
+    /// should come from [`device_descriptor`] so that gilab's limits and features are there.
+    pub fn from_device(
+        instance: wgpu::Instance,
+        adapter: wgpu::Adapter,
+        device: wgpu::Device,
+        queue: wgpu::Queue,
+    ) -> Gpu {
+        let info = adapter.get_info();
         let errors = ErrorLog::default();
         let sink = errors.clone();
         device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| sink.push(e.to_string())));
-        let timestamps = features.contains(wgpu::Features::TIMESTAMP_QUERY);
+        let timestamps = device.features().contains(wgpu::Features::TIMESTAMP_QUERY);
         let timestamp_period = timestamps.then(|| queue.get_timestamp_period());
         let summary = AdapterSummary {
             name: info.name.clone(),
@@ -192,7 +228,7 @@ impl Gpu {
             driver_info: info.driver_info.clone(),
             timestamps,
         };
-        Ok(Gpu {
+        Gpu {
             instance,
             adapter,
             device,
@@ -200,7 +236,7 @@ impl Gpu {
             summary,
             errors,
             timestamp_period,
-        })
+        }
     }
 
     /// Waits for all submitted work.

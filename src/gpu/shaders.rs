@@ -35,6 +35,7 @@ pub enum ShaderSource {
     Embedded,
 }
 
+#[derive(Clone, Debug)]
 pub struct ShaderLibrary {
     pub source: ShaderSource,
 }

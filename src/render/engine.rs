@@ -47,8 +47,8 @@ pub struct FrameReport {
 pub struct Engine {
     pub gpu: Arc<Gpu>,
     pub shaders: ShaderLibrary,
-    pub scene: Scene,
-    pub gpu_scene: GpuScene,
+    pub scene: Arc<Scene>,
+    pub gpu_scene: Arc<GpuScene>,
     pub camera: Camera,
     prev_camera: Camera,
     pub extent: [u32; 2],
@@ -76,6 +76,26 @@ impl Engine {
         technique: Box<dyn Technique>,
         settings: EngineSettings,
     ) -> Result<Engine> {
+        let gpu_scene = Arc::new(GpuScene::upload(&gpu, &scene));
+        Self::with_shared_scene(
+            gpu,
+            shaders,
+            Arc::new(scene),
+            gpu_scene,
+            technique,
+            settings,
+        )
+    }
+
+    /// Like `new`, for several engines on one uploaded scene (the viewer's panes).
+    pub fn with_shared_scene(
+        gpu: Arc<Gpu>,
+        shaders: ShaderLibrary,
+        scene: Arc<Scene>,
+        gpu_scene: Arc<GpuScene>,
+        technique: Box<dyn Technique>,
+        settings: EngineSettings,
+    ) -> Result<Engine> {
         anyhow::ensure!(
             settings.extent[0] > 0 && settings.extent[1] > 0,
             "image size must be positive"
@@ -85,7 +105,6 @@ impl Engine {
             settings.extent[0] <= max && settings.extent[1] <= max,
             "image size exceeds the adapter's limit of {max}"
         );
-        let gpu_scene = GpuScene::upload(&gpu, &scene);
         let uniforms = gpu
             .device
             .create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -168,6 +187,29 @@ impl Engine {
         self.technique.build(&render_context!(self))?;
         self.reset();
         Ok(())
+    }
+
+    /// Rebuilds the technique's pipelines from the current shader sources (hot reload).
+    /// On error the previous pipelines keep running and history is kept.
+    pub fn rebuild(&mut self) -> Result<()> {
+        self.technique.build(&render_context!(self))?;
+        self.gpu.check_errors()?;
+        self.reset();
+        Ok(())
+    }
+
+    /// Whether a change to these entry files affects this engine's technique.
+    pub fn uses_any_shader(&self, entries: &[String]) -> bool {
+        self.technique
+            .shader_files()
+            .iter()
+            .any(|f| entries.iter().any(|e| e == f))
+    }
+
+    /// Rays per pixel per frame measured since the last reset.
+    pub fn rays_per_pixel_per_frame(&self, rays: &RayCounts) -> Option<f64> {
+        let pixels = (self.extent[0] * self.extent[1]) as f64;
+        (self.frame_index > 0).then(|| rays.total() as f64 / pixels / self.frame_index as f64)
     }
 
     fn uniforms_for_frame(&self) -> FrameUniforms {

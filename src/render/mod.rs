@@ -116,6 +116,36 @@ pub trait Technique {
     }
     fn params(&self) -> toml::Table;
     fn set_params(&mut self, params: &toml::Table) -> Result<()>;
+    /// What each parameter does, for the viewer's panel and the README.
+    fn param_docs(&self) -> Vec<ParamDoc> {
+        Vec::new()
+    }
+    /// Entry files under `shaders/` this technique compiles (hot reload rebuilds on change).
+    fn shader_files(&self) -> &'static [&'static str];
+    /// Maps a ray budget (rays per pixel per frame) to the technique's own knobs, given the
+    /// rays per pixel per frame measured at the current settings (None before any frame).
+    /// Returns the parameters to apply, or None when they would not change.
+    /// The default: no budget knob.
+    fn params_for_ray_budget(
+        &self,
+        _rays_per_pixel: f64,
+        _measured: Option<f64>,
+    ) -> Option<toml::Table> {
+        None
+    }
+}
+
+/// One documented parameter: what it does, what higher and lower values mean, its range.
+#[derive(Clone, Debug, Serialize)]
+pub struct ParamDoc {
+    pub name: &'static str,
+    pub what: &'static str,
+    pub higher: &'static str,
+    pub lower: &'static str,
+    pub min: f64,
+    pub max: f64,
+    /// Integer parameter (slider steps of 1).
+    pub integer: bool,
 }
 
 pub const TECHNIQUES: &[(&str, &str)] = &[(

@@ -11,7 +11,7 @@
 //! Shader: shaders/reference/path_trace.wgsl.
 
 use crate::gpu::{timing::PassTimer, Gpu};
-use crate::render::{pipelines, PassInfo, RenderContext, Technique};
+use crate::render::{pipelines, ParamDoc, PassInfo, RenderContext, Technique};
 use crate::scene::features::SceneFeatures;
 use anyhow::{bail, Result};
 
@@ -32,6 +32,8 @@ pub struct ReferencePathTracer {
 /// Most samples one frame can take (one dispatch each).
 pub const MAX_SAMPLES_PER_FRAME: u32 = 64;
 const SLOT_BYTES: u64 = 256;
+/// Rays one path costs before anything is measured (camera + a few bounces with shadow rays).
+const ASSUMED_RAYS_PER_PATH: f64 = 4.0;
 
 impl Default for ReferencePathTracer {
     fn default() -> Self {
@@ -259,5 +261,52 @@ impl Technique for ReferencePathTracer {
             }
         }
         Ok(())
+    }
+
+    fn param_docs(&self) -> Vec<ParamDoc> {
+        vec![
+            ParamDoc {
+                name: "samples_per_frame",
+                what: "paths traced per pixel each frame (one dispatch each)",
+                higher: "faster convergence per frame, longer frames",
+                lower: "shorter frames, more frames to the same noise",
+                min: 1.0,
+                max: MAX_SAMPLES_PER_FRAME as f64,
+                integer: true,
+            },
+            ParamDoc {
+                name: "max_depth",
+                what: "maximum bounces; 0 = unbounded (Russian roulette only, unbiased)",
+                higher: "more indirect light kept, longer paths",
+                lower: "cheaper paths that lose energy (biased dark) below the scene's needs",
+                min: 0.0,
+                max: 64.0,
+                integer: true,
+            },
+        ]
+    }
+
+    fn shader_files(&self) -> &'static [&'static str] {
+        &["reference/path_trace.wgsl"]
+    }
+
+    fn params_for_ray_budget(
+        &self,
+        rays_per_pixel: f64,
+        measured: Option<f64>,
+    ) -> Option<toml::Table> {
+        // Rays scale with paths per pixel: rays/path measured at the current setting.
+        let per_path = measured
+            .map(|m| m / self.samples_per_frame.max(1) as f64)
+            .filter(|r| *r > 0.0)
+            .unwrap_or(ASSUMED_RAYS_PER_PATH);
+        let spf = (rays_per_pixel / per_path)
+            .round()
+            .clamp(1.0, MAX_SAMPLES_PER_FRAME as f64) as u32;
+        (spf != self.samples_per_frame).then(|| {
+            let mut t = toml::Table::new();
+            t.insert("samples_per_frame".into(), (spf as i64).into());
+            t
+        })
     }
 }

@@ -1,0 +1,272 @@
+//! # The viewer (`gilab` with no subcommand)
+//!
+//! An eframe app on wgpu that shares eframe's device with the engines. The model lives in
+//! [`session::Session`] (runs, reference, camera, hot reload) and knows nothing of egui; this
+//! module owns the egui side: panes and their textures ([`views`]), the side and bottom panels
+//! ([`panels`]), camera input ([`camera`]), file watching ([`watch`]) and A/B screenshots
+//! ([`screenshot`]).
+//!
+//! Frame pacing: each UI frame renders technique frames round-robin until a wall-time budget
+//! is spent (at least one), so the UI stays interactive on slow adapters while every visible
+//! technique and the background reference make progress.
+
+pub mod camera;
+pub mod panels;
+pub mod screenshot;
+pub mod session;
+pub mod views;
+pub mod watch;
+
+use crate::gpu::{self, shaders::ShaderLibrary, BackendChoice, Gpu};
+use crate::preset::LoadedPreset;
+use anyhow::{bail, Result};
+use session::Session;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+/// What the viewer starts with.
+pub struct ViewerOptions {
+    pub preset: LoadedPreset,
+    pub shaders: ShaderLibrary,
+    /// Folder listed in the preset picker and watched for changes.
+    pub presets_dir: PathBuf,
+    /// Where A/B screenshots go.
+    pub out_dir: PathBuf,
+    /// Reference cache (the same folder `gilab reference` uses by default).
+    pub cache_dir: PathBuf,
+    /// Watch shaders, presets and the scene file for changes.
+    pub watch: bool,
+    /// Used only when eframe gives no wgpu device (never with the wgpu renderer).
+    pub backend: BackendChoice,
+}
+
+impl ViewerOptions {
+    pub fn new(preset: LoadedPreset) -> ViewerOptions {
+        ViewerOptions {
+            preset,
+            shaders: ShaderLibrary::discover(),
+            presets_dir: PathBuf::from("presets"),
+            out_dir: PathBuf::from("out/viewer"),
+            cache_dir: PathBuf::from("cache/reference"),
+            watch: true,
+            backend: BackendChoice::Auto,
+        }
+    }
+}
+
+pub struct ViewerApp {
+    /// None when start-up failed; the window then shows why.
+    pub session: Option<Session>,
+    pub startup_error: Option<String>,
+    pub views: views::PaneTextures,
+    pub panels: panels::PanelState,
+    pub watcher: Option<watch::FileWatcher>,
+    pub presets_dir: PathBuf,
+    pub out_dir: PathBuf,
+    /// Wall milliseconds of rendering per UI frame before the UI takes the thread back.
+    pub frame_budget_ms: f64,
+    /// Set by tests that step rendering themselves.
+    pub render_in_ui: bool,
+    pub last_screenshot: Option<PathBuf>,
+    /// UI frame times (ms) of the last frames, for the status line.
+    pub ui_frame_ms: f64,
+}
+
+impl ViewerApp {
+    /// Creates the viewer on eframe's wgpu device (or a headless one when eframe has none).
+    pub fn new(cc: &eframe::CreationContext<'_>, options: ViewerOptions) -> ViewerApp {
+        let gpu = match &cc.wgpu_render_state {
+            Some(rs) => Gpu::check_adapter(&rs.adapter).map(|()| {
+                Gpu::from_device(
+                    rs.instance.clone(),
+                    rs.adapter.clone(),
+                    rs.device.clone(),
+                    rs.queue.clone(),
+                )
+            }),
+            None => Gpu::new(options.backend),
+        };
+        Self::with_gpu(gpu.map(Arc::new), options)
+    }
+
+    pub fn with_gpu(gpu: Result<Arc<Gpu>>, options: ViewerOptions) -> ViewerApp {
+        let session = gpu.and_then(|gpu| {
+            log::info!("viewer adapter: {}", gpu.summary);
+            Session::new(
+                gpu,
+                options.shaders.clone(),
+                options.preset.clone(),
+                options.cache_dir.clone(),
+            )
+        });
+        let (session, startup_error) = match session {
+            Ok(s) => (Some(s), None),
+            Err(e) => (None, Some(format!("{e:#}"))),
+        };
+        let watcher = if options.watch {
+            let mut paths = vec![options.presets_dir.clone()];
+            paths.extend(options.shaders.root().map(|p| p.to_path_buf()));
+            match watch::FileWatcher::new(&paths) {
+                Ok(mut w) => {
+                    if let Some(p) = options.preset.scene_path() {
+                        w.add(&p);
+                    }
+                    if let Some(p) = &options.preset.path {
+                        w.add(p);
+                    }
+                    Some(w)
+                }
+                Err(e) => {
+                    log::warn!("hot reload off: cannot watch files: {e}");
+                    None
+                }
+            }
+        } else {
+            None
+        };
+        let panels = panels::PanelState::new(&options);
+        ViewerApp {
+            session,
+            startup_error,
+            views: views::PaneTextures::default(),
+            panels,
+            watcher,
+            presets_dir: options.presets_dir,
+            out_dir: options.out_dir,
+            frame_budget_ms: 50.0,
+            render_in_ui: true,
+            last_screenshot: None,
+            ui_frame_ms: 0.0,
+        }
+    }
+
+    /// Drains file events and applies them (called every UI frame; tests call it too).
+    pub fn poll_file_changes(&mut self) {
+        let (Some(w), Some(s)) = (&mut self.watcher, &mut self.session) else {
+            return;
+        };
+        // The scene file of whatever preset is loaded now (adding is idempotent).
+        if let Some(p) = s.preset.scene_path() {
+            w.add(&p);
+        }
+        let changed = w.drain();
+        if !changed.is_empty() {
+            s.handle_changed_files(&changed);
+        }
+    }
+
+    /// Saves the visible panes (button and F12).
+    pub fn save_screenshot(&mut self) {
+        let Some(s) = &mut self.session else { return };
+        match screenshot::save_ab(s, &self.out_dir) {
+            Ok(dir) => {
+                s.note(format!("A/B screenshot saved to {}", dir.display()));
+                s.errors.remove("screenshot");
+                self.last_screenshot = Some(dir);
+            }
+            Err(e) => {
+                s.errors.insert("screenshot".into(), format!("{e:#}"));
+            }
+        }
+    }
+}
+
+impl eframe::App for ViewerApp {
+    fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
+        self.show(ui);
+    }
+}
+
+impl ViewerApp {
+    /// One UI frame: file events, rendering work, panels and panes.
+    pub fn show(&mut self, ui: &mut egui::Ui) {
+        let start = std::time::Instant::now();
+        if let Some(err) = &self.startup_error {
+            egui::CentralPanel::default().show(ui, |ui| {
+                ui.heading("gilab could not start the viewer");
+                ui.label(err.as_str());
+                ui.label("The headless commands (gilab shot, bench, compare) may still work.");
+            });
+            return;
+        }
+        self.poll_file_changes();
+        if self.render_in_ui {
+            if let Some(s) = &mut self.session {
+                s.step(self.frame_budget_ms);
+            }
+        }
+        if ui.input(|i| i.key_pressed(egui::Key::F12)) {
+            self.save_screenshot();
+        }
+        panels::side_panel(self, ui);
+        panels::bottom_panel(self, ui);
+        views::central_panel(self, ui);
+        self.ui_frame_ms = start.elapsed().as_secs_f64() * 1e3;
+        if self.session.as_ref().is_some_and(|s| !s.paused) {
+            ui.ctx().request_repaint();
+        }
+    }
+}
+
+/// eframe's wgpu setup with gilab's device requirements (adapter limits, timestamp queries)
+/// and adapter choice (Vulkan preferred, GL fallback, `GILAB_BACKEND`).
+pub fn wgpu_setup(backend: BackendChoice) -> egui_wgpu::WgpuSetup {
+    let backend = backend.resolve_env().unwrap_or_default();
+    let mut setup = egui_wgpu::WgpuSetupCreateNew::without_display_handle();
+    setup.instance_descriptor.backends = backend
+        .order()
+        .iter()
+        .fold(wgpu::Backends::empty(), |a, b| a | *b);
+    let order: Vec<wgpu::Backends> = backend.order().to_vec();
+    setup.native_adapter_selector = Some(Arc::new(move |adapters, surface| {
+        let usable = |a: &&wgpu::Adapter| {
+            Gpu::check_adapter(a).is_ok() && surface.is_none_or(|s| a.is_surface_supported(s))
+        };
+        for backends in &order {
+            let best = adapters
+                .iter()
+                .filter(|a| backends.contains(wgpu::Backends::from(a.get_info().backend)))
+                .filter(usable)
+                .max_by_key(|a| gpu::adapter_rank(a));
+            if let Some(a) = best {
+                return Ok(a.clone());
+            }
+        }
+        Err(
+            "no adapter with compute shaders and 9 storage buffers per stage; install \
+             mesa-vulkan-drivers or try GILAB_BACKEND=gl"
+                .to_string(),
+        )
+    }));
+    setup.device_descriptor = Arc::new(gpu::device_descriptor);
+    egui_wgpu::WgpuSetup::CreateNew(setup)
+}
+
+/// Opens the viewer window; returns when it is closed.
+pub fn run(options: ViewerOptions) -> Result<()> {
+    if std::env::var_os("DISPLAY").is_none() && std::env::var_os("WAYLAND_DISPLAY").is_none() {
+        bail!(
+            "no display: the viewer needs X11 or Wayland (DISPLAY / WAYLAND_DISPLAY unset). \
+             Run it under Xvfb (`Xvfb :99 & DISPLAY=:99 gilab`), or use the headless \
+             commands: gilab shot, reference, compare, bench"
+        );
+    }
+    gpu::ensure_runtime_dir();
+    let native = eframe::NativeOptions {
+        renderer: eframe::Renderer::Wgpu,
+        viewport: egui::ViewportBuilder::default()
+            .with_title("gilab")
+            .with_inner_size([1400.0, 900.0]),
+        wgpu_options: egui_wgpu::WgpuConfiguration {
+            wgpu_setup: wgpu_setup(options.backend),
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    eframe::run_native(
+        "gilab",
+        native,
+        Box::new(move |cc| Ok(Box::new(ViewerApp::new(cc, options)))),
+    )
+    .map_err(|e| anyhow::anyhow!("viewer: {e}"))
+}

@@ -1,0 +1,419 @@
+//! Side panel (preset load/save, layout and panes, tonemapping, technique parameters and ray
+//! budgets, scene features and passes) and bottom panel (convergence plots, per-pass GPU
+//! timings, rays/s).
+
+use super::{ViewerApp, ViewerOptions};
+use crate::compare::tonemap::Operator;
+use crate::preset::{DisplayMode, Layout};
+use crate::render::TECHNIQUES;
+use egui_plot::{Legend, Line, Plot, PlotPoints};
+use std::path::PathBuf;
+
+/// Which error the plots show.
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+pub enum PlotMetric {
+    RelMse,
+    Mse,
+}
+
+pub struct PanelState {
+    pub load_path: String,
+    pub save_path: String,
+    pub add_technique: String,
+    pub metric: PlotMetric,
+    /// Pixel under the pointer, for the inspector line in the bottom panel.
+    pub inspected: Option<(u32, u32)>,
+}
+
+impl PanelState {
+    pub fn new(options: &ViewerOptions) -> PanelState {
+        let save = options
+            .presets_dir
+            .join("my-session.toml")
+            .display()
+            .to_string();
+        PanelState {
+            load_path: options
+                .preset
+                .path
+                .as_ref()
+                .map(|p| p.display().to_string())
+                .unwrap_or_default(),
+            save_path: save,
+            add_technique: TECHNIQUES[0].0.to_string(),
+            metric: PlotMetric::RelMse,
+            inspected: None,
+        }
+    }
+}
+
+fn preset_files(dir: &std::path::Path) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map(|rd| {
+            rd.filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+                .collect()
+        })
+        .unwrap_or_default();
+    v.sort();
+    v
+}
+
+pub fn side_panel(app: &mut ViewerApp, ui: &mut egui::Ui) {
+    egui::Panel::left("side")
+        .resizable(true)
+        .default_size(340.0)
+        .show(ui, |ui| {
+            egui::ScrollArea::vertical().show(ui, |ui| side_contents(app, ui));
+        });
+}
+
+fn side_contents(app: &mut ViewerApp, ui: &mut egui::Ui) {
+    let presets = preset_files(&app.presets_dir);
+    let Some(s) = app.session.as_mut() else {
+        return;
+    };
+    let st = &mut app.panels;
+
+    ui.heading("Preset");
+    ui.label(format!(
+        "current: {}",
+        s.preset
+            .path
+            .as_ref()
+            .map_or("built-in default".into(), |p| p.display().to_string())
+    ));
+    ui.horizontal_wrapped(|ui| {
+        for p in &presets {
+            let name = p
+                .file_name()
+                .map(|n| n.to_string_lossy().to_string())
+                .unwrap_or_default();
+            if ui
+                .button(&name)
+                .on_hover_text(p.display().to_string())
+                .clicked()
+            {
+                st.load_path = p.display().to_string();
+                let _ = s.load_preset_file(p);
+            }
+        }
+    });
+    ui.horizontal(|ui| {
+        ui.add(
+            egui::TextEdit::singleline(&mut st.load_path)
+                .desired_width(200.0)
+                .hint_text("preset path"),
+        );
+        if ui.button("Load").clicked() {
+            let _ = s.load_preset_file(&PathBuf::from(st.load_path.trim()));
+        }
+    });
+    ui.horizontal(|ui| {
+        ui.add(egui::TextEdit::singleline(&mut st.save_path).desired_width(200.0));
+        if ui.button("Save preset").clicked() {
+            if let Err(e) = s.save_preset(&PathBuf::from(st.save_path.trim())) {
+                s.errors.insert("save".into(), format!("{e:#}"));
+            }
+        }
+    });
+
+    ui.separator();
+    ui.heading("View");
+    ui.horizontal_wrapped(|ui| {
+        for l in Layout::ALL {
+            ui.radio_value(&mut s.layout, l, l.label());
+        }
+    });
+    let labels: Vec<String> = s.runs.iter().map(|r| r.label().to_string()).collect();
+    for i in 0..s.layout.pane_count() {
+        let pane = &mut s.panes[i];
+        ui.horizontal(|ui| {
+            egui::ComboBox::from_label(format!("Pane {} technique", i + 1))
+                .selected_text(labels.get(pane.run).cloned().unwrap_or_default())
+                .show_ui(ui, |ui| {
+                    for (k, l) in labels.iter().enumerate() {
+                        ui.selectable_value(&mut pane.run, k, l);
+                    }
+                });
+        });
+        egui::ComboBox::from_label(format!("Pane {} display", i + 1))
+            .selected_text(pane.display.label())
+            .show_ui(ui, |ui| {
+                for m in DisplayMode::ALL {
+                    ui.selectable_value(&mut pane.display, m, m.label());
+                }
+            });
+    }
+
+    ui.separator();
+    ui.heading("Display");
+    let tm = &mut s.preset.preset.tonemap;
+    egui::ComboBox::from_label("Tonemapper")
+        .selected_text(format!("{:?}", tm.operator))
+        .show_ui(ui, |ui| {
+            for op in [Operator::Aces, Operator::Reinhard, Operator::Linear] {
+                ui.selectable_value(&mut tm.operator, op, format!("{op:?}"));
+            }
+        });
+    ui.add(egui::Slider::new(&mut tm.exposure, -10.0..=10.0).text("Exposure (EV)"));
+
+    ui.separator();
+    ui.heading("Techniques");
+    let features = s.runs[0].engine.gpu_scene.data.features.clone();
+    let mut action: Option<(usize, Action)> = None;
+    for (i, run) in s.runs.iter().enumerate() {
+        egui::CollapsingHeader::new(run.label())
+            .id_salt(("run", i))
+            .default_open(i < 2)
+            .show(ui, |ui| {
+                let mut name = run.entry.name.clone();
+                egui::ComboBox::from_label(format!("Technique of {}", run.label()))
+                    .selected_text(&name)
+                    .show_ui(ui, |ui| {
+                        for (id, what) in TECHNIQUES {
+                            ui.selectable_value(&mut name, id.to_string(), *id)
+                                .on_hover_text(*what);
+                        }
+                    });
+                if name != run.entry.name {
+                    action = Some((i, Action::Technique(name)));
+                }
+                let params = run.engine.technique.params();
+                for doc in run.engine.technique.param_docs() {
+                    let Some(v) = params.get(doc.name) else {
+                        continue;
+                    };
+                    let mut x = v
+                        .as_float()
+                        .or(v.as_integer().map(|n| n as f64))
+                        .unwrap_or(0.0);
+                    let mut slider = egui::Slider::new(&mut x, doc.min..=doc.max).text(doc.name);
+                    if doc.integer {
+                        slider = slider.integer();
+                    }
+                    let r = ui.add(slider).on_hover_text(format!(
+                        "{}\nhigher: {}\nlower: {}",
+                        doc.what, doc.higher, doc.lower
+                    ));
+                    ui.small(doc.what);
+                    if r.changed() && !r.dragged() || r.drag_stopped() {
+                        let mut t = toml::Table::new();
+                        let value = if doc.integer {
+                            toml::Value::Integer(x.round() as i64)
+                        } else {
+                            toml::Value::Float(x)
+                        };
+                        t.insert(doc.name.to_string(), value);
+                        action = Some((i, Action::Params(t)));
+                    }
+                }
+                let measured = run.measured_rays_per_pixel();
+                let mut budget = run.entry.budget.or(measured).unwrap_or(4.0);
+                let r = ui.add(
+                    egui::Slider::new(&mut budget, 1.0..=256.0)
+                        .logarithmic(true)
+                        .text(format!("Ray budget {} (rays/px/frame)", run.label())),
+                );
+                if r.changed() && !r.dragged() || r.drag_stopped() {
+                    action = Some((i, Action::Budget(budget)));
+                }
+                ui.label(format!(
+                    "measured: {} rays/px/frame",
+                    measured.map_or("-".into(), |m| format!("{m:.2}"))
+                ));
+                ui.label("passes:");
+                for p in run.engine.technique.passes(&features) {
+                    ui.small(format!(
+                        "{} {}: {}",
+                        if p.runs { "runs" } else { "skips" },
+                        p.name,
+                        p.why
+                    ));
+                }
+                if ui.button(format!("Reset {}", run.label())).clicked() {
+                    action = Some((i, Action::Reset));
+                }
+            });
+    }
+    if let Some((i, a)) = action {
+        let result = match a {
+            Action::Technique(name) => s.set_run_technique(i, &name),
+            Action::Params(t) => s.set_run_params(i, &t),
+            Action::Budget(b) => s.set_ray_budget(i, b),
+            Action::Reset => {
+                let params = s.runs[i].engine.technique.params();
+                s.set_run_params(i, &params)
+            }
+        };
+        match result {
+            Ok(()) => {
+                s.errors.remove("parameters");
+            }
+            Err(e) => {
+                s.errors.insert("parameters".into(), format!("{e:#}"));
+            }
+        }
+    }
+    ui.horizontal(|ui| {
+        egui::ComboBox::from_id_salt("add-technique")
+            .selected_text(&st.add_technique)
+            .show_ui(ui, |ui| {
+                for (id, _) in TECHNIQUES {
+                    ui.selectable_value(&mut st.add_technique, id.to_string(), *id);
+                }
+            });
+        if ui.button("Add technique").clicked() {
+            if let Err(e) = s.add_run(&st.add_technique) {
+                s.errors.insert("parameters".into(), format!("{e:#}"));
+            }
+        }
+    });
+
+    ui.separator();
+    ui.heading("Scene");
+    ui.label(format!("{}: {}", s.scene.name, features.summary()));
+
+    ui.separator();
+    ui.heading("Render");
+    ui.checkbox(&mut s.paused, "Pause");
+    ui.add(
+        egui::Slider::new(&mut app.frame_budget_ms, 5.0..=500.0)
+            .logarithmic(true)
+            .text("render ms per UI frame"),
+    );
+    ui.label(format!("adapter: {}", s.gpu.summary));
+    if ui.button("Save A/B screenshot (F12)").clicked() {
+        app.save_screenshot();
+    }
+    if let Some(d) = &app.last_screenshot {
+        ui.small(format!("last: {}", d.display()));
+    }
+    let Some(s) = app.session.as_ref() else {
+        return;
+    };
+    ui.separator();
+    ui.heading("Log");
+    for line in s.log.iter().rev().take(8) {
+        ui.small(line);
+    }
+}
+
+enum Action {
+    Technique(String),
+    Params(toml::Table),
+    Budget(f64),
+    Reset,
+}
+
+/// log10 with non-positive values dropped (log-log plots).
+fn log_points(points: impl Iterator<Item = (f64, f64)>) -> PlotPoints<'static> {
+    points
+        .filter(|(x, y)| *x > 0.0 && *y > 0.0 && x.is_finite() && y.is_finite())
+        .map(|(x, y)| [x.log10(), y.log10()])
+        .collect::<Vec<_>>()
+        .into()
+}
+
+fn pow10_label(mark: egui_plot::GridMark, _: &std::ops::RangeInclusive<f64>) -> String {
+    let v = mark.value;
+    if (v - v.round()).abs() < 1e-6 {
+        format!("1e{}", v.round() as i64)
+    } else {
+        format!("{:.2e}", 10f64.powf(v))
+    }
+}
+
+pub fn bottom_panel(app: &mut ViewerApp, ui: &mut egui::Ui) {
+    egui::Panel::bottom("bottom")
+        .resizable(true)
+        .default_size(270.0)
+        .show(ui, |ui| bottom_contents(app, ui));
+}
+
+fn bottom_contents(app: &mut ViewerApp, ui: &mut egui::Ui) {
+    let Some(s) = app.session.as_ref() else {
+        return;
+    };
+    let st = &mut app.panels;
+    ui.horizontal(|ui| {
+        ui.label("error:");
+        ui.radio_value(&mut st.metric, PlotMetric::RelMse, "relMSE");
+        ui.radio_value(&mut st.metric, PlotMetric::Mse, "MSE");
+        ui.label("(log-log; against the reference at its current spp)");
+        if let Some((x, y)) = st.inspected {
+            ui.separator();
+            ui.label(format!(
+                "inspecting pixel ({x}, {y}); hover shows all panes"
+            ));
+        }
+    });
+    let metric = st.metric;
+    let visible = s.visible_runs();
+    let err = move |p: &super::session::ConvergencePoint| match metric {
+        PlotMetric::RelMse => p.rel_mse,
+        PlotMetric::Mse => p.mse,
+    };
+    let plot_h = (ui.available_height() - 10.0).max(80.0);
+    ui.columns(4, |cols| {
+        let axes: [(&str, fn(&super::session::ConvergencePoint) -> f64); 3] = [
+            ("GPU ms", |p| p.gpu_ms),
+            ("rays/px", |p| p.rays_per_pixel),
+            ("frames", |p| p.frame as f64),
+        ];
+        for (c, (xname, xf)) in axes.iter().enumerate() {
+            let ui = &mut cols[c];
+            ui.label(format!("error vs {xname}"));
+            Plot::new(format!("plot-{xname}"))
+                .height(plot_h - 20.0)
+                .legend(Legend::default())
+                .x_axis_label(*xname)
+                .x_axis_formatter(pow10_label)
+                .y_axis_formatter(pow10_label)
+                .show(ui, |plot| {
+                    for &i in &visible {
+                        let run = &s.runs[i];
+                        let pts = log_points(run.curve.iter().map(|p| (xf(p), err(p))));
+                        plot.line(Line::new(run.label().to_string(), pts));
+                    }
+                });
+        }
+        let ui = &mut cols[3];
+        ui.label("GPU time per pass (last frame)");
+        egui::ScrollArea::vertical()
+            .id_salt("timings")
+            .show(ui, |ui| {
+                egui::Grid::new("timings").striped(true).show(ui, |ui| {
+                    for &i in &visible {
+                        let run = &s.runs[i];
+                        let Some(f) = &run.last_frame else { continue };
+                        ui.strong(run.label());
+                        ui.label(format!("{:.2} ms GPU", f.gpu_ms));
+                        ui.end_row();
+                        for (pass, ms) in &f.gpu_ms_by_pass {
+                            ui.label(format!("  {pass}"));
+                            ui.label(format!("{ms:.2} ms"));
+                            ui.end_row();
+                        }
+                        let pixels = (run.engine.extent[0] * run.engine.extent[1]) as f64;
+                        let rays_per_frame = run.measured_rays_per_pixel().unwrap_or(0.0) * pixels;
+                        ui.label("  frame (wall)");
+                        ui.label(format!("{:.1} ms", f.wall_ms));
+                        ui.end_row();
+                        ui.label("  rays/s");
+                        ui.label(format!(
+                            "{:.2} M",
+                            rays_per_frame / (f.gpu_ms.max(1e-6) * 1e-3) / 1e6
+                        ));
+                        ui.end_row();
+                        ui.label("  error");
+                        ui.label(
+                            run.error
+                                .map_or("-".into(), |m| format!("relMSE {:.2e}", m.rel_mse)),
+                        );
+                        ui.end_row();
+                    }
+                });
+            });
+    });
+}

@@ -1,0 +1,452 @@
+//! The viewer driven through egui_kittest with real wgpu rendering (lavapipe in CI): layouts,
+//! pane pickers, the ray-budget slider, preset loading, and bad input while it runs (broken
+//! shader, preset and glTF). Plus the heatmaps' numbers against CPU computations.
+
+mod common;
+
+use egui_kittest::{kittest::Queryable, Harness};
+use gilab::app::{session::ReferenceSource, wgpu_setup, ViewerApp, ViewerOptions};
+use gilab::gpu::{shaders::ShaderLibrary, BackendChoice};
+use gilab::preset::{DisplayMode, Layout, LoadedPreset};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+/// A fresh folder per test (tests run in parallel threads).
+fn tempdir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("gilab-viewer-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        let target = to.join(e.file_name());
+        if e.path().is_dir() {
+            copy_dir(&e.path(), &target);
+        } else {
+            std::fs::copy(e.path(), target).unwrap();
+        }
+    }
+}
+
+/// Small presets: two techniques on the Cornell box, and a furnace.
+const CORNELL: &str = r#"
+[scene]
+source = "cornell"
+[render]
+size = [32, 32]
+seed = 3
+reference_spp = 8
+[[techniques]]
+name = "reference"
+params = { samples_per_frame = 1 }
+[[techniques]]
+name = "reference"
+label = "two-bounce"
+params = { samples_per_frame = 1, max_depth = 2 }
+"#;
+
+const FURNACE: &str = r#"
+[scene]
+source = "furnace"
+params = { subdivisions = 1 }
+[render]
+size = [32, 32]
+reference_spp = 4
+"#;
+
+struct Fixture {
+    dir: PathBuf,
+    presets: PathBuf,
+    shaders: PathBuf,
+}
+
+fn fixture(name: &str) -> Fixture {
+    gilab::gpu::ensure_runtime_dir();
+    let dir = tempdir(name);
+    let presets = dir.join("presets");
+    std::fs::create_dir_all(&presets).unwrap();
+    std::fs::write(presets.join("cornell.toml"), CORNELL).unwrap();
+    std::fs::write(presets.join("furnace.toml"), FURNACE).unwrap();
+    let shaders = dir.join("shaders");
+    copy_dir(
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("shaders")
+            .as_path(),
+        &shaders,
+    );
+    Fixture {
+        dir,
+        presets,
+        shaders,
+    }
+}
+
+fn viewer(f: &Fixture, watch: bool) -> Harness<'static, ViewerApp> {
+    let preset = LoadedPreset::load(&f.presets.join("cornell.toml")).unwrap();
+    let mut options = ViewerOptions::new(preset);
+    options.shaders = ShaderLibrary {
+        source: gilab::gpu::shaders::ShaderSource::Disk(f.shaders.clone()),
+    };
+    options.presets_dir = f.presets.clone();
+    options.out_dir = f.dir.join("out");
+    options.cache_dir = f.dir.join("cache");
+    options.watch = watch;
+    let mut harness = Harness::builder()
+        .with_size(egui::Vec2::new(1400.0, 1000.0))
+        .wgpu_setup(wgpu_setup(BackendChoice::Auto))
+        .build_eframe(move |cc| ViewerApp::new(cc, options));
+    let app = harness.state();
+    assert!(app.startup_error.is_none(), "{:?}", app.startup_error);
+    harness.run_steps(3);
+    harness
+}
+
+fn session<'a>(h: &'a Harness<'static, ViewerApp>) -> &'a gilab::app::session::Session {
+    h.state().session.as_ref().expect("session")
+}
+
+/// Steps until `cond` holds or `timeout` passes; returns whether it held.
+fn step_until(
+    h: &mut Harness<'static, ViewerApp>,
+    timeout: Duration,
+    mut cond: impl FnMut(&Harness<'static, ViewerApp>) -> bool,
+) -> bool {
+    let start = Instant::now();
+    while start.elapsed() < timeout {
+        h.step();
+        if cond(h) {
+            return true;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    false
+}
+
+#[test]
+fn layouts_panes_and_budget_slider() {
+    let f = fixture("layouts");
+    let mut h = viewer(&f, false);
+    // Both panes of the default side-by-side layout render.
+    assert_eq!(session(&h).layout, Layout::SideBySide);
+    assert!(step_until(&mut h, Duration::from_secs(30), |h| {
+        session(h).runs.iter().all(|r| r.engine.frame_index >= 2)
+    }));
+    // The real wgpu renderer draws the window: the panes are not blank.
+    let image = h.render().expect("wgpu render of the window");
+    let lit = image.pixels().filter(|p| p[0] > 120 && p[1] < 80).count();
+    assert!(
+        lit > 50,
+        "no red wall visible in the rendered window ({lit} px)"
+    );
+
+    for (label, layout) in [
+        ("2x2 grid", Layout::Grid),
+        ("Wipe", Layout::Wipe),
+        ("Single", Layout::Single),
+        ("Side by side", Layout::SideBySide),
+    ] {
+        h.get_by_label(label).click();
+        h.run_steps(2);
+        assert_eq!(session(&h).layout, layout, "after clicking {label}");
+    }
+
+    // Pane 1: pick the second technique, then the variance heatmap.
+    h.get_by_label("Pane 1 technique").click();
+    h.run_steps(2);
+    // The open popup's entry is the only button with that label (the label also names a
+    // panel section and the plot legends).
+    h.get_by_role_and_label(egui::accesskit::Role::Button, "two-bounce")
+        .click();
+    h.run_steps(2);
+    assert_eq!(session(&h).panes[0].run, 1);
+    h.get_by_label("Pane 1 display").click();
+    h.run_steps(2);
+    h.get_by_label("Variance heatmap").click();
+    h.run_steps(2);
+    assert_eq!(session(&h).panes[0].display, DisplayMode::Variance);
+    assert!(session(&h).pane_pixels(&session(&h).panes[0]).is_some());
+
+    // The ray-budget slider raises the measured rays per pixel per frame (of the run the
+    // panes now show: only visible runs render).
+    let before = session(&h).runs[1].measured_rays_per_pixel().unwrap();
+    h.get_by_role_and_label(
+        egui::accesskit::Role::Slider,
+        "Ray budget two-bounce (rays/px/frame)",
+    )
+    .set_value_accesskit(before * 4.0);
+    h.run_steps(2);
+    let spf = session(&h).runs[1].engine.technique.samples_per_frame();
+    assert!(spf >= 3, "budget x4 gave {spf} samples per frame");
+    assert!(step_until(&mut h, Duration::from_secs(30), |h| {
+        session(h).runs[1].engine.frame_index >= 2
+    }));
+    let after = session(&h).runs[1].measured_rays_per_pixel().unwrap();
+    assert!(
+        after > 2.5 * before,
+        "measured rays/px/frame {before:.2} -> {after:.2}"
+    );
+    // The run that left the panes stops rendering.
+    let idle = session(&h).runs[0].engine.frame_index;
+    h.run_steps(4);
+    assert_eq!(session(&h).runs[0].engine.frame_index, idle);
+}
+
+#[test]
+fn preset_loading_and_bad_input_keep_the_viewer_up() {
+    let f = fixture("presets");
+    let mut h = viewer(&f, false);
+    h.get_by_label("furnace.toml").click();
+    h.run_steps(2);
+    assert_eq!(session(&h).scene.name, "furnace");
+
+    // A preset with a typo: error with line and column, nothing changes.
+    let bad = f.presets.join("typo.toml");
+    std::fs::write(
+        &bad,
+        "[scene]\nsource = \"cornell\"\n[render]\nsizee = [8, 8]\n",
+    )
+    .unwrap();
+    h.state_mut()
+        .session
+        .as_mut()
+        .unwrap()
+        .load_preset_file(&bad)
+        .unwrap_err();
+    h.run_steps(2);
+    let msg = session(&h)
+        .errors
+        .get("preset")
+        .cloned()
+        .unwrap_or_default();
+    assert!(msg.contains("typo.toml:4:1"), "{msg}");
+    assert!(h
+        .query_all_by_label_contains("typo.toml:4:1")
+        .next()
+        .is_some());
+    assert_eq!(session(&h).scene.name, "furnace");
+
+    // A preset naming a missing glTF file, then a malformed one.
+    let missing = f.presets.join("missing.toml");
+    std::fs::write(&missing, "[scene]\nsource = \"nowhere.gltf\"\n").unwrap();
+    let garbage = f.presets.join("garbage.gltf");
+    std::fs::write(&garbage, "{ this is not gltf").unwrap();
+    let malformed = f.presets.join("malformed.toml");
+    std::fs::write(&malformed, "[scene]\nsource = \"garbage.gltf\"\n").unwrap();
+    for p in [&missing, &malformed] {
+        let s = h.state_mut().session.as_mut().unwrap();
+        assert!(s.load_preset_file(p).is_err());
+        h.run_steps(2);
+        assert_eq!(session(&h).scene.name, "furnace");
+    }
+    let msg = session(&h)
+        .errors
+        .get("preset")
+        .cloned()
+        .unwrap_or_default();
+    assert!(msg.contains("garbage.gltf"), "{msg}");
+    // Still rendering.
+    let frame = session(&h).runs[0].engine.frame_index;
+    assert!(step_until(&mut h, Duration::from_secs(30), |h| {
+        session(h).runs[0].engine.frame_index > frame
+    }));
+    // Save and load round trip through a preset file.
+    let saved = f.presets.join("saved.toml");
+    h.state_mut()
+        .session
+        .as_mut()
+        .unwrap()
+        .save_preset(&saved)
+        .unwrap();
+    let reloaded = LoadedPreset::load(&saved).unwrap();
+    assert_eq!(reloaded.preset.scene.source, "furnace");
+    assert_eq!(
+        reloaded.preset.camera,
+        Some(session(&h).camera),
+        "saved preset keeps the camera"
+    );
+}
+
+#[test]
+fn broken_shader_keeps_last_pipeline_and_fix_reloads() {
+    let f = fixture("hotreload");
+    let mut h = viewer(&f, true);
+    assert!(step_until(&mut h, Duration::from_secs(30), |h| {
+        session(h).runs[0].engine.frame_index >= 1
+    }));
+    let file = f.shaders.join("reference/path_trace.wgsl");
+    let good = std::fs::read_to_string(&file).unwrap();
+    std::fs::write(&file, format!("{good}\nfn broken( {{\n")).unwrap();
+    assert!(
+        step_until(&mut h, Duration::from_secs(30), |h| session(h)
+            .errors
+            .contains_key("shaders")),
+        "no shader error shown"
+    );
+    let msg = session(&h).errors["shaders"].clone();
+    assert!(msg.contains("reference/path_trace.wgsl:"), "{msg}");
+    assert!(h
+        .query_all_by_label_contains("path_trace.wgsl:")
+        .next()
+        .is_some());
+    // The last good pipeline keeps rendering.
+    let frame = session(&h).runs[0].engine.frame_index;
+    assert!(step_until(&mut h, Duration::from_secs(30), |h| {
+        session(h).runs[0].engine.frame_index >= frame + 2
+    }));
+    // A broken shared module is reported against its own file.
+    let math = f.shaders.join("common/math.wgsl");
+    let math_good = std::fs::read_to_string(&math).unwrap();
+    std::fs::write(&file, &good).unwrap();
+    std::fs::write(&math, format!("{math_good}\nconst oops: f32 = ;\n")).unwrap();
+    assert!(step_until(&mut h, Duration::from_secs(30), |h| {
+        session(h)
+            .errors
+            .get("shaders")
+            .is_some_and(|m| m.contains("common/math.wgsl:"))
+    }));
+    // Fixing it reloads without a restart and clears the error.
+    std::fs::write(&math, &math_good).unwrap();
+    assert!(
+        step_until(&mut h, Duration::from_secs(30), |h| !session(h)
+            .errors
+            .contains_key("shaders")),
+        "error not cleared after the fix"
+    );
+    assert!(session(&h).log.iter().any(|l| l.starts_with("reloaded")));
+    assert!(step_until(&mut h, Duration::from_secs(30), |h| {
+        session(h).runs[0].engine.frame_index >= 1
+    }));
+}
+
+#[test]
+fn broken_gltf_on_disk_while_running_keeps_the_scene() {
+    let f = fixture("gltf");
+    let scene_dir = f.dir.join("scene");
+    copy_dir(
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("scenes/box-room")
+            .as_path(),
+        &scene_dir,
+    );
+    let preset = f.presets.join("room.toml");
+    std::fs::write(
+        &preset,
+        "[scene]\nsource = \"../scene/box-room.gltf\"\n[render]\nsize = [32, 32]\nreference_spp = 4\n",
+    )
+    .unwrap();
+    let mut h = viewer(&f, true);
+    h.state_mut()
+        .session
+        .as_mut()
+        .unwrap()
+        .load_preset_file(&preset)
+        .unwrap();
+    h.state_mut().poll_file_changes();
+    let name = session(&h).scene.name.clone();
+    // Someone overwrites the scene file with garbage while the viewer runs.
+    std::fs::write(scene_dir.join("box-room.gltf"), "{ broken").unwrap();
+    assert!(
+        step_until(&mut h, Duration::from_secs(30), |h| session(h)
+            .errors
+            .contains_key("preset")),
+        "no error after the scene file broke"
+    );
+    assert_eq!(session(&h).scene.name, name);
+    let frame = session(&h).runs[0].engine.frame_index;
+    assert!(step_until(&mut h, Duration::from_secs(30), |h| {
+        session(h).runs[0].engine.frame_index > frame
+    }));
+}
+
+/// The variance heatmap's values equal a CPU computation of per-pixel sample variance from
+/// the individual frames (recovered from the running means), and the error heatmap's mean
+/// equals the relMSE `gilab compare` prints for the same two EXRs.
+#[test]
+fn heatmaps_agree_with_cpu_and_compare() {
+    let f = fixture("heatmaps");
+    let preset = LoadedPreset::load(&f.presets.join("cornell.toml")).unwrap();
+    let mut s = gilab::app::session::Session::new(
+        common::gpu(),
+        ShaderLibrary::discover(),
+        preset,
+        f.dir.join("cache"),
+    )
+    .unwrap();
+    s.layout = Layout::Single;
+    // Converge the reference first (8 spp at 32²), then render only the technique.
+    while !s.reference.done() {
+        s.step(0.0);
+    }
+    assert_eq!(s.reference.source, ReferenceSource::Done);
+    let n = 12;
+    let mut means: Vec<Vec<f32>> = Vec::new();
+    s.runs[0].engine.reset();
+    for _ in 0..n {
+        assert_eq!(s.step(0.0), 1);
+        means.push(s.runs[0].radiance.as_ref().unwrap().rgb.clone());
+    }
+    let frames = s.runs[0].engine.frame_index as usize;
+    assert_eq!(frames, n);
+    // Individual samples: x_k = k m_k - (k-1) m_{k-1}; unbiased sample variance per channel.
+    let px = means[0].len() / 3;
+    let mut cpu = vec![0f64; px];
+    for i in 0..px {
+        for c in 0..3 {
+            let j = 3 * i + c;
+            let xs: Vec<f64> = (0..n)
+                .map(|k| {
+                    let prev = if k == 0 { 0.0 } else { means[k - 1][j] as f64 };
+                    (k + 1) as f64 * means[k][j] as f64 - k as f64 * prev
+                })
+                .collect();
+            let mean = xs.iter().sum::<f64>() / n as f64;
+            let var = xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
+            cpu[i] += var / 3.0;
+        }
+    }
+    let mut pane = s.panes[0];
+    pane.display = DisplayMode::Variance;
+    let gpu_values = s.pane_values(&pane).unwrap();
+    let mut worst = 0f64;
+    for (g, c) in gpu_values.iter().zip(&cpu) {
+        let err = (*g as f64 - c).abs() / (c.abs() + 1e-4);
+        worst = worst.max(err);
+    }
+    assert!(
+        worst < 2e-3,
+        "variance heatmap vs CPU: worst relative error {worst}"
+    );
+    assert!(cpu.iter().any(|v| *v > 1e-3), "variance suspiciously zero");
+
+    // Error heatmap mean vs `gilab compare` on the EXRs of the same images.
+    pane.display = DisplayMode::Error;
+    let map = s.pane_values(&pane).unwrap();
+    let heat_mean = gilab::compare::heatmap::mean(&map);
+    let a = f.dir.join("a.exr");
+    let b = f.dir.join("b.exr");
+    gilab::compare::io::write_exr(&a, s.runs[0].radiance.as_ref().unwrap()).unwrap();
+    gilab::compare::io::write_exr(&b, s.reference.image.as_ref().unwrap()).unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_gilab"))
+        .args(["compare"])
+        .arg(&a)
+        .arg(&b)
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let text = String::from_utf8_lossy(&out.stdout);
+    let rel: f64 = text
+        .split_whitespace()
+        .skip_while(|w| *w != "relMSE")
+        .nth(1)
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no relMSE in: {text}"));
+    assert!(
+        (heat_mean - rel).abs() <= 1e-5 * rel,
+        "heatmap mean {heat_mean} vs gilab compare {rel}"
+    );
+    assert!(rel > 0.0);
+}
