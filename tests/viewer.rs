@@ -394,7 +394,7 @@ fn heatmaps_agree_with_cpu_and_compare() {
     // Individual samples: x_k = k m_k - (k-1) m_{k-1}; unbiased sample variance per channel.
     let px = means[0].len() / 3;
     let mut cpu = vec![0f64; px];
-    for i in 0..px {
+    for (i, cpu_var) in cpu.iter_mut().enumerate() {
         for c in 0..3 {
             let j = 3 * i + c;
             let xs: Vec<f64> = (0..n)
@@ -405,7 +405,7 @@ fn heatmaps_agree_with_cpu_and_compare() {
                 .collect();
             let mean = xs.iter().sum::<f64>() / n as f64;
             let var = xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
-            cpu[i] += var / 3.0;
+            *cpu_var += var / 3.0;
         }
     }
     let mut pane = s.panes[0];

@@ -11,6 +11,7 @@
 //! technique and the background reference make progress.
 
 pub mod camera;
+pub mod headless;
 pub mod panels;
 pub mod screenshot;
 pub mod session;

@@ -306,6 +306,9 @@ enum Action {
     Reset,
 }
 
+/// A plot's x coordinate from a convergence point.
+type XAxis = fn(&super::session::ConvergencePoint) -> f64;
+
 /// log10 with non-positive values dropped (log-log plots).
 fn log_points(points: impl Iterator<Item = (f64, f64)>) -> PlotPoints<'static> {
     points
@@ -356,7 +359,7 @@ fn bottom_contents(app: &mut ViewerApp, ui: &mut egui::Ui) {
     };
     let plot_h = (ui.available_height() - 10.0).max(80.0);
     ui.columns(4, |cols| {
-        let axes: [(&str, fn(&super::session::ConvergencePoint) -> f64); 3] = [
+        let axes: [(&str, XAxis); 3] = [
             ("GPU ms", |p| p.gpu_ms),
             ("rays/px", |p| p.rays_per_pixel),
             ("frames", |p| p.frame as f64),

@@ -105,8 +105,8 @@ impl Run {
     /// Renders one frame and reads back what the views need.
     fn render_frame(&mut self, reference: Option<&Image>) -> Result<()> {
         let report = self.engine.render_frame()?;
-        let radiance = self.engine.read_output()?;
-        self.variance = self.engine.read_variance()?;
+        let (radiance, variance) = self.engine.read_output_and_variance()?;
+        self.variance = variance;
         self.rays = self.engine.ray_counts()?;
         let pixels = (radiance.width * radiance.height) as f64;
         if let Some(r) = reference {
@@ -680,7 +680,7 @@ impl Session {
     }
 
     /// The display image of a pane: RGBA8 pixels and, for heatmaps, the log10 range shown.
-    pub fn pane_pixels(&self, pane: &Pane) -> Option<(Vec<u8>, Option<(f32, f32)>)> {
+    pub fn pane_pixels(&self, pane: &Pane) -> Option<(Vec<u8>, Option<LogRange>)> {
         let run = self.runs.get(pane.run)?;
         if pane.display == DisplayMode::Radiance {
             let tonemap = &self.preset.preset.tonemap;
@@ -718,6 +718,9 @@ impl Session {
         })
     }
 }
+
+/// A heatmap's displayed range: (log10 low, log10 high).
+pub type LogRange = (f32, f32);
 
 /// What the pixel inspector shows for one pane.
 #[derive(Clone, Copy, Debug)]

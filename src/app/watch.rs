@@ -32,7 +32,7 @@ impl FileWatcher {
             }
         }
         Ok(FileWatcher {
-            watcher: watcher,
+            watcher,
             events,
             watched,
         })

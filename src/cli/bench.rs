@@ -1,7 +1,9 @@
 //! `gilab bench`: BVH traversal throughput (Mrays/s, rays counted on the GPU like every
 //! technique's) and reference path tracer ms/frame, per scene. Prints numbers; asserts nothing.
 
+use crate::app::{headless::HeadlessViewer, session::ReferenceSource, ViewerOptions};
 use crate::gpu::{shaders::ShaderLibrary, timing::PassTimer, Gpu};
+use crate::preset::LoadedPreset;
 use crate::render::{
     create_technique, engine::Engine, engine::EngineSettings, pipelines, PassInfo, RenderContext,
     Technique,
@@ -201,6 +203,93 @@ pub fn run(gpu: Arc<Gpu>, extent: [u32; 2], frames: u32, scenes: &[String]) -> R
         } else {
             "no, wall time"
         }
+    );
+    viewer_overhead(gpu, extent, frames)
+}
+
+/// The reference path tracer's frame inside the viewer (one technique frame per UI frame,
+/// plus readback, heatmaps, panels, plots and egui's painting at 1400x900) against the same
+/// frame headless. Wall time per frame, both waited for.
+fn viewer_overhead(gpu: Arc<Gpu>, extent: [u32; 2], frames: u32) -> Result<()> {
+    let text = format!(
+        "[scene]\nsource = \"cornell\"\n[render]\nsize = [{}, {}]\n[view]\nlayout = \"single\"\n\
+         [[techniques]]\nname = \"reference\"\nparams = {{ samples_per_frame = 1 }}\n",
+        extent[0], extent[1]
+    );
+    let preset = LoadedPreset::from_text(&text, None)?;
+    let scene = preset.load_scene()?;
+    let mut technique = create_technique("reference")?;
+    technique.set_params(&preset.preset.techniques[0].params)?;
+    let settings = EngineSettings {
+        extent,
+        seed: preset.preset.render.seed,
+        camera: preset.camera(&scene),
+    };
+    let mut e = Engine::new(
+        gpu.clone(),
+        ShaderLibrary::discover(),
+        scene,
+        technique,
+        settings,
+    )?;
+    e.render_frame()?;
+    let mut headless = 0.0;
+    for _ in 0..frames {
+        headless += e.render_frame()?.wall_ms;
+    }
+    headless /= frames as f64;
+
+    let mut options = ViewerOptions::new(preset);
+    options.watch = false;
+    options.cache_dir = std::env::temp_dir().join("gilab-bench-cache");
+    let mut v = HeadlessViewer::new(gpu, options, [1400, 900])?;
+    if let Some(s) = &mut v.app.session {
+        // The same work as headless: no background reference in the measured frames.
+        s.reference.source = ReferenceSource::Done;
+    }
+    // Default pacing (one technique frame per UI frame here), then a budget that batches
+    // frames, which amortises egui's painting (costly on a CPU rasteriser).
+    let default_budget = v.app.frame_budget_ms;
+    for budget in [default_budget, 4.0 * headless] {
+        v.app.frame_budget_ms = budget;
+        v.app.render_in_ui = true;
+        v.frame()?;
+        let (mut ms, mut technique_frames) = (0.0, 0u32);
+        for _ in 0..frames {
+            let before = v
+                .app
+                .session
+                .as_ref()
+                .map_or(0, |s| s.runs[0].engine.frame_index);
+            ms += v.frame()?;
+            let after = v
+                .app
+                .session
+                .as_ref()
+                .map_or(0, |s| s.runs[0].engine.frame_index);
+            technique_frames += after.saturating_sub(before).max(1);
+        }
+        let per_frame = ms / technique_frames as f64;
+        println!(
+            "viewer overhead, cornell {}x{} reference 1 spp/frame, render budget {:.0} ms per UI frame: \
+             headless {:.1} ms/frame, in viewer {:.1} ms/frame ({:.2}x, {:.1} technique frames per UI frame)",
+            extent[0],
+            extent[1],
+            budget,
+            headless,
+            per_frame,
+            per_frame / headless,
+            technique_frames as f64 / frames as f64
+        );
+    }
+    v.app.render_in_ui = false;
+    let mut ui_only = 0.0;
+    for _ in 0..frames {
+        ui_only += v.frame()?;
+    }
+    println!(
+        "viewer UI and egui painting at 1400x900 alone (no technique frame): {:.1} ms",
+        ui_only / frames as f64
     );
     Ok(())
 }

@@ -40,8 +40,23 @@ pub struct EngineSettings {
 pub struct FrameReport {
     pub frame_index: u32,
     pub gpu_ms_by_pass: Vec<(String, f64)>,
+    /// GPU milliseconds from timestamps, or the wall time when `timing` says so.
     pub gpu_ms: f64,
     pub wall_ms: f64,
+    pub timing: TimingSource,
+}
+
+/// Where a frame's time comes from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub enum TimingSource {
+    /// Timestamp queries around each pass.
+    #[default]
+    Timestamps,
+    /// No timestamp queries on this adapter: wall time of submit-to-idle.
+    Wall,
+    /// Timestamps came out implausibly short against the waited wall time (seen on lavapipe
+    /// when egui's graphics work runs between frames): wall time, no per-pass split.
+    WallTimestampsImplausible,
 }
 
 pub struct Engine {
@@ -262,10 +277,14 @@ impl Engine {
         let wall_ms = start.elapsed().as_secs_f64() * 1e3;
         let passes = self.timer.read(&self.gpu)?;
         self.gpu.check_errors()?;
-        let gpu_ms = if passes.is_empty() {
-            wall_ms
+        let stamped: f64 = passes.iter().map(|p| p.1).sum();
+        let (gpu_ms, timing, passes) = if passes.is_empty() {
+            (wall_ms, TimingSource::Wall, Vec::new())
+        } else if wall_ms > 20.0 && stamped < 0.1 * wall_ms {
+            // The frame was waited for alone, so GPU work cannot be a tenth of the wall time.
+            (wall_ms, TimingSource::WallTimestampsImplausible, Vec::new())
         } else {
-            passes.iter().map(|p| p.1).sum()
+            (stamped, TimingSource::Timestamps, passes)
         };
         let report = FrameReport {
             frame_index: self.frame_index,
@@ -275,6 +294,7 @@ impl Engine {
                 .collect(),
             gpu_ms,
             wall_ms,
+            timing,
         };
         self.total_gpu_ms += gpu_ms;
         self.total_wall_ms += wall_ms;
@@ -323,12 +343,18 @@ impl Engine {
 
     /// Per-pixel sample variance (rgb) from the Welford M2, if the technique accumulates.
     pub fn read_variance(&self) -> Result<Option<Image>> {
-        let Some(m2) = self.technique.variance_m2() else {
-            return Ok(None);
-        };
+        Ok(self.read_output_and_variance()?.1)
+    }
+
+    /// Radiance and per-pixel sample variance with one readback of the mean.
+    pub fn read_output_and_variance(&self) -> Result<(Image, Option<Image>)> {
         let [w, h] = self.extent;
         let mean: Vec<[f32; 4]> =
             readback::read_buffer(&self.gpu, self.technique.output(), (w * h) as usize)?;
+        let image = Image::from_rgba(w, h, &mean);
+        let Some(m2) = self.technique.variance_m2() else {
+            return Ok((image, None));
+        };
         let m2: Vec<[f32; 4]> = readback::read_buffer(&self.gpu, m2, (w * h) as usize)?;
         let var: Vec<[f32; 4]> = mean
             .iter()
@@ -339,7 +365,7 @@ impl Engine {
                 [v[0] * d, v[1] * d, v[2] * d, n]
             })
             .collect();
-        Ok(Some(Image::from_rgba(w, h, &var)))
+        Ok((image, Some(Image::from_rgba(w, h, &var))))
     }
 
     /// Rays by kind since the last reset.
