@@ -450,44 +450,36 @@ impl Session {
         self.reference.restart(&self.cache_dir, &self.preset);
     }
 
-    /// Replaces a run's technique (keeping its place and label unless it was the id).
-    pub fn set_run_technique(&mut self, run: usize, name: &str) -> Result<()> {
+    /// A new run on the loaded scene at the current camera.
+    fn new_run(&self, entry: TechniqueEntry) -> Result<Run> {
         let staged = StagedScene {
             scene: self.scene.clone(),
-            gpu_scene: self.runs[run].engine.gpu_scene.clone(),
+            gpu_scene: self.reference.engine.gpu_scene.clone(),
         };
-        let entry = TechniqueEntry::new(name);
-        let new = Run::new(
+        Run::new(
             &self.gpu,
             &self.shaders,
             &staged,
             entry,
             self.camera,
             &self.preset,
-        )?;
-        self.runs[run] = new;
+        )
+    }
+
+    /// Replaces a run's technique, in the same place, with default parameters.
+    pub fn set_run_technique(&mut self, run: usize, name: &str) -> Result<()> {
+        self.runs[run] = self.new_run(TechniqueEntry::new(name))?;
         Ok(())
     }
 
     /// Adds another entry (e.g. the same technique with other parameters) and returns its index.
     pub fn add_run(&mut self, name: &str) -> Result<usize> {
-        let staged = StagedScene {
-            scene: self.scene.clone(),
-            gpu_scene: self.runs[0].engine.gpu_scene.clone(),
-        };
         let mut entry = TechniqueEntry::new(name);
         let same = self.runs.iter().filter(|r| r.entry.name == name).count();
         if same > 0 {
             entry.label = Some(format!("{name} #{}", same + 1));
         }
-        let run = Run::new(
-            &self.gpu,
-            &self.shaders,
-            &staged,
-            entry,
-            self.camera,
-            &self.preset,
-        )?;
+        let run = self.new_run(entry)?;
         self.runs.push(run);
         Ok(self.runs.len() - 1)
     }

@@ -217,21 +217,7 @@ fn viewer_overhead(gpu: Arc<Gpu>, extent: [u32; 2], frames: u32) -> Result<()> {
         extent[0], extent[1]
     );
     let preset = LoadedPreset::from_text(&text, None)?;
-    let scene = preset.load_scene()?;
-    let mut technique = create_technique("reference")?;
-    technique.set_params(&preset.preset.techniques[0].params)?;
-    let settings = EngineSettings {
-        extent,
-        seed: preset.preset.render.seed,
-        camera: preset.camera(&scene),
-    };
-    let mut e = Engine::new(
-        gpu.clone(),
-        ShaderLibrary::discover(),
-        scene,
-        technique,
-        settings,
-    )?;
+    let mut e = super::render_job::engine_for_entry(gpu.clone(), &preset, 0)?;
     e.render_frame()?;
     let mut headless = 0.0;
     for _ in 0..frames {

@@ -44,6 +44,21 @@ pub struct ShotMetadata {
     pub non_finite_pixels: usize,
 }
 
+/// An engine for the preset's technique entry `index`: its scene, camera, size and seed.
+pub fn engine_for_entry(gpu: Arc<Gpu>, p: &LoadedPreset, index: usize) -> Result<Engine> {
+    let entry = &p.preset.techniques[index];
+    let scene = p.load_scene()?;
+    let camera = p.camera(&scene);
+    let mut technique = create_technique(&entry.name)?;
+    technique.set_params(&entry.params)?;
+    let settings = EngineSettings {
+        extent: p.preset.render.size,
+        seed: p.preset.render.seed,
+        camera,
+    };
+    Engine::new(gpu, ShaderLibrary::discover(), scene, technique, settings)
+}
+
 /// Renders one technique of a preset for `spp` samples; returns the image and its metadata.
 pub fn render_technique(
     gpu: Arc<Gpu>,
@@ -53,22 +68,7 @@ pub fn render_technique(
 ) -> Result<(Image, ShotMetadata)> {
     let preset = &p.preset;
     let entry = &preset.techniques[index];
-    let scene = p.load_scene()?;
-    let camera = p.camera(&scene);
-    let mut technique = create_technique(&entry.name)?;
-    technique.set_params(&entry.params)?;
-    let settings = EngineSettings {
-        extent: preset.render.size,
-        seed: preset.render.seed,
-        camera,
-    };
-    let mut engine = Engine::new(
-        gpu.clone(),
-        ShaderLibrary::discover(),
-        scene,
-        technique,
-        settings,
-    )?;
+    let mut engine = engine_for_entry(gpu, p, index)?;
     let spf = engine.technique.samples_per_frame().max(1);
     let frames = preset.render.spp.div_ceil(spf).max(1);
     let bar = if quiet {
