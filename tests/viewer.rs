@@ -189,6 +189,34 @@ fn layouts_panes_and_budget_slider() {
         after > 2.5 * before,
         "measured rays/px/frame {before:.2} -> {after:.2}"
     );
+    // The A/B screenshot button writes every visible pane and the composite.
+    // Below the fold of the side panel: an accessibility click, as a screen reader would.
+    h.get_by_label("Save A/B screenshot (F12)")
+        .click_accesskit();
+    h.run_steps(2);
+    let dir = h
+        .state()
+        .last_screenshot
+        .clone()
+        .unwrap_or_else(|| panic!("no screenshot: {:?}", session(&h).errors));
+    let names: Vec<String> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+        .collect();
+    for want in ["composite.png", "session.toml"] {
+        assert!(names.iter().any(|n| n == want), "{want} missing: {names:?}");
+    }
+    for ext in ["png", "exr", "json"] {
+        let n = names
+            .iter()
+            .filter(|n| n.starts_with("pane") && n.ends_with(ext))
+            .count();
+        assert_eq!(n, 2, "two panes' .{ext} expected: {names:?}");
+    }
+    let composite = image::open(dir.join("composite.png")).unwrap();
+    assert_eq!((composite.width(), composite.height()), (64, 32));
+    LoadedPreset::load(&dir.join("session.toml")).expect("session.toml loads as a preset");
+
     // The run that left the panes stops rendering.
     let idle = session(&h).runs[0].engine.frame_index;
     h.run_steps(4);
@@ -449,4 +477,48 @@ fn heatmaps_agree_with_cpu_and_compare() {
         "heatmap mean {heat_mean} vs gilab compare {rel}"
     );
     assert!(rel > 0.0);
+}
+
+/// Frame times the viewer reports are never silently wrong: with egui painting on the same
+/// device between frames (where lavapipe's timestamps come out far too short), every frame's
+/// GPU time is either from plausible timestamps or marked as wall time.
+#[test]
+fn viewer_frame_timings_are_plausible_or_marked() {
+    use gilab::render::engine::TimingSource;
+    let f = fixture("timing");
+    let text = CORNELL
+        .replace("size = [32, 32]", "size = [128, 128]")
+        .replace("reference_spp = 8", "reference_spp = 2");
+    let preset = LoadedPreset::from_text(&text, None).unwrap();
+    let mut options = ViewerOptions::new(preset);
+    options.watch = false;
+    options.cache_dir = f.dir.join("cache");
+    let mut v =
+        gilab::app::headless::HeadlessViewer::new(common::gpu(), options, [800, 600]).unwrap();
+    v.app.frame_budget_ms = 0.0;
+    let mut seen = 0;
+    for _ in 0..8 {
+        v.frame().unwrap();
+        let s = v.app.session.as_ref().unwrap();
+        for r in &s.runs {
+            if let Some(fr) = &r.last_frame {
+                seen += 1;
+                match fr.timing {
+                    TimingSource::Timestamps => {
+                        let passes: f64 = fr.gpu_ms_by_pass.iter().map(|p| p.1).sum();
+                        assert!((passes - fr.gpu_ms).abs() < 1e-6);
+                        assert!(
+                            fr.wall_ms < 20.0 || fr.gpu_ms >= 0.1 * fr.wall_ms,
+                            "implausible timestamps passed as GPU time: {fr:?}"
+                        );
+                    }
+                    _ => {
+                        assert_eq!(fr.gpu_ms, fr.wall_ms);
+                        assert!(fr.gpu_ms_by_pass.is_empty());
+                    }
+                }
+            }
+        }
+    }
+    assert!(seen > 0);
 }

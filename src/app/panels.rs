@@ -5,7 +5,7 @@
 use super::{ViewerApp, ViewerOptions};
 use crate::compare::tonemap::Operator;
 use crate::preset::{DisplayMode, Layout};
-use crate::render::TECHNIQUES;
+use crate::render::{engine::TimingSource, TECHNIQUES};
 use egui_plot::{Legend, Line, Plot, PlotPoints};
 use std::path::PathBuf;
 
@@ -393,6 +393,14 @@ fn bottom_contents(app: &mut ViewerApp, ui: &mut egui::Ui) {
                         ui.strong(run.label());
                         ui.label(format!("{:.2} ms GPU", f.gpu_ms));
                         ui.end_row();
+                        if f.timing != TimingSource::Timestamps {
+                            ui.label("  timing");
+                            ui.label(format!("{:?}", f.timing)).on_hover_text(
+                                "no per-pass split: timestamps unavailable or implausible on \
+                                 this driver; GPU time is the frame's waited wall time",
+                            );
+                            ui.end_row();
+                        }
                         for (pass, ms) in &f.gpu_ms_by_pass {
                             ui.label(format!("  {pass}"));
                             ui.label(format!("{ms:.2} ms"));
