@@ -64,8 +64,16 @@ pub struct ViewerApp {
     pub watcher: Option<watch::FileWatcher>,
     pub presets_dir: PathBuf,
     pub out_dir: PathBuf,
-    /// Wall milliseconds of rendering per UI frame before the UI takes the thread back.
+    /// Wall milliseconds of rendering per UI frame before the UI takes the thread back
+    /// (the least; see `max_ui_share`).
     pub frame_budget_ms: f64,
+    /// Largest share of time the UI's own painting may take while the user is not
+    /// interacting: when painting is slow (a CPU rasteriser), more technique frames are
+    /// rendered per UI frame. 1.0 turns this off.
+    pub max_ui_share: f64,
+    last_show_start: Option<std::time::Instant>,
+    /// Smoothed time between UI frames spent outside `show` (egui painting, presenting).
+    outside_ms: f64,
     /// Set by tests that step rendering themselves.
     pub render_in_ui: bool,
     pub last_screenshot: Option<PathBuf>,
@@ -135,6 +143,9 @@ impl ViewerApp {
             presets_dir: options.presets_dir,
             out_dir: options.out_dir,
             frame_budget_ms: 50.0,
+            max_ui_share: 0.2,
+            last_show_start: None,
+            outside_ms: 0.0,
             render_in_ui: true,
             last_screenshot: None,
             ui_frame_ms: 0.0,
@@ -153,6 +164,23 @@ impl ViewerApp {
         let changed = w.drain();
         if !changed.is_empty() {
             s.handle_changed_files(&changed);
+        }
+    }
+
+    /// This UI frame's rendering budget: the set minimum while the user interacts (so the UI
+    /// answers), otherwise enough that painting stays under `max_ui_share` of the time.
+    pub fn render_budget_ms(&self, ui: &egui::Ui) -> f64 {
+        let interacting = ui.input(|i| {
+            i.pointer.any_down()
+                || !i.keys_down.is_empty()
+                || i.smooth_scroll_delta != egui::Vec2::ZERO
+        });
+        let share = self.max_ui_share.clamp(0.01, 1.0);
+        if interacting || share >= 1.0 {
+            self.frame_budget_ms
+        } else {
+            self.frame_budget_ms
+                .max(self.outside_ms * (1.0 / share - 1.0))
         }
     }
 
@@ -191,9 +219,14 @@ impl ViewerApp {
             return;
         }
         self.poll_file_changes();
+        if let Some(prev) = self.last_show_start.replace(start) {
+            let outside = (start - prev).as_secs_f64() * 1e3 - self.ui_frame_ms;
+            self.outside_ms = 0.7 * self.outside_ms + 0.3 * outside.max(0.0);
+        }
         if self.render_in_ui {
+            let budget = self.render_budget_ms(ui);
             if let Some(s) = &mut self.session {
-                s.step(self.frame_budget_ms);
+                s.step(budget);
             }
         }
         if ui.input(|i| i.key_pressed(egui::Key::F12)) {

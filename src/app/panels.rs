@@ -282,6 +282,13 @@ fn side_contents(app: &mut ViewerApp, ui: &mut egui::Ui) {
             .logarithmic(true)
             .text("render ms per UI frame"),
     );
+    ui.add(
+        egui::Slider::new(&mut app.max_ui_share, 0.05..=1.0).text("max UI painting share when idle"),
+    )
+    .on_hover_text(
+        "when the viewer's own painting is slow (CPU rasteriser), render more technique frames per \
+         UI frame while you are not interacting; 1 = always one budget per UI frame",
+    );
     ui.label(format!("adapter: {}", s.gpu.summary));
     if ui.button("Save A/B screenshot (F12)").clicked() {
         app.save_screenshot();
