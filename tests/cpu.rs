@@ -83,16 +83,12 @@ fn copy_dir(from: &Path, to: &Path) {
     }
 }
 
-/// Struct sizes seen by naga (the GPU) equal the Rust #[repr(C)] sizes (the CPU).
-#[test]
-fn gpu_struct_layouts_match_rust() {
-    use gilab::scene::gpu_scene::*;
-    let module = ShaderLibrary::discover()
-        .compose("reference/path_trace.wgsl")
-        .unwrap();
+/// Size naga computes for a struct of a composed module (naga_oil may mangle the name).
+fn wgsl_size(entry: &'static str) -> impl Fn(&str) -> usize {
+    let module = ShaderLibrary::discover().compose(entry).unwrap();
     let mut layouter = naga::proc::Layouter::default();
     layouter.update(module.to_ctx()).unwrap();
-    let size_of = |name: &str| {
+    move |name: &str| {
         let (h, _) = module
             .types
             .iter()
@@ -101,9 +97,16 @@ fn gpu_struct_layouts_match_rust() {
                     .as_deref()
                     .is_some_and(|n| n == name || n.starts_with(&format!("{name}X_naga_oil")))
             })
-            .unwrap_or_else(|| panic!("type {name} not in module"));
+            .unwrap_or_else(|| panic!("type {name} not in {entry}"));
         layouter[h].size as usize
-    };
+    }
+}
+
+/// Struct sizes seen by naga (the GPU) equal the Rust #[repr(C)] sizes (the CPU).
+#[test]
+fn gpu_struct_layouts_match_rust() {
+    use gilab::scene::gpu_scene::*;
+    let size_of = wgsl_size("reference/path_trace.wgsl");
     assert_eq!(size_of("BvhNode"), std::mem::size_of::<bvh::BvhNode>());
     assert_eq!(size_of("TriGeom"), std::mem::size_of::<GpuTriGeom>());
     assert_eq!(size_of("TriAttr"), std::mem::size_of::<GpuTriAttr>());
@@ -112,6 +115,15 @@ fn gpu_struct_layouts_match_rust() {
     assert_eq!(
         size_of("FrameUniforms"),
         std::mem::size_of::<gilab::render::FrameUniforms>()
+    );
+    // ReSTIR's buffers.
+    use gilab::techniques::restir;
+    let size_of = wgsl_size("restir/spatial.wgsl");
+    assert_eq!(size_of("GSurface") as u64, restir::SURFACE_BYTES);
+    assert_eq!(size_of("Reservoir") as u64, restir::RESERVOIR_BYTES);
+    assert_eq!(
+        size_of("RestirParams"),
+        std::mem::size_of::<restir::RestirParamsGpu>()
     );
 }
 

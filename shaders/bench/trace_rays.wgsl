@@ -2,7 +2,7 @@
 #import gilab::math::{offset_ray_origin, to_world}
 #import gilab::rng::{rng_init, rand_pair}
 #import gilab::frame::{frame, camera_ray_dir}
-#import gilab::counters::{flush_counts, RAY_CAMERA, RAY_INDIRECT}
+#import gilab::counters::{flush_counts, no_counts, RAY_CAMERA, RAY_INDIRECT}
 #import gilab::bvh::{trace_closest, NO_HIT}
 #import gilab::scene::tri_geom
 #import gilab::sampling::sample_cosine_hemisphere
@@ -12,7 +12,7 @@
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
-    var counts = array<u32, 8>(0u, 0u, 0u, 0u, 0u, 0u, 0u, 0u);
+    var counts = no_counts();
     if gid.x < frame.size.x && gid.y < frame.size.y {
         var rng = rng_init(gid.xy, frame.frame_index, frame.seed);
         var origin = frame.camera_pos.xyz;

@@ -9,16 +9,25 @@ const RAY_INDIRECT: u32 = 2u;
 const RAY_PROBE: u32 = 3u;
 const RAY_SURFEL: u32 = 4u;
 const RAY_CACHE: u32 = 5u;
+// Visibility of a resampling candidate before reuse (ReSTIR's conservative candidate test).
+const RAY_CANDIDATE: u32 = 6u;
+// Occlusion tests made by reuse itself (unbiased reuse weights, bidirectional test).
+const RAY_REUSE: u32 = 7u;
 // Not a ray: samples whose radiance was NaN/Inf and was dropped. Tests require it to stay 0.
-const COUNT_INVALID_SAMPLES: u32 = 6u;
-const COUNTER_KINDS: u32 = 8u;
+const COUNT_INVALID_SAMPLES: u32 = 15u;
+const COUNTER_KINDS: u32 = 16u;
 
-@group(1) @binding(1) var<storage, read_write> counters: array<atomic<u32>, 16>;
+// Per-invocation counts by kind, summed by flush_counts.
+fn no_counts() -> array<u32, 16> {
+    return array<u32, 16>(0u, 0u, 0u, 0u, 0u, 0u, 0u, 0u, 0u, 0u, 0u, 0u, 0u, 0u, 0u, 0u);
+}
 
-var<workgroup> wg_counts: array<atomic<u32>, 8>;
+@group(1) @binding(1) var<storage, read_write> counters: array<atomic<u32>, 32>;
+
+var<workgroup> wg_counts: array<atomic<u32>, 16>;
 
 // Must be called by every invocation of the workgroup (it contains a barrier).
-fn flush_counts(local_index: u32, counts: array<u32, 8>) {
+fn flush_counts(local_index: u32, counts: array<u32, 16>) {
     for (var k = 0u; k < COUNTER_KINDS; k++) {
         if counts[k] > 0u {
             atomicAdd(&wg_counts[k], counts[k]);

@@ -23,6 +23,9 @@ struct FrameUniforms {
 
 @group(1) @binding(0) var<uniform> frame: FrameUniforms;
 
+// flags bit: leave out emission seen directly by the camera (render::FLAG_NO_PRIMARY_EMISSION).
+const FLAG_NO_PRIMARY_EMISSION: u32 = 1u;
+
 // Primary ray through a pixel position given in pixels (jitter included by the caller).
 fn camera_ray_dir(pixel_pos: vec2<f32>) -> vec3<f32> {
     let ndc = vec2<f32>(

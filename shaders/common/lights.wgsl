@@ -12,6 +12,13 @@ struct LightSample {
     radiance: vec3<f32>,
     // Solid-angle pdf including the selection probability; for delta lights the selection probability.
     pdf: f32,
+    // The same pdf in the light's own measure: selection probability / area for triangles
+    // (area measure), the selection probability for punctual lights. Reservoirs reuse samples
+    // across pixels in this measure, so no Jacobian is needed.
+    area_pdf: f32,
+    // Geometry factor to the point: |cos_l| / d^2 for triangles, 1 for punctual lights (whose
+    // radiance already includes the 1/d^2 falloff).
+    geom: f32,
     is_delta: bool,
     valid: bool,
 }
@@ -61,18 +68,26 @@ fn triangle_light_pdf(tri: u32, wi: vec3<f32>, dist: f32) -> f32 {
 }
 
 fn sample_light(p: vec3<f32>, u_select: f32, u: vec2<f32>) -> LightSample {
-    var s = LightSample(vec3<f32>(0.0), 0.0, vec3<f32>(0.0), 0.0, false, false);
     if light_pool.count == 0u {
+        return LightSample(vec3<f32>(0.0), 0.0, vec3<f32>(0.0), 0.0, 0.0, 0.0, false, false);
+    }
+    return eval_light_point(select_light(u_select), sample_triangle(u), p);
+}
+
+// A light sample fixed by (light index, barycentrics on a triangle light; unused otherwise),
+// seen from the point p: what reservoirs store and re-evaluate at other pixels.
+fn eval_light_point(light_index: u32, b: vec2<f32>, p: vec3<f32>) -> LightSample {
+    var s = LightSample(vec3<f32>(0.0), 0.0, vec3<f32>(0.0), 0.0, 0.0, 0.0, false, false);
+    if light_index >= light_pool.count {
         return s;
     }
-    let light = light_pool.lights[select_light(u_select)];
+    let light = light_pool.lights[light_index];
     if light.pmf <= 0.0 {
         return s;
     }
     switch light.kind {
         case LIGHT_TRIANGLE: {
             let g = tri_geom[light.tri];
-            let b = sample_triangle(u);
             let x = g.vertex_a.xyz + b.x * g.edge_b.xyz + b.y * g.edge_c.xyz;
             let c = cross(g.edge_b.xyz, g.edge_c.xyz);
             let len = length(c);
@@ -90,6 +105,8 @@ fn sample_light(p: vec3<f32>, u_select: f32, u: vec2<f32>) -> LightSample {
                 return s;
             }
             s.pdf = light.pmf * dist_sq / (cos_l * 0.5 * len);
+            s.area_pdf = light.pmf / (0.5 * len);
+            s.geom = cos_l / dist_sq;
             s.valid = any(s.radiance > vec3<f32>(0.0));
         }
         case LIGHT_POINT, LIGHT_SPOT: {
@@ -108,6 +125,8 @@ fn sample_light(p: vec3<f32>, u_select: f32, u: vec2<f32>) -> LightSample {
             }
             s.radiance = light.intensity.xyz * falloff / dist_sq;
             s.pdf = light.pmf;
+            s.area_pdf = light.pmf;
+            s.geom = 1.0;
             s.is_delta = true;
             s.valid = falloff > 0.0;
         }
@@ -116,6 +135,8 @@ fn sample_light(p: vec3<f32>, u_select: f32, u: vec2<f32>) -> LightSample {
             s.dist = 1e30;
             s.radiance = light.intensity.xyz;
             s.pdf = light.pmf;
+            s.area_pdf = light.pmf;
+            s.geom = 1.0;
             s.is_delta = true;
             s.valid = true;
         }

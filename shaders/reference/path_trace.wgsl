@@ -1,14 +1,15 @@
 // Reference path tracer: progressive, unbiased; NEE + MIS (power heuristic) over emissive triangles and punctual lights, Russian roulette, Welford per-pixel mean and variance.
 #import gilab::math::{max_component, is_finite_vec, offset_ray_origin}
 #import gilab::rng::{Rng, rng_init, rand, rand_pair}
-#import gilab::frame::{frame, camera_ray_dir}
-#import gilab::counters::{flush_counts, RAY_CAMERA, RAY_SHADOW, RAY_INDIRECT, COUNT_INVALID_SAMPLES}
+#import gilab::frame::{frame, camera_ray_dir, FLAG_NO_PRIMARY_EMISSION}
+#import gilab::counters::{flush_counts, no_counts, RAY_CAMERA, RAY_SHADOW, RAY_INDIRECT, COUNT_INVALID_SAMPLES}
 #import gilab::scene::light_pool
 #import gilab::bvh::{trace_closest, trace_any, NO_HIT}
 #import gilab::surface::hit_surface
 #import gilab::brdf::{bsdf_eval, bsdf_sample}
 #import gilab::lights::{sample_light, triangle_emission, triangle_light_pdf}
 #import gilab::sampling::power_heuristic
+#import gilab::accumulate::welford_add
 
 // Which sample of the frame this dispatch traces (one path per invocation per dispatch).
 struct DispatchSample {
@@ -59,7 +60,8 @@ fn trace_path(pixel: vec2<u32>, sample_index: u32) -> PathResult {
         }
         let surf = hit_surface(origin, dir, hit);
         let le = triangle_emission(hit.tri, -dir);
-        if any(le > vec3<f32>(0.0)) {
+        let skip_emission = depth == 0u && (frame.flags & FLAG_NO_PRIMARY_EMISSION) != 0u;
+        if any(le > vec3<f32>(0.0)) && !skip_emission {
             var w = 1.0;
             if !prev_delta {
                 w = power_heuristic(prev_pdf, triangle_light_pdf(hit.tri, dir, hit.t));
@@ -116,7 +118,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     // One path per invocation: the frame's samples are separate dispatches. Tracing several
     // paths in a loop inside one invocation came out biased on lavapipe (Mesa 22.3): paths after
     // the first were cut short (the white furnace at albedo 0.95 lost 8%); see the README.
-    var counts = array<u32, 8>(0u, 0u, 0u, 0u, 0u, 0u, 0u, 0u);
+    var counts = no_counts();
     if gid.x < frame.size.x && gid.y < frame.size.y {
         let idx = gid.y * frame.size.x + gid.x;
         let path = trace_path(gid.xy, frame.sample_offset + dispatch_sample.index);
@@ -125,13 +127,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         counts[RAY_INDIRECT] = path.indirect_rays;
         let l = path.radiance;
         if is_finite_vec(l) {
-            // Welford's update: numerically stable mean and M2 in float32.
-            let mean = accum_mean[idx];
-            let n = mean.w + 1.0;
-            let delta = l - mean.xyz;
-            let new_mean = mean.xyz + delta / n;
-            accum_m2[idx] = vec4<f32>(accum_m2[idx].xyz + delta * (l - new_mean), 0.0);
-            accum_mean[idx] = vec4<f32>(new_mean, n);
+            let a = welford_add(accum_mean[idx], accum_m2[idx], l);
+            accum_mean[idx] = a.mean;
+            accum_m2[idx] = a.sq_dev;
         } else {
             counts[COUNT_INVALID_SAMPLES] = 1u;
         }

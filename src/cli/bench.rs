@@ -93,14 +93,7 @@ impl Technique for TraceBench {
         let (Some(p), Some(bg)) = (&self.pipeline, &self.bind_group) else {
             return;
         };
-        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-            label: Some("trace_rays"),
-            timestamp_writes: timer.compute_pass("trace_rays"),
-        });
-        pass.set_pipeline(p);
-        pass.set_bind_group(0, &ctx.scene.bind_group, &[]);
-        pass.set_bind_group(1, bg, &[]);
-        pass.dispatch_workgroups(ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1);
+        pipelines::image_pass(ctx, enc, timer, "trace_rays", p, bg);
     }
     fn output(&self) -> &wgpu::Buffer {
         self.checksum.as_ref().expect("bench used before build()")

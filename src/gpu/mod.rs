@@ -100,6 +100,10 @@ pub struct Gpu {
     pub timestamp_period: Option<f32>,
 }
 
+/// Storage buffers one compute stage binds at most: the scene's 6, the ray counters and up to 4
+/// of a technique's own (ReSTIR). lavapipe offers 32, GL llvmpipe 16.
+pub const MIN_STORAGE_BUFFERS: u32 = 11;
+
 /// Features used when the adapter has them; nothing is strictly required beyond compute.
 fn optional_features() -> wgpu::Features {
     wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::TIMESTAMP_QUERY_INSIDE_ENCODERS
@@ -188,9 +192,9 @@ impl Gpu {
             );
         }
         let limits = adapter.limits();
-        if limits.max_storage_buffers_per_shader_stage < 9 {
+        if limits.max_storage_buffers_per_shader_stage < MIN_STORAGE_BUFFERS {
             bail!(
-                "adapter {} allows {} storage buffers per stage; gilab needs 9",
+                "adapter {} allows {} storage buffers per stage; gilab needs {MIN_STORAGE_BUFFERS}",
                 info.name,
                 limits.max_storage_buffers_per_shader_stage
             );

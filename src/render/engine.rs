@@ -81,6 +81,8 @@ pub struct Engine {
     /// Summed GPU (or, without timestamps, wall) milliseconds since the last reset.
     pub total_gpu_ms: f64,
     pub total_wall_ms: f64,
+    /// FrameUniforms flags (`render::FLAG_*`).
+    pub flags: u32,
 }
 
 impl Engine {
@@ -160,6 +162,7 @@ impl Engine {
             samples: 0,
             total_gpu_ms: 0.0,
             total_wall_ms: 0.0,
+            flags: 0,
         };
         let id = engine.technique.id();
         engine
@@ -251,7 +254,7 @@ impl Engine {
             samples_per_frame: self.technique.samples_per_frame(),
             max_depth: self.technique.max_depth(),
             sample_offset: self.samples,
-            flags: 0,
+            flags: self.flags,
         }
     }
 

@@ -30,15 +30,30 @@ pub struct FrameUniforms {
     pub flags: u32,
 }
 
+/// FrameUniforms flag: leave out emission seen directly by the camera, so an image holds
+/// only the light arriving at the first surface (tests of direct-light estimators use it).
+pub const FLAG_NO_PRIMARY_EMISSION: u32 = 1;
+
 /// Ray kinds, indices into the GPU counters (shaders/common/counters.wgsl).
-pub const RAY_KINDS: [&str; 6] = ["camera", "shadow", "indirect", "probe", "surfel", "cache"];
-pub const COUNTER_INVALID_SAMPLES: usize = 6;
-pub const COUNTER_SLOTS: usize = 8;
+/// `candidate`: visibility of a resampling candidate before reuse; `reuse`: occlusion tests made
+/// by reuse itself (unbiased weights, bidirectional test).
+pub const RAY_KINDS: [&str; 8] = [
+    "camera",
+    "shadow",
+    "indirect",
+    "probe",
+    "surfel",
+    "cache",
+    "candidate",
+    "reuse",
+];
+pub const COUNTER_INVALID_SAMPLES: usize = 15;
+pub const COUNTER_SLOTS: usize = 16;
 
 /// Cumulative counters since the last history reset.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
 pub struct RayCounts {
-    pub by_kind: [u64; 6],
+    pub by_kind: [u64; 8],
     pub invalid_samples: u64,
 }
 
@@ -48,7 +63,7 @@ impl RayCounts {
     }
     pub fn from_words(words: &[u32]) -> RayCounts {
         let get = |k: usize| words[2 * k] as u64 | ((words[2 * k + 1] as u64) << 32);
-        let mut by_kind = [0; 6];
+        let mut by_kind = [0; 8];
         for (k, v) in by_kind.iter_mut().enumerate() {
             *v = get(k);
         }
@@ -148,16 +163,23 @@ pub struct ParamDoc {
     pub integer: bool,
 }
 
-pub const TECHNIQUES: &[(&str, &str)] = &[(
-    "reference",
-    "progressive unbiased path tracer (ground truth)",
-)];
+pub const TECHNIQUES: &[(&str, &str)] = &[
+    (
+        "reference",
+        "progressive unbiased path tracer (ground truth)",
+    ),
+    (
+        "restir",
+        "ReSTIR DI: resampled direct light with temporal and spatial reuse",
+    ),
+];
 
 pub fn create_technique(name: &str) -> Result<Box<dyn Technique>> {
     match name {
         "reference" => Ok(Box::new(
             crate::techniques::reference::ReferencePathTracer::default(),
         )),
+        "restir" => Ok(Box::new(crate::techniques::restir::Restir::default())),
         other => {
             let names: Vec<&str> = TECHNIQUES.iter().map(|t| t.0).collect();
             anyhow::bail!(

@@ -85,3 +85,23 @@ pub fn storage_buffer(gpu: &Gpu, label: &str, size: u64) -> wgpu::Buffer {
         mapped_at_creation: false,
     })
 }
+
+/// Records one timed compute pass over the image: the scene at group 0, the technique's
+/// bind group at group 1, one 8x8 workgroup per tile.
+pub fn image_pass(
+    ctx: &super::RenderContext,
+    enc: &mut wgpu::CommandEncoder,
+    timer: &mut crate::gpu::timing::PassTimer,
+    name: &'static str,
+    pipeline: &wgpu::ComputePipeline,
+    bind_group: &wgpu::BindGroup,
+) {
+    let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+        label: Some(name),
+        timestamp_writes: timer.compute_pass(name),
+    });
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, &ctx.scene.bind_group, &[]);
+    pass.set_bind_group(1, bind_group, &[]);
+    pass.dispatch_workgroups(ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1);
+}

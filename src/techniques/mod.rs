@@ -2,3 +2,4 @@
 //! the shared inputs (scene, frame uniforms, G-buffer) and at their linear HDR output.
 
 pub mod reference;
+pub mod restir;

@@ -1,0 +1,35 @@
+// ReSTIR pass 1: trace a jittered camera ray per pixel and store the primary surface for this frame.
+#import gilab::rng::{rng_init, rand_pair}
+#import gilab::frame::{frame, camera_ray_dir}
+#import gilab::counters::{flush_counts, no_counts, RAY_CAMERA}
+#import gilab::bvh::{trace_closest, NO_HIT}
+#import gilab::surface::hit_surface
+#import gilab::lights::triangle_emission
+#import gilab::restir::{GSurface, surfaces, surface_index, parity}
+
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
+    var counts = no_counts();
+    if gid.x < frame.size.x && gid.y < frame.size.y {
+        let idx = gid.y * frame.size.x + gid.x;
+        // Same jitter sequence as the reference path tracer: pixel footprints match.
+        var rng = rng_init(gid.xy, frame.sample_offset, frame.seed);
+        let origin = frame.camera_pos.xyz;
+        let dir = camera_ray_dir(vec2<f32>(gid.xy) + rand_pair(&rng));
+        let hit = trace_closest(origin, dir, 0.0, 1e30);
+        counts[RAY_CAMERA] = 1u;
+        var g = GSurface(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(-dir, 1e30), vec4<f32>(frame.sky.xyz, 0.0));
+        if hit.tri != NO_HIT {
+            let s = hit_surface(origin, dir, hit);
+            let m = s.material;
+            g.pos = vec4<f32>(s.position, 1.0);
+            g.normal_alpha = vec4<f32>(s.normal, m.alpha);
+            g.geo_specular = vec4<f32>(s.geo_normal, m.specular);
+            g.base_metal = vec4<f32>(m.base_color, m.metallic);
+            g.wo_dist = vec4<f32>(-dir, hit.t);
+            g.emission = vec4<f32>(triangle_emission(hit.tri, -dir), 0.0);
+        }
+        surfaces[surface_index(parity(), idx)] = g;
+    }
+    flush_counts(local_index, counts);
+}

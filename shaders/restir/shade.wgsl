@@ -1,0 +1,50 @@
+// ReSTIR pass 4: final visibility ray for each pixel's reservoir, shading (emission + f * Le * G * V * W),
+// and progressive accumulation (Welford mean and M2, as the reference path tracer does).
+#import gilab::frame::{frame, FLAG_NO_PRIMARY_EMISSION}
+#import gilab::counters::{flush_counts, no_counts, RAY_SHADOW, COUNT_INVALID_SAMPLES}
+#import gilab::math::is_finite_vec
+#import gilab::accumulate::welford_add
+#import gilab::restir::{params, surfaces, reservoirs, surface_index, reservoir_index, parity, contribution, visible}
+
+@group(1) @binding(5) var<storage, read_write> accum_mean: array<vec4<f32>>;
+@group(1) @binding(6) var<storage, read_write> accum_m2: array<vec4<f32>>;
+
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
+    var counts = no_counts();
+    if gid.x < frame.size.x && gid.y < frame.size.y {
+        let idx = gid.y * frame.size.x + gid.x;
+        let s = surfaces[surface_index(parity(), idx)];
+        let ri = reservoir_index(parity(), idx);
+        var r = reservoirs[ri];
+        var l = s.emission.xyz;
+        if (frame.flags & FLAG_NO_PRIMARY_EMISSION) != 0u {
+            l = vec3<f32>(0.0);
+        }
+        if s.pos.w > 0.5 && r.big_w > 0.0 {
+            let c = contribution(s, r.light, vec2<f32>(r.bary_u, r.bary_v));
+            if any(c.value > vec3<f32>(0.0)) {
+                counts[RAY_SHADOW] += 1u;
+                if visible(s, c.light) {
+                    l += c.value * r.big_w;
+                } else if params.unbiased == 0u {
+                    // Biased visibility reuse: an occluded sample is not passed on to the next frame.
+                    r.big_w = 0.0;
+                    r.w_sum = 0.0;
+                    reservoirs[ri] = r;
+                }
+            }
+        }
+        if is_finite_vec(l) && params.accumulate == 0u {
+            accum_mean[idx] = vec4<f32>(l, 1.0);
+            accum_m2[idx] = vec4<f32>(0.0);
+        } else if is_finite_vec(l) {
+            let a = welford_add(accum_mean[idx], accum_m2[idx], l);
+            accum_mean[idx] = a.mean;
+            accum_m2[idx] = a.sq_dev;
+        } else {
+            counts[COUNT_INVALID_SAMPLES] = 1u;
+        }
+    }
+    flush_counts(local_index, counts);
+}

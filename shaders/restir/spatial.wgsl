@@ -1,0 +1,79 @@
+// ReSTIR pass 3: spatial reuse from k neighbours in a disk (similar surfaces only), with 1/Z
+// (unbiased) or M-weighted (biased) contribution weights and the optional bidirectional
+// occlusion test; writes this frame's final reservoirs.
+#import gilab::rng::{rng_init, rand, rand_pair}
+#import gilab::frame::frame
+#import gilab::counters::{flush_counts, no_counts, RAY_REUSE}
+#import gilab::math::TWO_PI
+#import gilab::restir::{params, surfaces, reservoirs, GSurface, Reservoir, surface_index, reservoir_index, parity, empty_reservoir, contribution, target_at, visible, update, similar, TEMPORAL_SEGMENT}
+
+const MAX_NEIGHBOURS: u32 = 8u;
+
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
+    var counts = no_counts();
+    if gid.x < frame.size.x && gid.y < frame.size.y {
+        let idx = gid.y * frame.size.x + gid.x;
+        var rng = rng_init(gid.xy, frame.sample_offset * 4u + 2u, frame.seed);
+        let s = surfaces[surface_index(parity(), idx)];
+        let r0 = reservoirs[reservoir_index(TEMPORAL_SEGMENT, idx)];
+        var out = empty_reservoir();
+        update(&out, r0, r0.target_pdf * r0.big_w * r0.m, r0.m, rand(&rng));
+        var used = array<u32, 8>(0u, 0u, 0u, 0u, 0u, 0u, 0u, 0u);
+        var used_count = 0u;
+        let k = min(params.spatial_count, MAX_NEIGHBOURS);
+        if s.pos.w > 0.5 {
+            for (var j = 0u; j < k; j++) {
+                let u = rand_pair(&rng);
+                let radius = params.spatial_radius * sqrt(u.x);
+                let angle = TWO_PI * u.y;
+                let px = i32(gid.x) + i32(round(radius * cos(angle)));
+                let py = i32(gid.y) + i32(round(radius * sin(angle)));
+                if px < 0 || py < 0 || px >= i32(frame.size.x) || py >= i32(frame.size.y) {
+                    continue;
+                }
+                let nidx = u32(py) * frame.size.x + u32(px);
+                if nidx == idx {
+                    continue;
+                }
+                let ns = surfaces[surface_index(parity(), nidx)];
+                if !similar(s, ns) {
+                    continue;
+                }
+                let nr = reservoirs[reservoir_index(TEMPORAL_SEGMENT, nidx)];
+                var t = target_at(s, nr);
+                if params.bidirectional == 1u && t > 0.0 && nr.big_w > 0.0 {
+                    counts[RAY_REUSE] += 1u;
+                    let c = contribution(s, nr.light, vec2<f32>(nr.bary_u, nr.bary_v));
+                    if !visible(s, c.light) {
+                        t = 0.0;
+                    }
+                }
+                update(&out, nr, t * nr.big_w * nr.m, nr.m, rand(&rng));
+                used[used_count] = nidx;
+                used_count += 1u;
+            }
+        }
+        out.target_pdf = target_at(s, out);
+        if out.target_pdf > 0.0 && out.m > 0.0 {
+            var z = out.m;
+            if params.unbiased == 1u {
+                // 1/Z: the M of every reservoir whose own surface could have produced the sample
+                // (unshadowed support, as in the temporal pass).
+                z = r0.m;
+                for (var j = 0u; j < used_count; j++) {
+                    let nidx = used[j];
+                    let ns = surfaces[surface_index(parity(), nidx)];
+                    if target_at(ns, out) > 0.0 {
+                        z += reservoirs[reservoir_index(TEMPORAL_SEGMENT, nidx)].m;
+                    }
+                }
+            }
+            if z > 0.0 {
+                out.big_w = out.w_sum / (z * out.target_pdf);
+            }
+        }
+        reservoirs[reservoir_index(parity(), idx)] = out;
+    }
+    flush_counts(local_index, counts);
+}

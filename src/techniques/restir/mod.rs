@@ -1,0 +1,509 @@
+//! # ReSTIR DI (`restir`)
+//!
+//! Direct lighting by reservoir-based spatiotemporal importance resampling, as in "Making
+//! Connections" (GDC; shared/seeds/003) and Bitterli et al. 2020. Per pixel and frame:
+//!
+//! 1. `primary`: a jittered camera ray (the reference's jitter sequence) stores the surface.
+//! 2. `initial_temporal`: `candidates` lights drawn from the power-proportional light pool
+//!    (emissive triangles and punctual lights) are resampled by the unshadowed target
+//!    f · Le · G into a weighted reservoir; optionally the chosen one is visibility-tested
+//!    (the talk's conservative test); then last frame's reservoir at the reprojected pixel is
+//!    merged if the surfaces are similar, its M clamped to `max_history` × the current M.
+//! 3. `spatial`: `spatial_count` neighbours within `spatial_radius` pixels are merged.
+//!    Unbiased mode weights by 1/Z (only reservoirs that could have produced the sample count,
+//!    with a visibility ray each when candidate visibility is on); biased mode weights by M and
+//!    drops occluded samples from reuse. The bidirectional occlusion test only reuses a
+//!    neighbour's light that is visible from this pixel.
+//! 4. `shade`: one visibility ray for the final sample; emission + f · Le · G · V · W is
+//!    accumulated over frames (Welford), like the reference, so a static view converges.
+//!
+//! Samples live in the light's own measure (area for triangles), so reuse across pixels needs
+//! no Jacobian. Not built yet (issue 4 continues): ReGIR, ReSTIR GI; this is direct light only.
+//! Shaders: shaders/restir/*.wgsl, shared state in shaders/common/restir.wgsl.
+
+use crate::gpu::{timing::PassTimer, Gpu};
+use crate::render::{pipelines, ParamDoc, PassInfo, RenderContext, Technique};
+use crate::scene::features::SceneFeatures;
+use anyhow::{bail, Result};
+use wgpu::util::DeviceExt;
+
+/// Matches `RestirParams` in shaders/common/restir.wgsl.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct RestirParamsGpu {
+    pub candidates: u32,
+    pub candidate_visibility: u32,
+    pub temporal: u32,
+    pub max_history: f32,
+    pub spatial_count: u32,
+    pub spatial_radius: f32,
+    pub unbiased: u32,
+    pub bidirectional: u32,
+    pub pixels: u32,
+    pub accumulate: u32,
+    pub pad: [u32; 2],
+}
+
+/// Bytes of `GSurface` and `Reservoir` in shaders/common/restir.wgsl.
+pub const SURFACE_BYTES: u64 = 96;
+pub const RESERVOIR_BYTES: u64 = 32;
+const MAX_SPATIAL: u32 = 8;
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct RestirSettings {
+    pub candidates: u32,
+    pub candidate_visibility: bool,
+    pub temporal: bool,
+    pub max_history: f32,
+    pub spatial_count: u32,
+    pub spatial_radius: f32,
+    pub unbiased: bool,
+    pub bidirectional: bool,
+    pub accumulate: bool,
+}
+
+impl Default for RestirSettings {
+    fn default() -> Self {
+        // The talk's defaults: 8 initial candidates, max history 8, a couple of spatial samples.
+        RestirSettings {
+            candidates: 8,
+            candidate_visibility: true,
+            temporal: true,
+            max_history: 8.0,
+            spatial_count: 3,
+            spatial_radius: 16.0,
+            unbiased: true,
+            bidirectional: false,
+            accumulate: true,
+        }
+    }
+}
+
+struct Pipelines {
+    primary: wgpu::ComputePipeline,
+    initial_temporal: wgpu::ComputePipeline,
+    spatial: wgpu::ComputePipeline,
+    shade: wgpu::ComputePipeline,
+}
+
+#[derive(Default)]
+pub struct Restir {
+    pub settings: RestirSettings,
+    pipelines: Option<Pipelines>,
+    bind_group: Option<wgpu::BindGroup>,
+    params: Option<wgpu::Buffer>,
+    surfaces: Option<wgpu::Buffer>,
+    reservoirs: Option<wgpu::Buffer>,
+    mean: Option<wgpu::Buffer>,
+    m2: Option<wgpu::Buffer>,
+    extent: [u32; 2],
+    has_lights: bool,
+}
+
+const PASSES: [&str; 4] = ["primary", "initial_temporal", "spatial", "shade"];
+
+impl Restir {
+    fn gpu_params(&self, pixels: u32) -> RestirParamsGpu {
+        let s = &self.settings;
+        RestirParamsGpu {
+            candidates: s.candidates,
+            candidate_visibility: s.candidate_visibility as u32,
+            temporal: s.temporal as u32,
+            max_history: s.max_history,
+            spatial_count: s.spatial_count,
+            spatial_radius: s.spatial_radius,
+            unbiased: s.unbiased as u32,
+            bidirectional: s.bidirectional as u32,
+            pixels,
+            accumulate: s.accumulate as u32,
+            pad: [0; 2],
+        }
+    }
+
+    /// Rays per pixel per frame these settings trace at most (camera, candidate, shadow, reuse).
+    pub fn max_rays_per_pixel(&self) -> f64 {
+        let s = &self.settings;
+        let mut rays = 2.0 + s.candidate_visibility as u32 as f64;
+        if s.unbiased && s.candidate_visibility {
+            rays += s.temporal as u32 as f64 + s.spatial_count as f64;
+        }
+        if s.bidirectional {
+            rays += s.spatial_count as f64;
+        }
+        rays
+    }
+}
+
+impl Technique for Restir {
+    fn id(&self) -> &'static str {
+        "restir"
+    }
+
+    fn passes(&self, f: &SceneFeatures) -> Vec<PassInfo> {
+        let lights = f.light_count() > 0;
+        let no_lights = || "no emissive triangles or punctual lights".to_string();
+        vec![
+            PassInfo {
+                name: "primary",
+                runs: true,
+                why: "jittered camera rays, as the reference".into(),
+            },
+            PassInfo {
+                name: "initial_temporal",
+                runs: lights,
+                why: if lights {
+                    format!(
+                        "RIS over {} lights ({} emissive triangles), temporal reuse {}",
+                        f.light_count(),
+                        f.emissive_triangle_count,
+                        if self.settings.temporal { "on" } else { "off" }
+                    )
+                } else {
+                    no_lights()
+                },
+            },
+            PassInfo {
+                name: "spatial",
+                runs: lights,
+                why: if !lights {
+                    no_lights()
+                } else if self.settings.spatial_count == 0 {
+                    "spatial_count = 0: copies the temporal result only".into()
+                } else {
+                    format!(
+                        "{} neighbours within {} px, {}",
+                        self.settings.spatial_count,
+                        self.settings.spatial_radius,
+                        if self.settings.unbiased {
+                            "unbiased (1/Z)"
+                        } else {
+                            "biased (M weights)"
+                        }
+                    )
+                },
+            },
+            PassInfo {
+                name: "shade",
+                runs: true,
+                why: "final visibility, emission and accumulation".into(),
+            },
+            PassInfo {
+                name: "regir",
+                runs: false,
+                why: "not built yet (issue 4)".into(),
+            },
+            PassInfo {
+                name: "gi",
+                runs: false,
+                why: "ReSTIR GI not built yet (issue 4): direct light only".into(),
+            },
+        ]
+    }
+
+    fn build(&mut self, ctx: &RenderContext) -> Result<()> {
+        let gpu = ctx.gpu;
+        let mut entries = ctx.frame_layout_entries.to_vec();
+        entries.push(pipelines::uniform_entry(2, wgpu::ShaderStages::COMPUTE));
+        for b in 3..=6 {
+            entries.push(pipelines::storage_entry(b, false));
+        }
+        let layout = gpu
+            .device
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("restir"),
+                entries: &entries,
+            });
+        let layouts = [&ctx.scene.layout, &layout];
+        // Everything is built before anything is replaced: a failure keeps the old pipelines.
+        let make = |entry: &str| pipelines::compute_pipeline(gpu, ctx.shaders, entry, &layouts);
+        let built = Pipelines {
+            primary: make("restir/primary.wgsl")?,
+            initial_temporal: make("restir/initial_temporal.wgsl")?,
+            spatial: make("restir/spatial.wgsl")?,
+            shade: make("restir/shade.wgsl")?,
+        };
+        let [w, h] = ctx.extent;
+        let pixels = w * h;
+        let params = gpu
+            .device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("restir params"),
+                contents: bytemuck::bytes_of(&self.gpu_params(pixels)),
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            });
+        let reuse = self.extent == ctx.extent && self.mean.is_some();
+        let buffer = |slot: &mut Option<wgpu::Buffer>, label: &str, bytes: u64| match slot
+            .take()
+            .filter(|_| reuse)
+        {
+            Some(b) => b,
+            None => pipelines::storage_buffer(gpu, label, bytes),
+        };
+        let px = pixels as u64;
+        let surfaces = buffer(
+            &mut self.surfaces,
+            "restir surfaces",
+            2 * px * SURFACE_BYTES,
+        );
+        let reservoirs = buffer(
+            &mut self.reservoirs,
+            "restir reservoirs",
+            3 * px * RESERVOIR_BYTES,
+        );
+        let mean = buffer(&mut self.mean, "restir mean", px * 16);
+        let m2 = buffer(&mut self.m2, "restir m2", px * 16);
+        let resources = [
+            ctx.uniforms.as_entire_binding(),
+            ctx.counters.as_entire_binding(),
+            params.as_entire_binding(),
+            surfaces.as_entire_binding(),
+            reservoirs.as_entire_binding(),
+            mean.as_entire_binding(),
+            m2.as_entire_binding(),
+        ];
+        let bind_entries: Vec<wgpu::BindGroupEntry> = resources
+            .into_iter()
+            .enumerate()
+            .map(|(i, resource)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource,
+            })
+            .collect();
+        let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("restir"),
+            layout: &layout,
+            entries: &bind_entries,
+        });
+        self.pipelines = Some(built);
+        self.bind_group = Some(bind_group);
+        self.params = Some(params);
+        self.surfaces = Some(surfaces);
+        self.reservoirs = Some(reservoirs);
+        self.mean = Some(mean);
+        self.m2 = Some(m2);
+        self.extent = ctx.extent;
+        self.has_lights = ctx.scene.data.features.light_count() > 0;
+        Ok(())
+    }
+
+    fn reset_history(&mut self, gpu: &Gpu) {
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        for b in [&self.mean, &self.m2, &self.reservoirs]
+            .into_iter()
+            .flatten()
+        {
+            enc.clear_buffer(b, 0, None);
+        }
+        gpu.queue.submit([enc.finish()]);
+    }
+
+    fn samples_per_frame(&self) -> u32 {
+        1
+    }
+
+    fn render(
+        &mut self,
+        ctx: &RenderContext,
+        enc: &mut wgpu::CommandEncoder,
+        timer: &mut PassTimer,
+    ) {
+        let (Some(p), Some(bg)) = (&self.pipelines, &self.bind_group) else {
+            return;
+        };
+        let steps = [
+            (PASSES[0], &p.primary, true),
+            (PASSES[1], &p.initial_temporal, self.has_lights),
+            // With spatial_count = 0 this pass only copies the temporal result through.
+            (PASSES[2], &p.spatial, self.has_lights),
+            (PASSES[3], &p.shade, true),
+        ];
+        for (name, pipeline, runs) in steps {
+            if runs {
+                pipelines::image_pass(ctx, enc, timer, name, pipeline, bg);
+            }
+        }
+    }
+
+    fn output(&self) -> &wgpu::Buffer {
+        self.mean.as_ref().expect("restir used before build()")
+    }
+
+    fn variance_m2(&self) -> Option<&wgpu::Buffer> {
+        self.m2.as_ref()
+    }
+
+    fn params(&self) -> toml::Table {
+        let s = &self.settings;
+        let mut t = toml::Table::new();
+        t.insert("candidates".into(), (s.candidates as i64).into());
+        t.insert("candidate_visibility".into(), s.candidate_visibility.into());
+        t.insert("temporal".into(), s.temporal.into());
+        t.insert("max_history".into(), (s.max_history as f64).into());
+        t.insert("spatial_count".into(), (s.spatial_count as i64).into());
+        t.insert("spatial_radius".into(), (s.spatial_radius as f64).into());
+        t.insert("unbiased".into(), s.unbiased.into());
+        t.insert("bidirectional".into(), s.bidirectional.into());
+        t.insert("accumulate".into(), s.accumulate.into());
+        t
+    }
+
+    fn set_params(&mut self, params: &toml::Table) -> Result<()> {
+        let mut s = self.settings.clone();
+        for (k, v) in params {
+            let num = v.as_float().or(v.as_integer().map(|i| i as f64));
+            let flag = v.as_bool().or(v.as_integer().map(|i| i != 0));
+            match (k.as_str(), num, flag) {
+                ("candidates", Some(n), _) if (1.0..=256.0).contains(&n) => s.candidates = n as u32,
+                ("max_history", Some(n), _) if (0.0..=1000.0).contains(&n) => s.max_history = n as f32,
+                ("spatial_count", Some(n), _) if (0.0..=MAX_SPATIAL as f64).contains(&n) => {
+                    s.spatial_count = n as u32
+                }
+                ("spatial_radius", Some(n), _) if (1.0..=256.0).contains(&n) => s.spatial_radius = n as f32,
+                ("candidate_visibility", _, Some(b)) => s.candidate_visibility = b,
+                ("temporal", _, Some(b)) => s.temporal = b,
+                ("unbiased", _, Some(b)) => s.unbiased = b,
+                ("bidirectional", _, Some(b)) => s.bidirectional = b,
+                ("accumulate", _, Some(b)) => s.accumulate = b,
+                (
+                    "candidates" | "max_history" | "spatial_count" | "spatial_radius"
+                    | "candidate_visibility" | "temporal" | "unbiased" | "bidirectional" | "accumulate",
+                    _,
+                    _,
+                ) => bail!("restir: parameter '{k}' out of range or of the wrong type: {v} (see the parameter docs)"),
+                _ => bail!(
+                    "restir has no parameter '{k}' (known: candidates, candidate_visibility, temporal, max_history, spatial_count, spatial_radius, unbiased, bidirectional, accumulate)"
+                ),
+            }
+        }
+        self.settings = s;
+        Ok(())
+    }
+
+    fn param_docs(&self) -> Vec<ParamDoc> {
+        let flag = |name, what, higher, lower| ParamDoc {
+            name,
+            what,
+            higher,
+            lower,
+            min: 0.0,
+            max: 1.0,
+            integer: true,
+        };
+        vec![
+            ParamDoc {
+                name: "candidates",
+                what: "initial RIS candidates per pixel per frame, drawn from the light pool by power",
+                higher: "better initial samples (many lights), more shading work, no extra rays",
+                lower: "cheaper, noisier before reuse",
+                min: 1.0,
+                max: 64.0,
+                integer: true,
+            },
+            flag(
+                "candidate_visibility",
+                "1: one visibility ray for the chosen candidate before reuse",
+                "occluded lights are not spread to neighbours (faster convergence, +1 ray)",
+                "0: fewer rays, shadows spread through reuse until the final test",
+            ),
+            flag(
+                "temporal",
+                "1: merge last frame's reservoir at the reprojected pixel",
+                "more effective samples per pixel, some temporal lag",
+                "0: no history, no lag, noisier",
+            ),
+            ParamDoc {
+                name: "max_history",
+                what: "last frame's reservoir counts at most this many times the current candidates",
+                higher: "more stable, slower to follow changes (lag)",
+                lower: "reacts faster to changes, noisier (the talk's default is 8)",
+                min: 0.0,
+                max: 64.0,
+                integer: false,
+            },
+            ParamDoc {
+                name: "spatial_count",
+                what: "neighbour reservoirs merged per pixel",
+                higher: "less noise; in unbiased mode +1 ray per neighbour",
+                lower: "cheaper; 0 turns spatial reuse off",
+                min: 0.0,
+                max: MAX_SPATIAL as f64,
+                integer: true,
+            },
+            ParamDoc {
+                name: "spatial_radius",
+                what: "radius in pixels in which neighbours are picked",
+                higher: "more independent neighbours, more blur across geometry edges",
+                lower: "neighbours more similar, more correlated noise",
+                min: 1.0,
+                max: 64.0,
+                integer: false,
+            },
+            flag(
+                "unbiased",
+                "1: 1/Z contribution weights (visibility-tested when candidate_visibility is on)",
+                "converges to the reference; extra rays",
+                "0: M weights and visibility reuse, cheaper, darkens contact shadows (biased)",
+            ),
+            flag(
+                "accumulate",
+                "1: average frames progressively; 0: show each frame as a real-time renderer would",
+                "a static view converges (what the error plots measure)",
+                "the noise of one frame, with temporal reuse only",
+            ),
+            flag(
+                "bidirectional",
+                "1: reuse a neighbour's light only if it is visible from this pixel (the talk's bidirectional occlusion test)",
+                "no runaway reuse under overlapping shadows, +1 ray per neighbour",
+                "0: cheaper",
+            ),
+        ]
+    }
+
+    fn shader_files(&self) -> &'static [&'static str] {
+        &[
+            "restir/primary.wgsl",
+            "restir/initial_temporal.wgsl",
+            "restir/spatial.wgsl",
+            "restir/shade.wgsl",
+        ]
+    }
+
+    fn params_for_ray_budget(
+        &self,
+        rays_per_pixel: f64,
+        _measured: Option<f64>,
+    ) -> Option<toml::Table> {
+        // Rays are spent on reuse: each spatial neighbour costs one (unbiased with candidate
+        // visibility) or two (with the bidirectional test); candidates cost shading, not rays,
+        // and scale with the budget.
+        let mut probe = Restir {
+            settings: RestirSettings {
+                spatial_count: 0,
+                ..self.settings.clone()
+            },
+            ..Default::default()
+        };
+        let base = probe.max_rays_per_pixel();
+        let per_neighbour = (probe.settings.unbiased && probe.settings.candidate_visibility) as u32
+            + probe.settings.bidirectional as u32;
+        let k = if per_neighbour == 0 {
+            self.settings.spatial_count
+        } else {
+            (((rays_per_pixel - base) / per_neighbour as f64)
+                .floor()
+                .max(0.0) as u32)
+                .min(MAX_SPATIAL)
+        };
+        probe.settings.spatial_count = k;
+        probe.settings.candidates = ((rays_per_pixel * 2.0).round() as u32).clamp(1, 64);
+        (probe.settings != self.settings).then(|| {
+            let mut t = toml::Table::new();
+            t.insert("spatial_count".into(), (k as i64).into());
+            t.insert(
+                "candidates".into(),
+                (probe.settings.candidates as i64).into(),
+            );
+            t
+        })
+    }
+}
