@@ -1,0 +1,109 @@
+// Path tracing shared by the reference and by ReSTIR GI's sample paths: NEE of one light
+// (power heuristic against BSDF sampling), GGX/Lambert BSDF sampling, Russian roulette.
+#define_import_path gilab::path
+
+#import gilab::math::{max_component, offset_ray_origin}
+#import gilab::rng::{Rng, rand, rand_pair}
+#import gilab::frame::frame
+#import gilab::scene::light_pool
+#import gilab::bvh::{trace_closest, trace_any, NO_HIT}
+#import gilab::surface::hit_surface
+#import gilab::brdf::{bsdf_eval, bsdf_sample}
+#import gilab::lights::{sample_light, triangle_emission, triangle_light_pdf}
+#import gilab::sampling::power_heuristic
+
+// Hard safety cap on path length. With Russian roulette survival <= 0.95 the chance of
+// reaching it is below 0.95^1021 ~ 1e-23, so "unbounded" stays unbiased in practice.
+const SAFETY_MAX_BOUNCES: u32 = 1024u;
+const RR_START_DEPTH: u32 = 3u;
+
+struct PathResult {
+    // Radiance arriving at the origin along the first direction.
+    radiance: vec3<f32>,
+    first_rays: u32,
+    shadow_rays: u32,
+    indirect_rays: u32,
+    // The first hit (w = 1) or a miss (w = 0), and its geometric normal facing the ray.
+    first_hit: vec4<f32>,
+    first_normal: vec3<f32>,
+}
+
+// Traces a path from `origin` along `dir`. `max_bounces` 0 = unbounded. With
+// `skip_first_emission` the emission of the first hit is left out (ReSTIR GI: direct light
+// from emitters is ReSTIR DI's job).
+fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, max_depth: u32, skip_first_emission: bool) -> PathResult {
+    var out = PathResult(vec3<f32>(0.0), 0u, 0u, 0u, vec4<f32>(0.0), vec3<f32>(0.0));
+    var origin = origin_in;
+    var dir = dir_in;
+    var throughput = vec3<f32>(1.0);
+    var prev_pdf = 0.0;
+    var prev_delta = true;
+    let max_bounces = select(SAFETY_MAX_BOUNCES, max_depth, max_depth > 0u);
+    for (var depth = 0u; depth <= max_bounces; depth++) {
+        let hit = trace_closest(origin, dir, 0.0, 1e30);
+        if depth == 0u {
+            out.first_rays += 1u;
+        } else {
+            out.indirect_rays += 1u;
+        }
+        if hit.tri == NO_HIT {
+            out.radiance += throughput * frame.sky.xyz;
+            break;
+        }
+        let surf = hit_surface(origin, dir, hit);
+        if depth == 0u {
+            out.first_hit = vec4<f32>(surf.position, 1.0);
+            out.first_normal = surf.geo_normal;
+        }
+        let le = triangle_emission(hit.tri, -dir);
+        if any(le > vec3<f32>(0.0)) && !(depth == 0u && skip_first_emission) {
+            var w = 1.0;
+            if !prev_delta {
+                w = power_heuristic(prev_pdf, triangle_light_pdf(hit.tri, dir, hit.t));
+            }
+            out.radiance += throughput * le * w;
+        }
+        if depth == max_bounces {
+            break;
+        }
+        let wo = -dir;
+        let m = surf.material;
+        // Next-event estimation (a pure mirror evaluates to 0 and traces no shadow ray).
+        let u_sel = rand(rng);
+        let u_light = rand_pair(rng);
+        if light_pool.count > 0u {
+            let ls = sample_light(surf.position, u_sel, u_light);
+            if ls.valid && ls.pdf > 0.0 && dot(ls.wi, surf.geo_normal) > 0.0 {
+                let e = bsdf_eval(m, surf.normal, wo, ls.wi);
+                if any(e.f > vec3<f32>(0.0)) {
+                    let p = offset_ray_origin(surf.position, surf.geo_normal);
+                    let t_max = select(ls.dist * (1.0 - 1e-4), 1e30, ls.is_delta && ls.dist >= 1e30);
+                    out.shadow_rays += 1u;
+                    if !trace_any(p, ls.wi, 0.0, t_max) {
+                        let w = select(power_heuristic(ls.pdf, e.pdf), 1.0, ls.is_delta);
+                        out.radiance += throughput * e.f * dot(surf.normal, ls.wi) * ls.radiance * (w / ls.pdf);
+                    }
+                }
+            }
+        }
+        // Continue the path by sampling the BRDF.
+        let bs = bsdf_sample(m, surf.normal, wo, rand(rng), rand_pair(rng));
+        // Directions below the geometric surface would leak through thin walls.
+        if !bs.valid || dot(bs.wi, surf.geo_normal) <= 0.0 {
+            break;
+        }
+        throughput *= bs.weight;
+        prev_pdf = bs.pdf;
+        prev_delta = bs.is_delta;
+        origin = offset_ray_origin(surf.position, surf.geo_normal);
+        dir = bs.wi;
+        if depth + 1u >= RR_START_DEPTH {
+            let q = min(max_component(throughput), 0.95);
+            if q <= 0.0 || rand(rng) >= q {
+                break;
+            }
+            throughput /= q;
+        }
+    }
+    return out;
+}
