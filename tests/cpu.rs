@@ -118,9 +118,10 @@ fn gpu_struct_layouts_match_rust() {
     );
     // ReSTIR's buffers.
     use gilab::techniques::restir;
-    let size_of = wgsl_size("restir/spatial.wgsl");
+    let size_of = wgsl_size("restir/shade.wgsl");
     assert_eq!(size_of("GSurface") as u64, restir::SURFACE_BYTES);
     assert_eq!(size_of("Reservoir") as u64, restir::RESERVOIR_BYTES);
+    assert_eq!(size_of("GiReservoir") as u64, restir::GI_RESERVOIR_BYTES);
     assert_eq!(
         size_of("RestirParams"),
         std::mem::size_of::<restir::RestirParamsGpu>()

@@ -1,5 +1,6 @@
-//! ReSTIR DI against the reference path tracer's direct lighting (max_depth = 1: emission plus
-//! one bounce of next-event estimation with MIS), on lavapipe, small images.
+//! ReSTIR against the reference path tracer on lavapipe, small images: DI alone against the
+//! reference's direct light (max_depth = 1: emission plus one bounce of next-event estimation
+//! with MIS), DI + GI against the full reference, the furnace, many lights, hard cases.
 
 mod common;
 
@@ -86,7 +87,7 @@ fn energy(img: &Image) -> f64 {
 fn restir_di_converges_to_reference_direct_light() {
     let size = [64, 64];
     let (truth, _) = direct_reference(builtin::cornell(), size, 1024, 7, 0);
-    let (unbiased, _) = restir(builtin::cornell(), size, 128, 1, toml::Table::new());
+    let (unbiased, _) = restir(builtin::cornell(), size, 128, 1, toml::toml! { gi = false });
     let ratio = energy(&unbiased) / energy(&truth);
     let m = metrics::compare(&unbiased, &truth).unwrap();
     eprintln!(
@@ -96,7 +97,8 @@ fn restir_di_converges_to_reference_direct_light() {
     assert!((ratio - 1.0).abs() < 0.02, "energy ratio {ratio}");
     assert!(m.rel_mse < 0.01, "relMSE {}", m.rel_mse);
 
-    let biased_params: toml::Table = toml::toml! { unbiased = false };
+    let biased_params: toml::Table = toml::toml! { unbiased = false
+    gi = false };
     let (biased, _) = restir(builtin::cornell(), size, 128, 1, biased_params);
     let b_ratio = energy(&biased) / energy(&truth);
     let bm = metrics::compare(&biased, &truth).unwrap();
@@ -124,7 +126,8 @@ fn restir_beats_nee_on_many_lights_at_equal_rays() {
     // One real-time frame each: ReSTIR's frame after `frames` frames of reuse (no averaging)
     // against NEE with at least the rays that frame traced.
     let params: toml::Table = toml::toml! { candidates = 32
-    accumulate = false };
+    accumulate = false
+    gi = false };
     for frames in [1u32, 16] {
         let (before, before_rays) = render(
             "restir",
@@ -188,7 +191,8 @@ fn reuse_lowers_single_frame_error() {
     let flags = FLAG_NO_PRIMARY_EMISSION;
     let scene = || builtin::many_lights(1024, 1);
     let (truth, _) = direct_reference(scene(), size, 1024, 5, flags);
-    let err = |params: toml::Table| {
+    let err = |mut params: toml::Table| {
+        params.insert("gi".into(), false.into());
         let (img, _) = render("restir", params, scene(), size, 16, 1, flags);
         metrics::compare(&img, &truth).unwrap().rel_mse
     };
@@ -211,4 +215,44 @@ fn reuse_lowers_single_frame_error() {
         "temporal reuse: {temporal} vs {none}"
     );
     assert!(both < temporal, "spatial reuse: {both} vs {temporal}");
+}
+
+/// DI + GI accumulated over 256 frames at 128² converges to the full reference.
+#[test]
+fn restir_di_gi_converges_to_reference() {
+    let size = [128, 128];
+    let truth = common::render_reference(builtin::cornell(), size, 512, 64, 11, 0).image;
+    let (img, rays) = restir(builtin::cornell(), size, 256, 1, toml::Table::new());
+    let ratio = energy(&img) / energy(&truth);
+    let m = metrics::compare(&img, &truth).unwrap();
+    eprintln!(
+        "ReSTIR DI+GI unbiased, 256 frames at 128²: energy ratio {ratio:.4}, relMSE {:.2e}, {:.2} rays/px/frame",
+        m.rel_mse,
+        rays.total() as f64 / (128.0 * 128.0 * 256.0)
+    );
+    assert!((ratio - 1.0).abs() < 0.02, "energy ratio {ratio}");
+    assert!(m.rel_mse < 0.01, "relMSE {}", m.rel_mse);
+}
+
+/// White furnace: closed sphere, albedo a, emission E: radiance E / (1 - a) everywhere.
+#[test]
+fn restir_furnace_matches_closed_form() {
+    let (albedo, emission) = (0.8f32, 1.0f32);
+    let (img, _) = restir(
+        builtin::furnace(albedo, emission, 2),
+        [48, 48],
+        64,
+        1,
+        toml::Table::new(),
+    );
+    let expected = emission as f64 / (1.0 - albedo as f64);
+    let mean = img.mean();
+    for (c, v) in mean.iter().enumerate() {
+        let rel = v / expected - 1.0;
+        eprintln!(
+            "furnace channel {c}: {v:.4} vs {expected:.4} ({:+.2}%)",
+            rel * 100.0
+        );
+        assert!(rel.abs() < 0.02, "furnace channel {c}: {v} vs {expected}");
+    }
 }

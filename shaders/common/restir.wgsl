@@ -8,6 +8,7 @@
 #import gilab::brdf::{Surface, bsdf_eval}
 #import gilab::lights::{LightSample, eval_light_point}
 #import gilab::bvh::trace_any
+#import gilab::math::PI
 
 struct RestirParams {
     // RIS candidates per pixel per frame drawn from the light pool by power.
@@ -28,8 +29,10 @@ struct RestirParams {
     pixels: u32,
     // 1: average frames progressively (converges on a static view); 0: show this frame only.
     accumulate: u32,
-    pad_b: u32,
-    pad_c: u32,
+    // 1: ReSTIR GI (indirect light by resampled sample paths).
+    gi: u32,
+    // Bounces of a GI sample path after its first hit; 0 = unbounded (Russian roulette).
+    gi_bounces: u32,
 }
 
 // A primary hit (or a miss, valid = 0) as the passes need it.
@@ -143,4 +146,115 @@ fn similar(a: GSurface, b: GSurface) -> bool {
     }
     let plane = abs(dot(b.pos.xyz - a.pos.xyz, a.geo_specular.xyz));
     return plane < 0.1 * a.wo_dist.w && abs(a.wo_dist.w - b.wo_dist.w) < 0.1 * a.wo_dist.w;
+}
+
+// ReSTIR GI (Ouyang et al. 2021): a reservoir holds a sample point x_s found by a sample path,
+// with the radiance leaving it towards the pixel that traced it. Weights are kept in the area
+// measure at x_s, so reusing a sample at another pixel multiplies by that pixel's geometry term
+// |cos| / d^2: the reconnection Jacobian is the ratio of the two geometry terms.
+struct GiReservoir {
+    // xyz: x_s, w: 1 when the reservoir holds a sample.
+    point: vec4<f32>,
+    // xyz: geometric normal at x_s, on the side the sample ray arrived from.
+    normal: vec4<f32>,
+    // rgb: radiance leaving x_s (its own emission excluded: direct light is ReSTIR DI's).
+    radiance: vec4<f32>,
+    w_sum: f32,
+    m: f32,
+    big_w: f32,
+    target_pdf: f32,
+}
+
+// Three segments like `reservoirs`.
+@group(1) @binding(7) var<storage, read_write> gi_reservoirs: array<GiReservoir>;
+// Per pixel: sky radiance reached by this frame's GI sample ray (not reused: it has no point).
+@group(1) @binding(8) var<storage, read_write> gi_sky: array<vec4<f32>>;
+
+fn empty_gi_reservoir() -> GiReservoir {
+    return GiReservoir(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), 0.0, 0.0, 0.0, 0.0);
+}
+
+struct GiEval {
+    // f * cos * L * G (area measure at x_s).
+    value: vec3<f32>,
+    // Geometry term |cos at x_s| / d^2.
+    geom: f32,
+    wi: vec3<f32>,
+    dist: f32,
+}
+
+fn gi_contribution(s: GSurface, r: GiReservoir) -> GiEval {
+    var e = GiEval(vec3<f32>(0.0), 0.0, vec3<f32>(0.0), 0.0);
+    if s.pos.w < 0.5 || r.point.w < 0.5 {
+        return e;
+    }
+    let d = r.point.xyz - s.pos.xyz;
+    let dist_sq = dot(d, d);
+    if dist_sq <= 1e-12 {
+        return e;
+    }
+    e.dist = sqrt(dist_sq);
+    e.wi = d / e.dist;
+    let cos_s = dot(r.normal.xyz, -e.wi);
+    if dot(e.wi, s.geo_specular.xyz) <= 0.0 || cos_s <= 0.0 {
+        return e;
+    }
+    let n = s.normal_alpha.xyz;
+    let f = bsdf_eval(surface_material(s), n, s.wo_dist.xyz, e.wi).f;
+    e.geom = cos_s / dist_sq;
+    e.value = f * max(dot(n, e.wi), 0.0) * r.radiance.xyz * e.geom;
+    return e;
+}
+
+// Reuse of a GI sample from surface `origin` at surface `receiver` is allowed only while the
+// reconnection Jacobian G_receiver / G_origin stays within [1/10, 10] (Ouyang et al.): beyond it, a
+// sample found far away lands next to the receiver and its weight has no bound (fireflies that
+// spread through reuse). Z uses the same test, so the 1/Z weights stay consistent.
+const GI_MAX_JACOBIAN: f32 = 10.0;
+
+fn gi_jacobian_ok(receiver: GSurface, origin: GSurface, r: GiReservoir) -> bool {
+    let g_to = gi_contribution(receiver, r).geom;
+    let g_from = gi_contribution(origin, r).geom;
+    if g_to <= 0.0 || g_from <= 0.0 {
+        return false;
+    }
+    let j = g_to / g_from;
+    return j <= GI_MAX_JACOBIAN && j >= 1.0 / GI_MAX_JACOBIAN;
+}
+
+fn gi_target(s: GSurface, r: GiReservoir) -> f32 {
+    return luminance(gi_contribution(s, r).value);
+}
+
+fn gi_update(r: ptr<function, GiReservoir>, candidate: GiReservoir, w: f32, m: f32, u: f32) -> bool {
+    (*r).w_sum += w;
+    (*r).m += m;
+    if w > 0.0 && u * (*r).w_sum < w {
+        (*r).point = candidate.point;
+        (*r).normal = candidate.normal;
+        (*r).radiance = candidate.radiance;
+        return true;
+    }
+    return false;
+}
+
+// Shadow test between a surface and a GI sample point (true = visible).
+fn gi_visible(s: GSurface, e: GiEval) -> bool {
+    let p = offset_ray_origin(s.pos.xyz, s.geo_specular.xyz);
+    return !trace_any(p, e.wi, 0.0, e.dist * (1.0 - 1e-3));
+}
+
+// Previous-frame pixel of a surface point, or -1 when it was off screen.
+fn reproject(p: vec3<f32>) -> i32 {
+    let clip = frame.prev_clip_from_world * vec4<f32>(p, 1.0);
+    if clip.w <= 0.0 {
+        return -1;
+    }
+    let ndc = clip.xy / clip.w;
+    let fx = (ndc.x * 0.5 + 0.5) * f32(frame.size.x);
+    let fy = (0.5 - ndc.y * 0.5) * f32(frame.size.y);
+    if fx < 0.0 || fy < 0.0 || fx >= f32(frame.size.x) || fy >= f32(frame.size.y) {
+        return -1;
+    }
+    return i32(u32(fy) * frame.size.x + u32(fx));
 }

@@ -8,7 +8,7 @@
 #import gilab::scene::light_pool
 #import gilab::lights::select_light
 #import gilab::sampling::sample_triangle
-#import gilab::restir::{params, surfaces, reservoirs, GSurface, Reservoir, surface_index, reservoir_index, parity, empty_reservoir, contribution, target_at, visible, update, similar, TEMPORAL_SEGMENT}
+#import gilab::restir::{params, surfaces, reservoirs, GSurface, Reservoir, surface_index, reservoir_index, parity, empty_reservoir, reproject, contribution, target_at, visible, update, similar, TEMPORAL_SEGMENT}
 
 fn initial_candidates(s: GSurface, rng: ptr<function, Rng>) -> Reservoir {
     var r = empty_reservoir();
@@ -51,43 +51,32 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             }
             if params.temporal == 1u && frame.frame_index > 0u {
                 // Where this surface point was on screen last frame.
-                let clip = frame.prev_clip_from_world * vec4<f32>(s.pos.xyz, 1.0);
-                if clip.w > 0.0 {
-                    let ndc = clip.xy / clip.w;
-                    let fx = (ndc.x * 0.5 + 0.5) * f32(frame.size.x);
-                    let fy = (0.5 - ndc.y * 0.5) * f32(frame.size.y);
-                    if fx >= 0.0 && fy >= 0.0 && fx < f32(frame.size.x) && fy < f32(frame.size.y) {
-                        let pidx = u32(fy) * frame.size.x + u32(fx);
-                        let ps = surfaces[surface_index(1u - parity(), pidx)];
-                        if similar(s, ps) {
-                            let pr = reservoirs[reservoir_index(1u - parity(), pidx)];
-                            let mc = max(r.m, 1.0);
-                            let mp = min(pr.m, params.max_history * mc);
-                            var out = empty_reservoir();
-                            update(&out, r, r.target_pdf * r.big_w * r.m, r.m, rand(&rng));
-                            let tp = target_at(s, pr);
-                            update(&out, pr, tp * pr.big_w * mp, mp, rand(&rng));
-                            out.target_pdf = target_at(s, out);
-                            if out.target_pdf > 0.0 && out.m > 0.0 {
-                                var z = out.m;
-                                if params.unbiased == 1u {
-                                    // 1/Z: count only the reservoirs that could have produced the sample.
-                                    z = 0.0;
-                                    if out.target_pdf > 0.0 {
-                                        z += r.m;
-                                    }
-                                    // Unshadowed support: reservoirs carry samples that reuse
-                                    // brought in, occluded or not, so visibility would undercount.
-                                    if target_at(ps, out) > 0.0 {
-                                        z += mp;
-                                    }
-                                }
-                                if z > 0.0 {
-                                    out.big_w = out.w_sum / (z * out.target_pdf);
+                let prev = reproject(s.pos.xyz);
+                if prev >= 0 {
+                    let pidx = u32(prev);
+                    let ps = surfaces[surface_index(1u - parity(), pidx)];
+                    if similar(s, ps) {
+                        let pr = reservoirs[reservoir_index(1u - parity(), pidx)];
+                        let mc = max(r.m, 1.0);
+                        let mp = min(pr.m, params.max_history * mc);
+                        var out = empty_reservoir();
+                        update(&out, r, r.target_pdf * r.big_w * r.m, r.m, rand(&rng));
+                        let tp = target_at(s, pr);
+                        update(&out, pr, tp * pr.big_w * mp, mp, rand(&rng));
+                        out.target_pdf = target_at(s, out);
+                        if out.target_pdf > 0.0 && out.m > 0.0 {
+                            var z = out.m;
+                            if params.unbiased == 1u {
+                                // 1/Z over the unshadowed support: reservoirs carry samples
+                                // that reuse brought in, occluded or not.
+                                z = r.m;
+                                if target_at(ps, out) > 0.0 {
+                                    z += mp;
                                 }
                             }
-                            r = out;
+                            out.big_w = out.w_sum / (z * out.target_pdf);
                         }
+                        r = out;
                     }
                 }
             }

@@ -1,10 +1,10 @@
-// ReSTIR pass 4: final visibility ray for each pixel's reservoir, shading (emission + f * Le * G * V * W),
+// ReSTIR final pass: visibility rays for each pixel's DI and GI reservoirs, shading (emission + f * Le * G * V * W + GI),
 // and progressive accumulation (Welford mean and M2, as the reference path tracer does).
 #import gilab::frame::{frame, FLAG_NO_PRIMARY_EMISSION}
 #import gilab::counters::{flush_counts, no_counts, RAY_SHADOW, COUNT_INVALID_SAMPLES}
 #import gilab::math::is_finite_vec
 #import gilab::accumulate::welford_add
-#import gilab::restir::{params, surfaces, reservoirs, surface_index, reservoir_index, parity, contribution, visible}
+#import gilab::restir::{params, surfaces, reservoirs, gi_reservoirs, gi_sky, surface_index, reservoir_index, parity, contribution, visible, gi_contribution, gi_visible}
 
 @group(1) @binding(5) var<storage, read_write> accum_mean: array<vec4<f32>>;
 @group(1) @binding(6) var<storage, read_write> accum_m2: array<vec4<f32>>;
@@ -32,6 +32,20 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     r.big_w = 0.0;
                     r.w_sum = 0.0;
                     reservoirs[ri] = r;
+                }
+            }
+        }
+        if params.gi == 1u && s.pos.w > 0.5 {
+            // Indirect light: this frame's sky sample plus the resampled GI sample, visibility re-checked.
+            l += gi_sky[idx].xyz;
+            let g = gi_reservoirs[ri];
+            if g.big_w > 0.0 {
+                let e = gi_contribution(s, g);
+                if any(e.value > vec3<f32>(0.0)) {
+                    counts[RAY_SHADOW] += 1u;
+                    if gi_visible(s, e) {
+                        l += e.value * g.big_w;
+                    }
                 }
             }
         }

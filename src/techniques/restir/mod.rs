@@ -41,12 +41,14 @@ pub struct RestirParamsGpu {
     pub bidirectional: u32,
     pub pixels: u32,
     pub accumulate: u32,
-    pub pad: [u32; 2],
+    pub gi: u32,
+    pub gi_bounces: u32,
 }
 
-/// Bytes of `GSurface` and `Reservoir` in shaders/common/restir.wgsl.
+/// Bytes of `GSurface`, `Reservoir` and `GiReservoir` in shaders/common/restir.wgsl.
 pub const SURFACE_BYTES: u64 = 96;
 pub const RESERVOIR_BYTES: u64 = 32;
+pub const GI_RESERVOIR_BYTES: u64 = 64;
 const MAX_SPATIAL: u32 = 8;
 
 #[derive(Clone, Debug, PartialEq)]
@@ -60,6 +62,8 @@ pub struct RestirSettings {
     pub unbiased: bool,
     pub bidirectional: bool,
     pub accumulate: bool,
+    pub gi: bool,
+    pub gi_bounces: u32,
 }
 
 impl Default for RestirSettings {
@@ -75,6 +79,8 @@ impl Default for RestirSettings {
             unbiased: true,
             bidirectional: false,
             accumulate: true,
+            gi: true,
+            gi_bounces: 0,
         }
     }
 }
@@ -83,6 +89,8 @@ struct Pipelines {
     primary: wgpu::ComputePipeline,
     initial_temporal: wgpu::ComputePipeline,
     spatial: wgpu::ComputePipeline,
+    gi_temporal: wgpu::ComputePipeline,
+    gi_spatial: wgpu::ComputePipeline,
     shade: wgpu::ComputePipeline,
 }
 
@@ -94,13 +102,22 @@ pub struct Restir {
     params: Option<wgpu::Buffer>,
     surfaces: Option<wgpu::Buffer>,
     reservoirs: Option<wgpu::Buffer>,
+    gi_reservoirs: Option<wgpu::Buffer>,
+    gi_sky: Option<wgpu::Buffer>,
     mean: Option<wgpu::Buffer>,
     m2: Option<wgpu::Buffer>,
     extent: [u32; 2],
     has_lights: bool,
 }
 
-const PASSES: [&str; 4] = ["primary", "initial_temporal", "spatial", "shade"];
+const PASSES: [&str; 6] = [
+    "primary",
+    "initial_temporal",
+    "spatial",
+    "gi_temporal",
+    "gi_spatial",
+    "shade",
+];
 
 impl Restir {
     fn gpu_params(&self, pixels: u32) -> RestirParamsGpu {
@@ -116,7 +133,8 @@ impl Restir {
             bidirectional: s.bidirectional as u32,
             pixels,
             accumulate: s.accumulate as u32,
-            pad: [0; 2],
+            gi: s.gi as u32,
+            gi_bounces: s.gi_bounces,
         }
     }
 
@@ -183,19 +201,39 @@ impl Technique for Restir {
                 },
             },
             PassInfo {
+                name: "gi_temporal",
+                runs: self.settings.gi,
+                why: if self.settings.gi {
+                    format!(
+                        "one sample path per pixel ({}), temporal reuse",
+                        if self.settings.gi_bounces == 0 {
+                            "unbounded, Russian roulette".to_string()
+                        } else {
+                            format!("{} bounces", self.settings.gi_bounces)
+                        }
+                    )
+                } else {
+                    "gi = false: direct light only".into()
+                },
+            },
+            PassInfo {
+                name: "gi_spatial",
+                runs: self.settings.gi,
+                why: if self.settings.gi {
+                    "spatial reuse of GI samples (area-measure weights)".into()
+                } else {
+                    "gi = false".into()
+                },
+            },
+            PassInfo {
                 name: "shade",
                 runs: true,
-                why: "final visibility, emission and accumulation".into(),
+                why: "final visibility (DI and GI), emission and accumulation".into(),
             },
             PassInfo {
                 name: "regir",
                 runs: false,
                 why: "not built yet (issue 4)".into(),
-            },
-            PassInfo {
-                name: "gi",
-                runs: false,
-                why: "ReSTIR GI not built yet (issue 4): direct light only".into(),
             },
         ]
     }
@@ -204,7 +242,7 @@ impl Technique for Restir {
         let gpu = ctx.gpu;
         let mut entries = ctx.frame_layout_entries.to_vec();
         entries.push(pipelines::uniform_entry(2, wgpu::ShaderStages::COMPUTE));
-        for b in 3..=6 {
+        for b in 3..=8 {
             entries.push(pipelines::storage_entry(b, false));
         }
         let layout = gpu
@@ -220,6 +258,8 @@ impl Technique for Restir {
             primary: make("restir/primary.wgsl")?,
             initial_temporal: make("restir/initial_temporal.wgsl")?,
             spatial: make("restir/spatial.wgsl")?,
+            gi_temporal: make("restir/gi_temporal.wgsl")?,
+            gi_spatial: make("restir/gi_spatial.wgsl")?,
             shade: make("restir/shade.wgsl")?,
         };
         let [w, h] = ctx.extent;
@@ -250,6 +290,12 @@ impl Technique for Restir {
             "restir reservoirs",
             3 * px * RESERVOIR_BYTES,
         );
+        let gi_reservoirs = buffer(
+            &mut self.gi_reservoirs,
+            "restir gi reservoirs",
+            3 * px * GI_RESERVOIR_BYTES,
+        );
+        let gi_sky = buffer(&mut self.gi_sky, "restir gi sky", px * 16);
         let mean = buffer(&mut self.mean, "restir mean", px * 16);
         let m2 = buffer(&mut self.m2, "restir m2", px * 16);
         let resources = [
@@ -260,6 +306,8 @@ impl Technique for Restir {
             reservoirs.as_entire_binding(),
             mean.as_entire_binding(),
             m2.as_entire_binding(),
+            gi_reservoirs.as_entire_binding(),
+            gi_sky.as_entire_binding(),
         ];
         let bind_entries: Vec<wgpu::BindGroupEntry> = resources
             .into_iter()
@@ -279,6 +327,8 @@ impl Technique for Restir {
         self.params = Some(params);
         self.surfaces = Some(surfaces);
         self.reservoirs = Some(reservoirs);
+        self.gi_reservoirs = Some(gi_reservoirs);
+        self.gi_sky = Some(gi_sky);
         self.mean = Some(mean);
         self.m2 = Some(m2);
         self.extent = ctx.extent;
@@ -315,7 +365,9 @@ impl Technique for Restir {
             (PASSES[1], &p.initial_temporal, self.has_lights),
             // With spatial_count = 0 this pass only copies the temporal result through.
             (PASSES[2], &p.spatial, self.has_lights),
-            (PASSES[3], &p.shade, true),
+            (PASSES[3], &p.gi_temporal, self.settings.gi),
+            (PASSES[4], &p.gi_spatial, self.settings.gi),
+            (PASSES[5], &p.shade, true),
         ];
         for (name, pipeline, runs) in steps {
             if runs {
@@ -344,6 +396,8 @@ impl Technique for Restir {
         t.insert("unbiased".into(), s.unbiased.into());
         t.insert("bidirectional".into(), s.bidirectional.into());
         t.insert("accumulate".into(), s.accumulate.into());
+        t.insert("gi".into(), s.gi.into());
+        t.insert("gi_bounces".into(), (s.gi_bounces as i64).into());
         t
     }
 
@@ -364,14 +418,16 @@ impl Technique for Restir {
                 ("unbiased", _, Some(b)) => s.unbiased = b,
                 ("bidirectional", _, Some(b)) => s.bidirectional = b,
                 ("accumulate", _, Some(b)) => s.accumulate = b,
+                ("gi", _, Some(b)) => s.gi = b,
+                ("gi_bounces", Some(n), _) if (0.0..=64.0).contains(&n) => s.gi_bounces = n as u32,
                 (
                     "candidates" | "max_history" | "spatial_count" | "spatial_radius"
-                    | "candidate_visibility" | "temporal" | "unbiased" | "bidirectional" | "accumulate",
+                    | "candidate_visibility" | "temporal" | "unbiased" | "bidirectional" | "accumulate" | "gi" | "gi_bounces",
                     _,
                     _,
                 ) => bail!("restir: parameter '{k}' out of range or of the wrong type: {v} (see the parameter docs)"),
                 _ => bail!(
-                    "restir has no parameter '{k}' (known: candidates, candidate_visibility, temporal, max_history, spatial_count, spatial_radius, unbiased, bidirectional, accumulate)"
+                    "restir has no parameter '{k}' (known: candidates, candidate_visibility, temporal, max_history, spatial_count, spatial_radius, unbiased, bidirectional, accumulate, gi, gi_bounces)"
                 ),
             }
         }
@@ -445,6 +501,21 @@ impl Technique for Restir {
                 "0: M weights and visibility reuse, cheaper, darkens contact shadows (biased)",
             ),
             flag(
+                "gi",
+                "1: ReSTIR GI adds indirect light (one resampled sample path per pixel)",
+                "full global illumination, +1 path per pixel",
+                "0: direct light only",
+            ),
+            ParamDoc {
+                name: "gi_bounces",
+                what: "bounces of a GI sample path after its first hit; 0 = unbounded (Russian roulette)",
+                higher: "more indirect light kept",
+                lower: "cheaper paths that lose multi-bounce light (biased dark); 0 is unbiased",
+                min: 0.0,
+                max: 16.0,
+                integer: true,
+            },
+            flag(
                 "accumulate",
                 "1: average frames progressively; 0: show each frame as a real-time renderer would",
                 "a static view converges (what the error plots measure)",
@@ -464,6 +535,8 @@ impl Technique for Restir {
             "restir/primary.wgsl",
             "restir/initial_temporal.wgsl",
             "restir/spatial.wgsl",
+            "restir/gi_temporal.wgsl",
+            "restir/gi_spatial.wgsl",
             "restir/shade.wgsl",
         ]
     }

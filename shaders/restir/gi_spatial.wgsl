@@ -1,0 +1,72 @@
+// ReSTIR GI pass 2: spatial reuse of GI samples from k neighbours in a disk (similar surfaces
+// only); the sample's weight at this pixel uses this pixel's geometry term to the sample point
+// (the reconnection Jacobian); 1/Z (unbiased) or M weights (biased).
+#import gilab::rng::{rng_init, rand, rand_pair}
+#import gilab::frame::frame
+#import gilab::counters::{flush_counts, no_counts}
+#import gilab::math::TWO_PI
+#import gilab::restir::{params, surfaces, gi_reservoirs, surface_index, reservoir_index, parity, empty_gi_reservoir, gi_target, gi_update, gi_jacobian_ok, similar, TEMPORAL_SEGMENT}
+
+const MAX_NEIGHBOURS: u32 = 8u;
+
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
+    var counts = no_counts();
+    if gid.x < frame.size.x && gid.y < frame.size.y {
+        let idx = gid.y * frame.size.x + gid.x;
+        var rng = rng_init(gid.xy, frame.sample_offset * 4u + 0u, frame.seed ^ 0x9e3779b9u);
+        let s = surfaces[surface_index(parity(), idx)];
+        let r0 = gi_reservoirs[reservoir_index(TEMPORAL_SEGMENT, idx)];
+        var out = empty_gi_reservoir();
+        gi_update(&out, r0, r0.target_pdf * r0.big_w * r0.m, r0.m, rand(&rng));
+        var used = array<u32, 8>(0u, 0u, 0u, 0u, 0u, 0u, 0u, 0u);
+        var used_count = 0u;
+        let k = min(params.spatial_count, MAX_NEIGHBOURS);
+        if s.pos.w > 0.5 && params.gi == 1u {
+            for (var j = 0u; j < k; j++) {
+                let u = rand_pair(&rng);
+                let radius = params.spatial_radius * sqrt(u.x);
+                let angle = TWO_PI * u.y;
+                let px = i32(gid.x) + i32(round(radius * cos(angle)));
+                let py = i32(gid.y) + i32(round(radius * sin(angle)));
+                if px < 0 || py < 0 || px >= i32(frame.size.x) || py >= i32(frame.size.y) {
+                    continue;
+                }
+                let nidx = u32(py) * frame.size.x + u32(px);
+                if nidx == idx {
+                    continue;
+                }
+                let ns = surfaces[surface_index(parity(), nidx)];
+                if !similar(s, ns) {
+                    continue;
+                }
+                let nr = gi_reservoirs[reservoir_index(TEMPORAL_SEGMENT, nidx)];
+                // Out-of-bounds Jacobian: weight 0, but the neighbour still takes part in Z.
+                var w = 0.0;
+                if gi_jacobian_ok(s, ns, nr) {
+                    w = gi_target(s, nr) * nr.big_w * nr.m;
+                }
+                gi_update(&out, nr, w, nr.m, rand(&rng));
+                used[used_count] = nidx;
+                used_count += 1u;
+            }
+        }
+        out.target_pdf = gi_target(s, out);
+        if out.target_pdf > 0.0 && out.m > 0.0 {
+            var z = out.m;
+            if params.unbiased == 1u {
+                z = r0.m;
+                for (var j = 0u; j < used_count; j++) {
+                    let nidx = used[j];
+                    let ns = surfaces[surface_index(parity(), nidx)];
+                    if gi_target(ns, out) > 0.0 && gi_jacobian_ok(s, ns, out) {
+                        z += gi_reservoirs[reservoir_index(TEMPORAL_SEGMENT, nidx)].m;
+                    }
+                }
+            }
+            out.big_w = out.w_sum / (z * out.target_pdf);
+        }
+        gi_reservoirs[reservoir_index(parity(), idx)] = out;
+    }
+    flush_counts(local_index, counts);
+}

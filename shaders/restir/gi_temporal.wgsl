@@ -1,0 +1,88 @@
+// ReSTIR GI pass 1: one cosine-sampled sample path per pixel from the primary surface (its
+// first hit's own emission left out); the hit point and its outgoing radiance become a
+// candidate, merged with last frame's GI reservoir at the reprojected pixel.
+#import gilab::rng::{rng_init, rand, rand_pair}
+#import gilab::frame::frame
+#import gilab::counters::{flush_counts, no_counts, RAY_SHADOW, RAY_INDIRECT}
+#import gilab::math::{PI, to_world, offset_ray_origin, luminance}
+#import gilab::sampling::sample_cosine_hemisphere
+#import gilab::brdf::bsdf_eval
+#import gilab::path::trace_path
+#import gilab::restir::{params, surfaces, gi_reservoirs, gi_sky, GiReservoir, surface_index, reservoir_index, parity, empty_gi_reservoir, gi_contribution, gi_target, gi_update, gi_jacobian_ok, surface_material, similar, reproject, TEMPORAL_SEGMENT}
+
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
+    var counts = no_counts();
+    if gid.x < frame.size.x && gid.y < frame.size.y {
+        let idx = gid.y * frame.size.x + gid.x;
+        var rng = rng_init(gid.xy, frame.sample_offset * 4u + 3u, frame.seed);
+        let s = surfaces[surface_index(parity(), idx)];
+        var r = empty_gi_reservoir();
+        var sky = vec3<f32>(0.0);
+        if s.pos.w > 0.5 && params.gi == 1u {
+            let n = s.normal_alpha.xyz;
+            let local = sample_cosine_hemisphere(rand_pair(&rng));
+            let wi = to_world(local, n);
+            let pdf = local.z / PI;
+            r.m = 1.0;
+            if pdf > 0.0 && dot(wi, s.geo_specular.xyz) > 0.0 {
+                let path = trace_path(offset_ray_origin(s.pos.xyz, s.geo_specular.xyz), wi, &rng, params.gi_bounces, true);
+                counts[RAY_INDIRECT] += path.first_rays + path.indirect_rays;
+                counts[RAY_SHADOW] += path.shadow_rays;
+                if path.first_hit.w > 0.5 {
+                    let cand = GiReservoir(path.first_hit, vec4<f32>(path.first_normal, 0.0), vec4<f32>(path.radiance, 0.0), 0.0, 0.0, 0.0, 0.0);
+                    let e = gi_contribution(s, cand);
+                    if e.geom > 0.0 {
+                        // Area-measure source pdf: solid-angle pdf times the geometry term.
+                        gi_update(&r, cand, luminance(e.value) / (pdf * e.geom), 0.0, rand(&rng));
+                    }
+                } else {
+                    // Sky: direct light from the environment, estimated by this sample alone.
+                    let f = bsdf_eval(surface_material(s), n, s.wo_dist.xyz, wi).f;
+                    sky = f * local.z * path.radiance / pdf;
+                }
+            }
+            r.target_pdf = gi_target(s, r);
+            if r.target_pdf > 0.0 {
+                r.big_w = r.w_sum / (r.m * r.target_pdf);
+            }
+            if params.temporal == 1u && frame.frame_index > 0u {
+                let prev = reproject(s.pos.xyz);
+                if prev >= 0 {
+                    let pidx = u32(prev);
+                    let ps = surfaces[surface_index(1u - parity(), pidx)];
+                    if similar(s, ps) {
+                        let pr = gi_reservoirs[reservoir_index(1u - parity(), pidx)];
+                        // A sample whose Jacobian is out of bounds is not passed on (weight 0),
+                        // but the merge still happens so that Z depends on the chosen sample only.
+                        let mp = min(pr.m, params.max_history * r.m);
+                        var wp = 0.0;
+                        if gi_jacobian_ok(s, ps, pr) {
+                            wp = gi_target(s, pr) * pr.big_w * mp;
+                        }
+                        var out = empty_gi_reservoir();
+                        gi_update(&out, r, r.target_pdf * r.big_w * r.m, r.m, rand(&rng));
+                        gi_update(&out, pr, wp, mp, rand(&rng));
+                        out.target_pdf = gi_target(s, out);
+                        if out.target_pdf > 0.0 {
+                            var z = out.m;
+                            if params.unbiased == 1u {
+                                // 1/Z: the previous reservoir counts where it could have
+                                // passed this sample here (support and Jacobian bound).
+                                z = r.m;
+                                if gi_target(ps, out) > 0.0 && gi_jacobian_ok(s, ps, out) {
+                                    z += mp;
+                                }
+                            }
+                            out.big_w = out.w_sum / (z * out.target_pdf);
+                        }
+                        r = out;
+                    }
+                }
+            }
+        }
+        gi_reservoirs[reservoir_index(TEMPORAL_SEGMENT, idx)] = r;
+        gi_sky[idx] = vec4<f32>(sky, 0.0);
+    }
+    flush_counts(local_index, counts);
+}
