@@ -118,7 +118,7 @@ fn gpu_struct_layouts_match_rust() {
     );
     // ReSTIR's buffers.
     use gilab::techniques::restir;
-    let size_of = wgsl_size("restir/shade.wgsl");
+    let size_of = wgsl_size("restir/initial_temporal.wgsl");
     assert_eq!(size_of("GSurface") as u64, restir::SURFACE_BYTES);
     assert_eq!(size_of("Reservoir") as u64, restir::RESERVOIR_BYTES);
     assert_eq!(size_of("GiReservoir") as u64, restir::GI_RESERVOIR_BYTES);

@@ -144,3 +144,44 @@ fn eval_light_point(light_index: u32, b: vec2<f32>, p: vec3<f32>) -> LightSample
     }
     return s;
 }
+
+// A light sample point independent of any shading point: where it is, how strongly it emits
+// (radiance for triangles, intensity for point and spot lights, irradiance for directional
+// ones) and its pdf in the light's own measure. ReGIR weighs lights for a whole grid cell by it.
+struct LightEmitter {
+    position: vec3<f32>,
+    strength: vec3<f32>,
+    area_pdf: f32,
+    directional: bool,
+}
+
+fn light_emitter(light_index: u32, b: vec2<f32>) -> LightEmitter {
+    var e = LightEmitter(vec3<f32>(0.0), vec3<f32>(0.0), 0.0, false);
+    if light_index >= light_pool.count {
+        return e;
+    }
+    let light = light_pool.lights[light_index];
+    switch light.kind {
+        case LIGHT_TRIANGLE: {
+            let g = tri_geom[light.tri];
+            e.position = g.vertex_a.xyz + b.x * g.edge_b.xyz + b.y * g.edge_c.xyz;
+            let area = 0.5 * length(cross(g.edge_b.xyz, g.edge_c.xyz));
+            e.strength = materials[tri_material(light.tri)].emissive.xyz;
+            if area > 0.0 {
+                e.area_pdf = light.pmf / area;
+            }
+        }
+        case LIGHT_POINT, LIGHT_SPOT: {
+            e.position = light.position.xyz;
+            e.strength = light.intensity.xyz;
+            e.area_pdf = light.pmf;
+        }
+        case LIGHT_DIRECTIONAL: {
+            e.strength = light.intensity.xyz;
+            e.area_pdf = light.pmf;
+            e.directional = true;
+        }
+        default: {}
+    }
+    return e;
+}

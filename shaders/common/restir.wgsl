@@ -33,6 +33,13 @@ struct RestirParams {
     gi: u32,
     // Bounces of a GI sample path after its first hit; 0 = unbounded (Russian roulette).
     gi_bounces: u32,
+    // 1: initial DI candidates come from the ReGIR grid cell of the shading point.
+    regir: u32,
+    // ReGIR cell edge length (world units); the grid has regir_dims^3 cells around the camera.
+    regir_cell_size: f32,
+    regir_dims: u32,
+    // Light reservoirs per cell.
+    regir_slots: u32,
 }
 
 // A primary hit (or a miss, valid = 0) as the passes need it.
@@ -257,4 +264,41 @@ fn reproject(p: vec3<f32>) -> i32 {
         return -1;
     }
     return i32(u32(fy) * frame.size.x + u32(fx));
+}
+
+// ReGIR ("Making Connections"; Boksansky et al. 2021): a camera-centred grid whose cells hold
+// reservoirs of lights pre-selected for the cell (by power over squared distance), rebuilt
+// every frame. Pixels draw their initial candidates from their cell.
+struct RegirSlot {
+    light: u32,
+    bary_u: f32,
+    bary_v: f32,
+    // Unbiased contribution weight of the slot's light sample (area measure); 0 = empty.
+    big_w: f32,
+}
+
+@group(1) @binding(9) var<storage, read_write> regir_slots: array<RegirSlot>;
+
+// Lower corner of the grid: centred on the camera, snapped to whole cells so cells stay put.
+fn regir_origin() -> vec3<f32> {
+    let c = params.regir_cell_size;
+    let half = f32(params.regir_dims / 2u);
+    return (floor(frame.camera_pos.xyz / c) - vec3<f32>(half)) * c;
+}
+
+// Cell index of a world point, or -1 outside the grid.
+fn regir_cell(p: vec3<f32>) -> i32 {
+    let g = (p - regir_origin()) / params.regir_cell_size;
+    let d = f32(params.regir_dims);
+    if any(g < vec3<f32>(0.0)) || any(g >= vec3<f32>(d)) {
+        return -1;
+    }
+    let i = vec3<u32>(g);
+    return i32((i.z * params.regir_dims + i.y) * params.regir_dims + i.x);
+}
+
+fn regir_cell_centre(cell: u32) -> vec3<f32> {
+    let d = params.regir_dims;
+    let i = vec3<u32>(cell % d, (cell / d) % d, cell / (d * d));
+    return regir_origin() + (vec3<f32>(i) + 0.5) * params.regir_cell_size;
 }

@@ -8,10 +8,29 @@
 #import gilab::scene::light_pool
 #import gilab::lights::select_light
 #import gilab::sampling::sample_triangle
-#import gilab::restir::{params, surfaces, reservoirs, GSurface, Reservoir, surface_index, reservoir_index, parity, empty_reservoir, reproject, contribution, target_at, visible, update, similar, TEMPORAL_SEGMENT}
+#import gilab::restir::{params, surfaces, reservoirs, GSurface, Reservoir, surface_index, reservoir_index, parity, empty_reservoir, reproject, regir_cell, regir_slots, contribution, target_at, visible, update, similar, TEMPORAL_SEGMENT}
 
 fn initial_candidates(s: GSurface, rng: ptr<function, Rng>) -> Reservoir {
     var r = empty_reservoir();
+    let cell = regir_cell(s.pos.xyz);
+    if params.regir == 1u && cell >= 0 {
+        // ReGIR: candidates are the cell's pre-selected lights; each carries the slot's
+        // contribution weight, so the RIS weight is target x W_slot.
+        let base = u32(cell) * params.regir_slots;
+        for (var i = 0u; i < params.candidates; i++) {
+            let slot = regir_slots[base + min(u32(rand(rng) * f32(params.regir_slots)), params.regir_slots - 1u)];
+            var w = 0.0;
+            if slot.big_w > 0.0 {
+                w = luminance(contribution(s, slot.light, vec2<f32>(slot.bary_u, slot.bary_v)).value) * slot.big_w;
+            }
+            update(&r, Reservoir(slot.light, slot.bary_u, slot.bary_v, 0.0, 0.0, 0.0, 0.0, 0.0), w, 1.0, rand(rng));
+        }
+        r.target_pdf = target_at(s, r);
+        if r.target_pdf > 0.0 && r.m > 0.0 {
+            r.big_w = r.w_sum / (r.m * r.target_pdf);
+        }
+        return r;
+    }
     for (var i = 0u; i < params.candidates; i++) {
         let li = select_light(rand(rng));
         let b = sample_triangle(rand_pair(rng));

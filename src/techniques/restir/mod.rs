@@ -18,7 +18,7 @@
 //!    accumulated over frames (Welford), like the reference, so a static view converges.
 //!
 //! Samples live in the light's own measure (area for triangles), so reuse across pixels needs
-//! no Jacobian. Not built yet (issue 4 continues): ReGIR, ReSTIR GI; this is direct light only.
+//! no Jacobian.
 //! Shaders: shaders/restir/*.wgsl, shared state in shaders/common/restir.wgsl.
 
 use crate::gpu::{timing::PassTimer, Gpu};
@@ -43,12 +43,19 @@ pub struct RestirParamsGpu {
     pub accumulate: u32,
     pub gi: u32,
     pub gi_bounces: u32,
+    pub regir: u32,
+    pub regir_cell_size: f32,
+    pub regir_dims: u32,
+    pub regir_slots: u32,
 }
 
 /// Bytes of `GSurface`, `Reservoir` and `GiReservoir` in shaders/common/restir.wgsl.
 pub const SURFACE_BYTES: u64 = 96;
 pub const RESERVOIR_BYTES: u64 = 32;
 pub const GI_RESERVOIR_BYTES: u64 = 64;
+pub const REGIR_SLOT_BYTES: u64 = 16;
+/// ReGIR grid: REGIR_DIMS^3 cells around the camera.
+pub const REGIR_DIMS: u32 = 16;
 const MAX_SPATIAL: u32 = 8;
 
 #[derive(Clone, Debug, PartialEq)]
@@ -64,6 +71,11 @@ pub struct RestirSettings {
     pub accumulate: bool,
     pub gi: bool,
     pub gi_bounces: u32,
+    /// Use ReGIR when the scene has many lights.
+    pub regir: bool,
+    /// Cell edge in world units; 0 = automatic (scene diagonal / 24).
+    pub regir_cell_size: f32,
+    pub regir_lights_per_cell: u32,
 }
 
 impl Default for RestirSettings {
@@ -81,11 +93,15 @@ impl Default for RestirSettings {
             accumulate: true,
             gi: true,
             gi_bounces: 0,
+            regir: true,
+            regir_cell_size: 0.0,
+            regir_lights_per_cell: 16,
         }
     }
 }
 
 struct Pipelines {
+    regir_build: wgpu::ComputePipeline,
     primary: wgpu::ComputePipeline,
     initial_temporal: wgpu::ComputePipeline,
     spatial: wgpu::ComputePipeline,
@@ -104,13 +120,18 @@ pub struct Restir {
     reservoirs: Option<wgpu::Buffer>,
     gi_reservoirs: Option<wgpu::Buffer>,
     gi_sky: Option<wgpu::Buffer>,
+    regir_slots: Option<wgpu::Buffer>,
     mean: Option<wgpu::Buffer>,
     m2: Option<wgpu::Buffer>,
     extent: [u32; 2],
     has_lights: bool,
+    many_lights: bool,
+    /// Cell size in use (the setting, or the automatic one for this scene).
+    regir_cell: f32,
 }
 
-const PASSES: [&str; 6] = [
+const PASSES: [&str; 7] = [
+    "regir_build",
     "primary",
     "initial_temporal",
     "spatial",
@@ -120,6 +141,11 @@ const PASSES: [&str; 6] = [
 ];
 
 impl Restir {
+    /// ReGIR runs only where the scene calls for it: many lights (rule 3).
+    pub fn regir_active(&self) -> bool {
+        self.settings.regir && self.many_lights
+    }
+
     fn gpu_params(&self, pixels: u32) -> RestirParamsGpu {
         let s = &self.settings;
         RestirParamsGpu {
@@ -135,6 +161,10 @@ impl Restir {
             accumulate: s.accumulate as u32,
             gi: s.gi as u32,
             gi_bounces: s.gi_bounces,
+            regir: self.regir_active() as u32,
+            regir_cell_size: self.regir_cell,
+            regir_dims: REGIR_DIMS,
+            regir_slots: s.regir_lights_per_cell,
         }
     }
 
@@ -231,9 +261,23 @@ impl Technique for Restir {
                 why: "final visibility (DI and GI), emission and accumulation".into(),
             },
             PassInfo {
-                name: "regir",
-                runs: false,
-                why: "not built yet (issue 4)".into(),
+                name: "regir_build",
+                runs: self.settings.regir && f.many_lights,
+                why: if !self.settings.regir {
+                    "regir = false: candidates from the global light pool".into()
+                } else if f.many_lights {
+                    format!(
+                        "{} lights: {}^3 cells around the camera, {} lights each",
+                        f.light_count(),
+                        REGIR_DIMS,
+                        self.settings.regir_lights_per_cell
+                    )
+                } else {
+                    format!(
+                        "only {} lights: the global pool is enough, no grid",
+                        f.light_count()
+                    )
+                },
             },
         ]
     }
@@ -242,7 +286,7 @@ impl Technique for Restir {
         let gpu = ctx.gpu;
         let mut entries = ctx.frame_layout_entries.to_vec();
         entries.push(pipelines::uniform_entry(2, wgpu::ShaderStages::COMPUTE));
-        for b in 3..=8 {
+        for b in 3..=9 {
             entries.push(pipelines::storage_entry(b, false));
         }
         let layout = gpu
@@ -255,6 +299,7 @@ impl Technique for Restir {
         // Everything is built before anything is replaced: a failure keeps the old pipelines.
         let make = |entry: &str| pipelines::compute_pipeline(gpu, ctx.shaders, entry, &layouts);
         let built = Pipelines {
+            regir_build: make("restir/regir_build.wgsl")?,
             primary: make("restir/primary.wgsl")?,
             initial_temporal: make("restir/initial_temporal.wgsl")?,
             spatial: make("restir/spatial.wgsl")?,
@@ -264,6 +309,16 @@ impl Technique for Restir {
         };
         let [w, h] = ctx.extent;
         let pixels = w * h;
+        let features = &ctx.scene.data.features;
+        self.has_lights = features.light_count() > 0;
+        self.many_lights = features.many_lights;
+        self.regir_cell = if self.settings.regir_cell_size > 0.0 {
+            self.settings.regir_cell_size
+        } else {
+            let lo = glam::Vec3::from(features.bounds_min);
+            let hi = glam::Vec3::from(features.bounds_max);
+            ((hi - lo).length() / 24.0).max(1e-3)
+        };
         let params = gpu
             .device
             .create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -296,6 +351,12 @@ impl Technique for Restir {
             3 * px * GI_RESERVOIR_BYTES,
         );
         let gi_sky = buffer(&mut self.gi_sky, "restir gi sky", px * 16);
+        let cells = (REGIR_DIMS as u64).pow(3);
+        let regir_bytes = cells * self.settings.regir_lights_per_cell as u64 * REGIR_SLOT_BYTES;
+        let regir_slots = match self.regir_slots.take() {
+            Some(b) if b.size() == regir_bytes.max(16) => b,
+            _ => pipelines::storage_buffer(gpu, "restir regir slots", regir_bytes),
+        };
         let mean = buffer(&mut self.mean, "restir mean", px * 16);
         let m2 = buffer(&mut self.m2, "restir m2", px * 16);
         let resources = [
@@ -308,6 +369,7 @@ impl Technique for Restir {
             m2.as_entire_binding(),
             gi_reservoirs.as_entire_binding(),
             gi_sky.as_entire_binding(),
+            regir_slots.as_entire_binding(),
         ];
         let bind_entries: Vec<wgpu::BindGroupEntry> = resources
             .into_iter()
@@ -329,10 +391,10 @@ impl Technique for Restir {
         self.reservoirs = Some(reservoirs);
         self.gi_reservoirs = Some(gi_reservoirs);
         self.gi_sky = Some(gi_sky);
+        self.regir_slots = Some(regir_slots);
         self.mean = Some(mean);
         self.m2 = Some(m2);
         self.extent = ctx.extent;
-        self.has_lights = ctx.scene.data.features.light_count() > 0;
         Ok(())
     }
 
@@ -360,14 +422,26 @@ impl Technique for Restir {
         let (Some(p), Some(bg)) = (&self.pipelines, &self.bind_group) else {
             return;
         };
+        if self.regir_active() {
+            // One invocation per (cell, slot), 64 per workgroup.
+            let slots = REGIR_DIMS.pow(3) * self.settings.regir_lights_per_cell;
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some(PASSES[0]),
+                timestamp_writes: timer.compute_pass(PASSES[0]),
+            });
+            pass.set_pipeline(&p.regir_build);
+            pass.set_bind_group(0, &ctx.scene.bind_group, &[]);
+            pass.set_bind_group(1, bg, &[]);
+            pass.dispatch_workgroups(slots.div_ceil(64), 1, 1);
+        }
         let steps = [
-            (PASSES[0], &p.primary, true),
-            (PASSES[1], &p.initial_temporal, self.has_lights),
+            (PASSES[1], &p.primary, true),
+            (PASSES[2], &p.initial_temporal, self.has_lights),
             // With spatial_count = 0 this pass only copies the temporal result through.
-            (PASSES[2], &p.spatial, self.has_lights),
-            (PASSES[3], &p.gi_temporal, self.settings.gi),
-            (PASSES[4], &p.gi_spatial, self.settings.gi),
-            (PASSES[5], &p.shade, true),
+            (PASSES[3], &p.spatial, self.has_lights),
+            (PASSES[4], &p.gi_temporal, self.settings.gi),
+            (PASSES[5], &p.gi_spatial, self.settings.gi),
+            (PASSES[6], &p.shade, true),
         ];
         for (name, pipeline, runs) in steps {
             if runs {
@@ -398,6 +472,12 @@ impl Technique for Restir {
         t.insert("accumulate".into(), s.accumulate.into());
         t.insert("gi".into(), s.gi.into());
         t.insert("gi_bounces".into(), (s.gi_bounces as i64).into());
+        t.insert("regir".into(), s.regir.into());
+        t.insert("regir_cell_size".into(), (s.regir_cell_size as f64).into());
+        t.insert(
+            "regir_lights_per_cell".into(),
+            (s.regir_lights_per_cell as i64).into(),
+        );
         t
     }
 
@@ -419,15 +499,21 @@ impl Technique for Restir {
                 ("bidirectional", _, Some(b)) => s.bidirectional = b,
                 ("accumulate", _, Some(b)) => s.accumulate = b,
                 ("gi", _, Some(b)) => s.gi = b,
+                ("regir", _, Some(b)) => s.regir = b,
+                ("regir_cell_size", Some(n), _) if (0.0..=1e6).contains(&n) => s.regir_cell_size = n as f32,
+                ("regir_lights_per_cell", Some(n), _) if (1.0..=256.0).contains(&n) => {
+                    s.regir_lights_per_cell = n as u32
+                }
                 ("gi_bounces", Some(n), _) if (0.0..=64.0).contains(&n) => s.gi_bounces = n as u32,
                 (
                     "candidates" | "max_history" | "spatial_count" | "spatial_radius"
-                    | "candidate_visibility" | "temporal" | "unbiased" | "bidirectional" | "accumulate" | "gi" | "gi_bounces",
+                    | "candidate_visibility" | "temporal" | "unbiased" | "bidirectional" | "accumulate" | "gi" | "gi_bounces" | "regir" | "regir_cell_size"
+                    | "regir_lights_per_cell",
                     _,
                     _,
                 ) => bail!("restir: parameter '{k}' out of range or of the wrong type: {v} (see the parameter docs)"),
                 _ => bail!(
-                    "restir has no parameter '{k}' (known: candidates, candidate_visibility, temporal, max_history, spatial_count, spatial_radius, unbiased, bidirectional, accumulate, gi, gi_bounces)"
+                    "restir has no parameter '{k}' (known: candidates, candidate_visibility, temporal, max_history, spatial_count, spatial_radius, unbiased, bidirectional, accumulate, gi, gi_bounces, regir, regir_cell_size, regir_lights_per_cell)"
                 ),
             }
         }
@@ -501,6 +587,30 @@ impl Technique for Restir {
                 "0: M weights and visibility reuse, cheaper, darkens contact shadows (biased)",
             ),
             flag(
+                "regir",
+                "1: draw initial candidates from a camera-centred grid of per-cell pre-selected lights (only when the scene has many lights)",
+                "candidates near the shading point, far less noise with many small lights",
+                "0: candidates from the global pool by power only",
+            ),
+            ParamDoc {
+                name: "regir_cell_size",
+                what: "ReGIR cell edge in world units (0 = scene diagonal / 24)",
+                higher: "fewer, coarser cells: pre-selection less local",
+                lower: "more local pre-selection; the 16^3 grid covers less of the scene",
+                min: 0.0,
+                max: 100.0,
+                integer: false,
+            },
+            ParamDoc {
+                name: "regir_lights_per_cell",
+                what: "light reservoirs kept per ReGIR cell, rebuilt each frame",
+                higher: "more diverse candidates per cell, more build work",
+                lower: "cheaper build, pixels in a cell share fewer lights (correlated noise)",
+                min: 1.0,
+                max: 256.0,
+                integer: true,
+            },
+            flag(
                 "gi",
                 "1: ReSTIR GI adds indirect light (one resampled sample path per pixel)",
                 "full global illumination, +1 path per pixel",
@@ -532,6 +642,7 @@ impl Technique for Restir {
 
     fn shader_files(&self) -> &'static [&'static str] {
         &[
+            "restir/regir_build.wgsl",
             "restir/primary.wgsl",
             "restir/initial_temporal.wgsl",
             "restir/spatial.wgsl",

@@ -1,0 +1,58 @@
+// ReGIR pass: fills every (cell, slot) of the camera-centred grid with one light sample chosen
+// by RIS from the global pool; target: emitted strength / squared distance to the cell centre
+// (clamped at the cell's half-diagonal, no cosine), so no light that may reach the cell is
+// ever given zero weight and pixels can use the slots' weights unbiasedly.
+#import gilab::rng::{rng_init, rand, rand_pair}
+#import gilab::frame::frame
+#import gilab::math::luminance
+#import gilab::scene::light_pool
+#import gilab::lights::{select_light, light_emitter}
+#import gilab::sampling::sample_triangle
+#import gilab::restir::{params, regir_slots, RegirSlot, regir_cell_centre}
+
+const CANDIDATES_PER_SLOT: u32 = 32u;
+
+fn cell_target(light: u32, b: vec2<f32>, centre: vec3<f32>, min_dist_sq: f32) -> f32 {
+    let e = light_emitter(light, b);
+    if e.directional {
+        return luminance(e.strength);
+    }
+    let d = e.position - centre;
+    return luminance(e.strength) / max(dot(d, d), min_dist_sq);
+}
+
+@compute @workgroup_size(64, 1, 1)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let dims = params.regir_dims;
+    let total = dims * dims * dims * params.regir_slots;
+    if gid.x >= total || light_pool.count == 0u {
+        return;
+    }
+    let cell = gid.x / params.regir_slots;
+    var rng = rng_init(vec2<u32>(gid.x, 0x52e6u), frame.sample_offset, frame.seed);
+    let centre = regir_cell_centre(cell);
+    let half_diag = 0.87 * params.regir_cell_size;
+    let min_dist_sq = half_diag * half_diag;
+    var w_sum = 0.0;
+    var chosen = RegirSlot(0u, 0.0, 0.0, 0.0);
+    var chosen_target = 0.0;
+    for (var i = 0u; i < CANDIDATES_PER_SLOT; i++) {
+        let li = select_light(rand(&rng));
+        let b = sample_triangle(rand_pair(&rng));
+        let e = light_emitter(li, b);
+        if e.area_pdf <= 0.0 {
+            continue;
+        }
+        let t = cell_target(li, b, centre, min_dist_sq);
+        let w = t / e.area_pdf;
+        w_sum += w;
+        if w > 0.0 && rand(&rng) * w_sum < w {
+            chosen = RegirSlot(li, b.x, b.y, 0.0);
+            chosen_target = t;
+        }
+    }
+    if chosen_target > 0.0 {
+        chosen.big_w = w_sum / (f32(CANDIDATES_PER_SLOT) * chosen_target);
+    }
+    regir_slots[gid.x] = chosen;
+}
