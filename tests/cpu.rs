@@ -121,11 +121,13 @@ fn gpu_struct_layouts_match_rust() {
     let size_of = wgsl_size("restir/initial_temporal.wgsl");
     assert_eq!(size_of("GSurface") as u64, restir::SURFACE_BYTES);
     assert_eq!(size_of("Reservoir") as u64, restir::RESERVOIR_BYTES);
-    assert_eq!(size_of("GiReservoir") as u64, restir::GI_RESERVOIR_BYTES);
+    assert_eq!(size_of("RegirSlot") as u64, restir::REGIR_SLOT_BYTES);
     assert_eq!(
         size_of("RestirParams"),
         std::mem::size_of::<restir::RestirParamsGpu>()
     );
+    let size_of = wgsl_size("restir/shade.wgsl");
+    assert_eq!(size_of("GiReservoir") as u64, restir::GI_RESERVOIR_BYTES);
 }
 
 fn random_rays(n: usize, lo: Vec3, hi: Vec3, seed: u64) -> Vec<(Vec3, Vec3)> {
