@@ -468,3 +468,16 @@ fn builtin_scene_parameters_are_checked() {
             >= 1000
     );
 }
+
+/// ReSTIR's ray-budget slider: a budget too small for GI sample paths turns GI off; a larger
+/// one keeps GI and raises the candidate count (which costs no rays).
+#[test]
+fn restir_budget_maps_rays_to_settings() {
+    use gilab::render::Technique;
+    let r = gilab::techniques::restir::Restir::default();
+    let small = r.params_for_ray_budget(2.0, Some(8.0)).expect("change");
+    assert_eq!(small["gi"].as_bool(), Some(false), "{small:?}");
+    let large = r.params_for_ray_budget(16.0, Some(8.0)).expect("change");
+    assert_eq!(large["gi"].as_bool(), Some(true), "{large:?}");
+    assert!(large["candidates"].as_integer().unwrap() > 8, "{large:?}");
+}

@@ -168,12 +168,13 @@ impl Restir {
         }
     }
 
-    /// Rays per pixel per frame these settings trace at most (camera, candidate, shadow, reuse).
-    pub fn max_rays_per_pixel(&self) -> f64 {
+    /// Rays per pixel per frame of everything but GI: camera, final DI visibility, the
+    /// candidate test (biased mode), the bidirectional test per neighbour.
+    pub fn direct_rays_per_pixel(&self) -> f64 {
         let s = &self.settings;
-        let mut rays = 2.0 + s.candidate_visibility as u32 as f64;
-        if s.unbiased && s.candidate_visibility {
-            rays += s.temporal as u32 as f64 + s.spatial_count as f64;
+        let mut rays = 2.0;
+        if s.candidate_visibility && !s.unbiased {
+            rays += 1.0;
         }
         if s.bidirectional {
             rays += s.spatial_count as f64;
@@ -655,38 +656,35 @@ impl Technique for Restir {
     fn params_for_ray_budget(
         &self,
         rays_per_pixel: f64,
-        _measured: Option<f64>,
+        measured: Option<f64>,
     ) -> Option<toml::Table> {
-        // Rays are spent on reuse: each spatial neighbour costs one (unbiased with candidate
-        // visibility) or two (with the bidirectional test); candidates cost shading, not rays,
-        // and scale with the budget.
-        let mut probe = Restir {
-            settings: RestirSettings {
-                spatial_count: 0,
-                ..self.settings.clone()
-            },
-            ..Default::default()
-        };
-        let base = probe.max_rays_per_pixel();
-        let per_neighbour = (probe.settings.unbiased && probe.settings.candidate_visibility) as u32
-            + probe.settings.bidirectional as u32;
-        let k = if per_neighbour == 0 {
-            self.settings.spatial_count
-        } else {
-            (((rays_per_pixel - base) / per_neighbour as f64)
-                .floor()
-                .max(0.0) as u32)
-                .min(MAX_SPATIAL)
-        };
-        probe.settings.spatial_count = k;
-        probe.settings.candidates = ((rays_per_pixel * 2.0).round() as u32).clamp(1, 64);
-        (probe.settings != self.settings).then(|| {
+        // What costs rays: GI sample paths (their length is scene-dependent, so measured when
+        // possible), the bidirectional test per neighbour; the rest is fixed. The budget first
+        // decides whether GI fits, then spends what is left on bidirectional neighbours (when
+        // on) and scales the candidate count, which costs shading but no rays.
+        let direct = self.direct_rays_per_pixel();
+        let gi_cost = measured
+            .filter(|_| self.settings.gi)
+            .map(|m| (m - direct).max(1.0))
+            .unwrap_or(5.0);
+        let mut next = self.settings.clone();
+        next.gi = rays_per_pixel >= direct + gi_cost;
+        let base = direct
+            - if next.bidirectional {
+                next.spatial_count as f64
+            } else {
+                0.0
+            };
+        let left = (rays_per_pixel - base - if next.gi { gi_cost } else { 0.0 }).max(0.0);
+        if next.bidirectional {
+            next.spatial_count = (left.floor() as u32).min(MAX_SPATIAL);
+        }
+        next.candidates = ((4.0 + 4.0 * left).round() as u32).clamp(1, 64);
+        (next != self.settings).then(|| {
             let mut t = toml::Table::new();
-            t.insert("spatial_count".into(), (k as i64).into());
-            t.insert(
-                "candidates".into(),
-                (probe.settings.candidates as i64).into(),
-            );
+            t.insert("gi".into(), next.gi.into());
+            t.insert("spatial_count".into(), (next.spatial_count as i64).into());
+            t.insert("candidates".into(), (next.candidates as i64).into());
             t
         })
     }
