@@ -77,14 +77,17 @@ pub enum DisplayMode {
     Error,
     /// Samples accumulated per pixel (debug).
     Samples,
+    /// One of the technique's own debug views (pane's `debug` index).
+    Debug,
 }
 
 impl DisplayMode {
-    pub const ALL: [DisplayMode; 4] = [
+    pub const ALL: [DisplayMode; 5] = [
         DisplayMode::Radiance,
         DisplayMode::Variance,
         DisplayMode::Error,
         DisplayMode::Samples,
+        DisplayMode::Debug,
     ];
     pub fn label(self) -> &'static str {
         match self {
@@ -92,6 +95,7 @@ impl DisplayMode {
             DisplayMode::Variance => "Variance heatmap",
             DisplayMode::Error => "Error heatmap",
             DisplayMode::Samples => "Samples per pixel",
+            DisplayMode::Debug => "Technique debug view",
         }
     }
 }
@@ -113,6 +117,13 @@ pub struct PaneSettings {
     pub technique: usize,
     #[serde(default)]
     pub display: DisplayMode,
+    /// With `display = "debug"`: which of the technique's debug views.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub debug: usize,
+}
+
+fn is_zero(v: &usize) -> bool {
+    *v == 0
 }
 
 fn default_panes() -> Vec<PaneSettings> {
@@ -122,7 +133,11 @@ fn default_panes() -> Vec<PaneSettings> {
         (0, DisplayMode::Variance),
         (0, DisplayMode::Error),
     ]
-    .map(|(technique, display)| PaneSettings { technique, display })
+    .map(|(technique, display)| PaneSettings {
+        technique,
+        display,
+        debug: 0,
+    })
     .to_vec()
 }
 

@@ -319,3 +319,58 @@ fn regir_helps_many_lights_and_is_skipped_for_cornell() {
         assert!(report.gpu_ms_by_pass.iter().any(|(n, _)| n == "shade"));
     }
 }
+
+/// The debug views hold what they say: reservoir M at least the candidate count, light ids
+/// within the light pool, ReGIR cells on many-lights and none on the Cornell box.
+#[test]
+fn debug_views_hold_reservoir_data() {
+    for (scene, regir) in [
+        (builtin::many_lights(1024, 1), true),
+        (builtin::cornell(), false),
+    ] {
+        let t = create_technique("restir").unwrap();
+        let names: Vec<&str> = t.debug_views().iter().map(|v| v.name).collect();
+        assert_eq!(
+            names,
+            [
+                "reservoir M",
+                "reservoir weight W",
+                "selected light",
+                "ReGIR cell"
+            ]
+        );
+        let camera = scene.default_camera();
+        let mut e = Engine::new(
+            common::gpu(),
+            ShaderLibrary::discover(),
+            scene,
+            t,
+            EngineSettings {
+                extent: [32, 32],
+                seed: 1,
+                camera,
+            },
+        )
+        .unwrap();
+        let lights = e.gpu_scene.data.features.light_count() as f32;
+        e.render_frame().unwrap();
+        e.render_frame().unwrap();
+        let debug = e.read_debug().unwrap().expect("restir has a debug buffer");
+        let with_sample: Vec<&[f32; 4]> = debug.iter().filter(|d| d[2] > 0.0).collect();
+        assert!(
+            with_sample.len() > debug.len() / 4,
+            "few pixels hold a light sample"
+        );
+        for d in &with_sample {
+            assert!(d[0] >= 8.0, "M {} below the candidate count", d[0]);
+            assert!(d[1] > 0.0 && d[1].is_finite(), "W {}", d[1]);
+            assert!(
+                d[2] >= 1.0 && d[2] <= lights,
+                "light id {} of {lights}",
+                d[2]
+            );
+        }
+        let cells = debug.iter().filter(|d| d[3] > 0.0).count();
+        assert_eq!(cells > 0, regir, "ReGIR cells present: {cells}");
+    }
+}

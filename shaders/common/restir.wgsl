@@ -278,6 +278,9 @@ struct RegirSlot {
 }
 
 @group(1) @binding(9) var<storage, read_write> regir_slots: array<RegirSlot>;
+// Per pixel, for the debug views: x = DI reservoir M, y = its contribution weight W,
+// z = selected light index + 1 (0 = none), w = ReGIR cell index + 1 (0 = none).
+@group(1) @binding(10) var<storage, read_write> debug_out: array<vec4<f32>>;
 
 // Lower corner of the grid: centred on the camera, snapped to whole cells so cells stay put.
 fn regir_origin() -> vec3<f32> {

@@ -4,7 +4,7 @@
 #import gilab::counters::{flush_counts, no_counts, RAY_SHADOW, COUNT_INVALID_SAMPLES}
 #import gilab::math::is_finite_vec
 #import gilab::accumulate::welford_add
-#import gilab::restir::{params, surfaces, reservoirs, gi_reservoirs, gi_sky, surface_index, reservoir_index, parity, contribution, visible, gi_contribution, gi_visible}
+#import gilab::restir::{params, surfaces, reservoirs, gi_reservoirs, gi_sky, surface_index, reservoir_index, parity, contribution, visible, gi_contribution, gi_visible, regir_cell, debug_out}
 
 @group(1) @binding(5) var<storage, read_write> accum_mean: array<vec4<f32>>;
 @group(1) @binding(6) var<storage, read_write> accum_m2: array<vec4<f32>>;
@@ -35,6 +35,15 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 }
             }
         }
+        var light_id = 0.0;
+        if r.big_w > 0.0 {
+            light_id = f32(r.light + 1u);
+        }
+        var cell_id = 0.0;
+        if params.regir == 1u && s.pos.w > 0.5 {
+            cell_id = f32(regir_cell(s.pos.xyz) + 1);
+        }
+        debug_out[idx] = vec4<f32>(r.m, r.big_w, light_id, cell_id);
         if params.gi == 1u && s.pos.w > 0.5 {
             // Indirect light: this frame's sky sample plus the resampled GI sample, visibility re-checked.
             l += gi_sky[idx].xyz;

@@ -144,6 +144,20 @@ fn side_contents(app: &mut ViewerApp, ui: &mut egui::Ui) {
                     ui.selectable_value(&mut pane.display, m, m.label());
                 }
             });
+        if pane.display == DisplayMode::Debug {
+            let views = s.runs[pane.run].engine.technique.debug_views();
+            if views.is_empty() {
+                ui.small("this technique has no debug views");
+            } else {
+                egui::ComboBox::from_label(format!("Pane {} debug view", i + 1))
+                    .selected_text(views.get(pane.debug).map_or("?", |v| v.name))
+                    .show_ui(ui, |ui| {
+                        for (k, v) in views.iter().enumerate() {
+                            ui.selectable_value(&mut pane.debug, k, v.name);
+                        }
+                    });
+            }
+        }
     }
 
     ui.separator();
@@ -184,6 +198,22 @@ fn side_contents(app: &mut ViewerApp, ui: &mut egui::Ui) {
                     let Some(v) = params.get(doc.name) else {
                         continue;
                     };
+                    let hover =
+                        format!("{}\nhigher: {}\nlower: {}", doc.what, doc.higher, doc.lower);
+                    if let Some(mut on) = v.as_bool() {
+                        // Switches: "higher" is on, "lower" is off.
+                        if ui
+                            .checkbox(&mut on, doc.name)
+                            .on_hover_text(hover)
+                            .changed()
+                        {
+                            let mut t = toml::Table::new();
+                            t.insert(doc.name.to_string(), toml::Value::Boolean(on));
+                            action = Some((i, Action::Params(t)));
+                        }
+                        ui.small(doc.what);
+                        continue;
+                    }
                     let mut x = v
                         .as_float()
                         .or(v.as_integer().map(|n| n as f64))
@@ -192,10 +222,7 @@ fn side_contents(app: &mut ViewerApp, ui: &mut egui::Ui) {
                     if doc.integer {
                         slider = slider.integer();
                     }
-                    let r = ui.add(slider).on_hover_text(format!(
-                        "{}\nhigher: {}\nlower: {}",
-                        doc.what, doc.higher, doc.lower
-                    ));
+                    let r = ui.add(slider).on_hover_text(hover);
                     ui.small(doc.what);
                     if r.changed() && !r.dragged() || r.drag_stopped() {
                         let mut t = toml::Table::new();

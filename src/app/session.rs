@@ -37,6 +37,8 @@ pub struct Run {
     pub last_frame: Option<FrameReport>,
     pub radiance: Option<Image>,
     pub variance: Option<Image>,
+    /// The technique's debug buffer from the last frame (one vec4 per pixel).
+    pub debug: Option<Vec<[f32; 4]>>,
     /// Per-pixel relMSE against the current reference and its mean metrics.
     pub error_map: Option<Vec<f32>>,
     pub error: Option<Metrics>,
@@ -77,6 +79,7 @@ impl Run {
             last_frame: None,
             radiance: None,
             variance: None,
+            debug: None,
             error_map: None,
             error: None,
             curve: Vec::new(),
@@ -107,6 +110,7 @@ impl Run {
         let report = self.engine.render_frame()?;
         let (radiance, variance) = self.engine.read_output_and_variance()?;
         self.variance = variance;
+        self.debug = self.engine.read_debug()?;
         self.rays = self.engine.ray_counts()?;
         let pixels = (radiance.width * radiance.height) as f64;
         if let Some(r) = reference {
@@ -204,6 +208,8 @@ struct StagedScene {
 pub struct Pane {
     pub run: usize,
     pub display: DisplayMode,
+    /// Which of the technique's debug views, with `DisplayMode::Debug`.
+    pub debug: usize,
 }
 
 /// Everything that a preset determines, built aside and swapped in whole.
@@ -330,10 +336,12 @@ impl Session {
                 let p = view.panes.get(i).copied().unwrap_or(PaneSettings {
                     technique: i % n.max(1),
                     display: DisplayMode::Radiance,
+                    debug: 0,
                 });
                 Pane {
                     run: p.technique.min(n.saturating_sub(1)),
                     display: p.display,
+                    debug: p.debug,
                 }
             })
             .collect();
@@ -403,6 +411,7 @@ impl Session {
             .map(|p| PaneSettings {
                 technique: p.run,
                 display: p.display,
+                debug: p.debug,
             })
             .collect();
         p
@@ -653,8 +662,8 @@ impl Session {
         }
     }
 
-    /// The per-pixel scalars behind a heatmap pane (None for radiance): variance, relMSE
-    /// or samples per pixel.
+    /// The per-pixel scalars behind a heatmap pane (None for radiance): variance, relMSE,
+    /// samples per pixel or a channel of the technique's debug buffer.
     pub fn pane_values(&self, pane: &Pane) -> Option<Vec<f32>> {
         let run = self.runs.get(pane.run)?;
         match pane.display {
@@ -667,6 +676,16 @@ impl Session {
                     run.engine.samples as f32;
                     (img.width * img.height) as usize
                 ])
+            }
+            DisplayMode::Debug => {
+                let view = run
+                    .engine
+                    .technique
+                    .debug_views()
+                    .into_iter()
+                    .nth(pane.debug)?;
+                let data = run.debug.as_ref()?;
+                Some(data.iter().map(|v| v[view.channel.min(3)]).collect())
             }
         }
     }
@@ -684,6 +703,16 @@ impl Session {
             });
         }
         let values = self.pane_values(pane)?;
+        let is_id = pane.display == DisplayMode::Debug
+            && run
+                .engine
+                .technique
+                .debug_views()
+                .get(pane.debug)
+                .is_some_and(|v| v.is_id);
+        if is_id {
+            return Some((heatmap::id_colours(&values), None));
+        }
         let range = match pane.display {
             DisplayMode::Samples => (0.0, (run.engine.samples.max(1) as f32).log10().max(1.0)),
             _ => heatmap::log_range(&values).unwrap_or((-6.0, 0.0)),

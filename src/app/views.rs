@@ -24,6 +24,7 @@ struct Slot {
 struct TextureKey {
     run: usize,
     display: DisplayMode,
+    debug: usize,
     version: u64,
     tonemap: (u32, u32),
 }
@@ -47,6 +48,7 @@ impl PaneTextures {
         let key = TextureKey {
             run: p.run,
             display: p.display,
+            debug: p.debug,
             version: run.version,
             tonemap: (tm.operator as u32, tm.exposure.to_bits()),
         };
@@ -335,6 +337,7 @@ fn colour_bar(
     let what = match mode {
         DisplayMode::Variance => "variance (log)",
         DisplayMode::Error => "relMSE (log)",
+        DisplayMode::Debug => "debug value (log)",
         _ => "samples (log)",
     };
     let font = egui::FontId::proportional(11.0);

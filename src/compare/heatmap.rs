@@ -62,3 +62,26 @@ pub fn to_rgba(values: &[f32], lo: f32, hi: f32) -> Vec<u8> {
 pub fn mean(values: &[f32]) -> f64 {
     values.iter().map(|&v| v as f64).sum::<f64>() / values.len().max(1) as f64
 }
+
+/// RGBA8 with one random colour per integer id (0 = none, black): light or cell ids.
+pub fn id_colours(ids: &[f32]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(ids.len() * 4);
+    for &id in ids {
+        if id.is_nan() || id < 1.0 {
+            out.extend_from_slice(&[0, 0, 0, 255]);
+            continue;
+        }
+        // An integer hash (splitmix-style) spreads neighbouring ids over the colour space.
+        let mut h = (id as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        h ^= h >> 31;
+        h = h.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        h ^= h >> 29;
+        out.extend_from_slice(&[
+            64 + (h & 0xBF) as u8,
+            64 + ((h >> 8) & 0xBF) as u8,
+            64 + ((h >> 16) & 0xBF) as u8,
+            255,
+        ]);
+    }
+    out
+}

@@ -100,9 +100,9 @@ pub struct Gpu {
     pub timestamp_period: Option<f32>,
 }
 
-/// Storage buffers one compute stage binds at most: the scene's 6, the ray counters and up to 7
+/// Storage buffers one compute stage binds at most: the scene's 6, the ray counters and up to 8
 /// of a technique's own (ReSTIR). lavapipe offers 32, GL llvmpipe 16.
-pub const MIN_STORAGE_BUFFERS: u32 = 14;
+pub const MIN_STORAGE_BUFFERS: u32 = 15;
 
 /// Features used when the adapter has them; nothing is strictly required beyond compute.
 fn optional_features() -> wgpu::Features {

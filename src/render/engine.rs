@@ -371,6 +371,19 @@ impl Engine {
         Ok((image, Some(Image::from_rgba(w, h, &var))))
     }
 
+    /// The technique's debug buffer (one vec4 per pixel), if it has one.
+    pub fn read_debug(&self) -> Result<Option<Vec<[f32; 4]>>> {
+        let Some(buf) = self.technique.debug_buffer() else {
+            return Ok(None);
+        };
+        let [w, h] = self.extent;
+        Ok(Some(readback::read_buffer(
+            &self.gpu,
+            buf,
+            (w * h) as usize,
+        )?))
+    }
+
     /// Rays by kind since the last reset.
     pub fn ray_counts(&self) -> Result<RayCounts> {
         let words: Vec<u32> = readback::read_buffer(&self.gpu, &self.counters, COUNTER_SLOTS * 2)?;

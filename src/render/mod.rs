@@ -140,6 +140,14 @@ pub trait Technique {
     /// Maps a ray budget (rays per pixel per frame) to the technique's own knobs, given the
     /// rays per pixel per frame measured at the current settings (None before any frame).
     /// Returns the parameters to apply, or None when they would not change.
+    /// The technique's own debug views: each shows one channel of `debug_buffer`.
+    fn debug_views(&self) -> Vec<DebugView> {
+        Vec::new()
+    }
+    /// One vec4<f32> per pixel behind `debug_views` (written every frame).
+    fn debug_buffer(&self) -> Option<&wgpu::Buffer> {
+        None
+    }
     /// The default: no budget knob.
     fn params_for_ray_budget(
         &self,
@@ -148,6 +156,15 @@ pub trait Technique {
     ) -> Option<toml::Table> {
         None
     }
+}
+
+/// A technique's debug view: which channel of its debug buffer, and how to show it.
+#[derive(Clone, Debug, Serialize)]
+pub struct DebugView {
+    pub name: &'static str,
+    pub channel: usize,
+    /// Ids (light index, cell index) get a random colour each; values a log heatmap.
+    pub is_id: bool,
 }
 
 /// One documented parameter: what it does, what higher and lower values mean, its range.

@@ -22,7 +22,7 @@
 //! Shaders: shaders/restir/*.wgsl, shared state in shaders/common/restir.wgsl.
 
 use crate::gpu::{timing::PassTimer, Gpu};
-use crate::render::{pipelines, ParamDoc, PassInfo, RenderContext, Technique};
+use crate::render::{pipelines, DebugView, ParamDoc, PassInfo, RenderContext, Technique};
 use crate::scene::features::SceneFeatures;
 use anyhow::{bail, Result};
 use wgpu::util::DeviceExt;
@@ -121,6 +121,7 @@ pub struct Restir {
     gi_reservoirs: Option<wgpu::Buffer>,
     gi_sky: Option<wgpu::Buffer>,
     regir_slots: Option<wgpu::Buffer>,
+    debug: Option<wgpu::Buffer>,
     mean: Option<wgpu::Buffer>,
     m2: Option<wgpu::Buffer>,
     extent: [u32; 2],
@@ -287,7 +288,7 @@ impl Technique for Restir {
         let gpu = ctx.gpu;
         let mut entries = ctx.frame_layout_entries.to_vec();
         entries.push(pipelines::uniform_entry(2, wgpu::ShaderStages::COMPUTE));
-        for b in 3..=9 {
+        for b in 3..=10 {
             entries.push(pipelines::storage_entry(b, false));
         }
         let layout = gpu
@@ -358,6 +359,7 @@ impl Technique for Restir {
             Some(b) if b.size() == regir_bytes.max(16) => b,
             _ => pipelines::storage_buffer(gpu, "restir regir slots", regir_bytes),
         };
+        let debug = buffer(&mut self.debug, "restir debug", px * 16);
         let mean = buffer(&mut self.mean, "restir mean", px * 16);
         let m2 = buffer(&mut self.m2, "restir m2", px * 16);
         let resources = [
@@ -371,6 +373,7 @@ impl Technique for Restir {
             gi_reservoirs.as_entire_binding(),
             gi_sky.as_entire_binding(),
             regir_slots.as_entire_binding(),
+            debug.as_entire_binding(),
         ];
         let bind_entries: Vec<wgpu::BindGroupEntry> = resources
             .into_iter()
@@ -393,6 +396,7 @@ impl Technique for Restir {
         self.gi_reservoirs = Some(gi_reservoirs);
         self.gi_sky = Some(gi_sky);
         self.regir_slots = Some(regir_slots);
+        self.debug = Some(debug);
         self.mean = Some(mean);
         self.m2 = Some(m2);
         self.extent = ctx.extent;
@@ -457,6 +461,24 @@ impl Technique for Restir {
 
     fn variance_m2(&self) -> Option<&wgpu::Buffer> {
         self.m2.as_ref()
+    }
+
+    fn debug_views(&self) -> Vec<DebugView> {
+        let view = |name, channel, is_id| DebugView {
+            name,
+            channel,
+            is_id,
+        };
+        vec![
+            view("reservoir M", 0, false),
+            view("reservoir weight W", 1, false),
+            view("selected light", 2, true),
+            view("ReGIR cell", 3, true),
+        ]
+    }
+
+    fn debug_buffer(&self) -> Option<&wgpu::Buffer> {
+        self.debug.as_ref()
     }
 
     fn params(&self) -> toml::Table {
