@@ -11,6 +11,18 @@ use gilab::render::{
 };
 use gilab::scene::{builtin, Scene};
 
+fn engine(technique: &str, params: toml::Table, scene: Scene, size: [u32; 2], seed: u32) -> Engine {
+    let mut t = create_technique(technique).unwrap();
+    t.set_params(&params).unwrap();
+    let camera = scene.default_camera();
+    let settings = EngineSettings {
+        extent: size,
+        seed,
+        camera,
+    };
+    Engine::new(common::gpu(), ShaderLibrary::discover(), scene, t, settings).unwrap()
+}
+
 /// Renders `frames` frames of a technique and returns the accumulated image and ray counts.
 fn render(
     technique: &str,
@@ -21,21 +33,7 @@ fn render(
     seed: u32,
     flags: u32,
 ) -> (Image, RayCounts) {
-    let mut t = create_technique(technique).unwrap();
-    t.set_params(&params).unwrap();
-    let camera = scene.default_camera();
-    let mut e = Engine::new(
-        common::gpu(),
-        ShaderLibrary::discover(),
-        scene,
-        t,
-        EngineSettings {
-            extent: size,
-            seed,
-            camera,
-        },
-    )
-    .unwrap();
+    let mut e = engine(technique, params, scene, size, seed);
     e.flags = flags;
     e.reset();
     for _ in 0..frames {
@@ -291,19 +289,13 @@ fn regir_helps_many_lights_and_is_skipped_for_cornell() {
     );
 
     // Cornell: the pass is listed as skipped and never dispatched.
-    let t = create_technique("restir").unwrap();
-    let mut e = Engine::new(
-        common::gpu(),
-        ShaderLibrary::discover(),
+    let mut e = engine(
+        "restir",
+        toml::Table::new(),
         builtin::cornell(),
-        t,
-        EngineSettings {
-            extent: [16, 16],
-            seed: 1,
-            camera: builtin::cornell().default_camera(),
-        },
-    )
-    .unwrap();
+        [16, 16],
+        1,
+    );
     let regir_pass = e
         .passes()
         .into_iter()
@@ -328,8 +320,8 @@ fn debug_views_hold_reservoir_data() {
         (builtin::many_lights(1024, 1), true),
         (builtin::cornell(), false),
     ] {
-        let t = create_technique("restir").unwrap();
-        let names: Vec<&str> = t.debug_views().iter().map(|v| v.name).collect();
+        let mut e = engine("restir", toml::Table::new(), scene, [32, 32], 1);
+        let names: Vec<&str> = e.technique.debug_views().iter().map(|v| v.name).collect();
         assert_eq!(
             names,
             [
@@ -339,19 +331,6 @@ fn debug_views_hold_reservoir_data() {
                 "ReGIR cell"
             ]
         );
-        let camera = scene.default_camera();
-        let mut e = Engine::new(
-            common::gpu(),
-            ShaderLibrary::discover(),
-            scene,
-            t,
-            EngineSettings {
-                extent: [32, 32],
-                seed: 1,
-                camera,
-            },
-        )
-        .unwrap();
         let lights = e.gpu_scene.data.features.light_count() as f32;
         e.render_frame().unwrap();
         e.render_frame().unwrap();

@@ -143,6 +143,18 @@ fn update(r: ptr<function, Reservoir>, candidate: Reservoir, w: f32, m: f32, u: 
     return false;
 }
 
+// A random pixel in the spatial-reuse disk around `pixel` (uniform in area), or -1 off screen.
+fn spatial_neighbour(pixel: vec2<u32>, u: vec2<f32>) -> i32 {
+    let radius = params.spatial_radius * sqrt(u.x);
+    let angle = 6.28318530717959 * u.y;
+    let px = i32(pixel.x) + i32(round(radius * cos(angle)));
+    let py = i32(pixel.y) + i32(round(radius * sin(angle)));
+    if px < 0 || py < 0 || px >= i32(frame.size.x) || py >= i32(frame.size.y) {
+        return -1;
+    }
+    return py * i32(frame.size.x) + px;
+}
+
 // Similar enough surfaces to share samples: normals within ~25 degrees, depths within 10%.
 fn similar(a: GSurface, b: GSurface) -> bool {
     if a.pos.w < 0.5 || b.pos.w < 0.5 {

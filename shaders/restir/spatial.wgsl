@@ -4,8 +4,7 @@
 #import gilab::rng::{rng_init, rand, rand_pair}
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts, RAY_REUSE}
-#import gilab::math::TWO_PI
-#import gilab::restir::{params, surfaces, reservoirs, GSurface, Reservoir, surface_index, reservoir_index, parity, empty_reservoir, contribution, target_at, visible, update, similar, TEMPORAL_SEGMENT}
+#import gilab::restir::{params, surfaces, reservoirs, GSurface, Reservoir, surface_index, reservoir_index, parity, empty_reservoir, spatial_neighbour, contribution, target_at, visible, update, similar, TEMPORAL_SEGMENT}
 
 const MAX_NEIGHBOURS: u32 = 8u;
 
@@ -24,18 +23,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let k = min(params.spatial_count, MAX_NEIGHBOURS);
         if s.pos.w > 0.5 {
             for (var j = 0u; j < k; j++) {
-                let u = rand_pair(&rng);
-                let radius = params.spatial_radius * sqrt(u.x);
-                let angle = TWO_PI * u.y;
-                let px = i32(gid.x) + i32(round(radius * cos(angle)));
-                let py = i32(gid.y) + i32(round(radius * sin(angle)));
-                if px < 0 || py < 0 || px >= i32(frame.size.x) || py >= i32(frame.size.y) {
+                let n = spatial_neighbour(gid.xy, rand_pair(&rng));
+                if n < 0 || u32(n) == idx {
                     continue;
                 }
-                let nidx = u32(py) * frame.size.x + u32(px);
-                if nidx == idx {
-                    continue;
-                }
+                let nidx = u32(n);
                 let ns = surfaces[surface_index(parity(), nidx)];
                 if !similar(s, ns) {
                     continue;
