@@ -269,8 +269,8 @@ fn side_contents(app: &mut ViewerApp, ui: &mut egui::Ui) {
             Action::Params(t) => s.set_run_params(i, &t),
             Action::Budget(b) => s.set_ray_budget(i, b),
             Action::Reset => {
-                let params = s.runs[i].engine.technique.params();
-                s.set_run_params(i, &params)
+                s.reset_run(i);
+                Ok(())
             }
         };
         match result {

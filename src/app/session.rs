@@ -106,11 +106,17 @@ impl Run {
     }
 
     /// Renders one frame and reads back what the views need.
-    fn render_frame(&mut self, reference: Option<&Image>) -> Result<()> {
+    /// `want_debug`: a visible pane shows one of the technique's debug views, so its debug
+    /// buffer is read back too (otherwise that readback is skipped).
+    fn render_frame(&mut self, reference: Option<&Image>, want_debug: bool) -> Result<()> {
         let report = self.engine.render_frame()?;
         let (radiance, variance) = self.engine.read_output_and_variance()?;
         self.variance = variance;
-        self.debug = self.engine.read_debug()?;
+        self.debug = if want_debug {
+            self.engine.read_debug()?
+        } else {
+            None
+        };
         self.rays = self.engine.ray_counts()?;
         let pixels = (radiance.width * radiance.height) as f64;
         if let Some(r) = reference {
@@ -493,6 +499,11 @@ impl Session {
         Ok(self.runs.len() - 1)
     }
 
+    /// Starts a run's history over (the panel's Reset button).
+    pub fn reset_run(&mut self, run: usize) {
+        self.runs[run].reset();
+    }
+
     /// Applies parameters to a run; errors leave it as it was.
     pub fn set_run_params(&mut self, run: usize, params: &toml::Table) -> Result<()> {
         let r = &mut self.runs[run];
@@ -540,8 +551,11 @@ impl Session {
             self.next_run = self.next_run.wrapping_add(1);
             let result = match slot {
                 Some(i) => {
+                    let want_debug = self.panes[..self.layout.pane_count()]
+                        .iter()
+                        .any(|p| p.run == i && p.display == DisplayMode::Debug);
                     let reference = self.reference.image.as_ref();
-                    self.runs[i].render_frame(reference)
+                    self.runs[i].render_frame(reference, want_debug)
                 }
                 None => self.reference.render_frame(),
             };
