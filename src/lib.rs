@@ -5,6 +5,7 @@
 pub mod app;
 pub mod cli;
 pub mod compare;
+pub mod experiment;
 pub mod gpu;
 pub mod preset;
 pub mod render;

@@ -25,6 +25,9 @@ pub struct Preset {
     /// How the viewer shows the techniques (ignored by headless commands).
     #[serde(default)]
     pub view: ViewSettings,
+    /// A convergence experiment over this preset's techniques (`gilab converge`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub experiment: Option<crate::experiment::ExperimentSettings>,
 }
 
 /// The viewer's arrangement of panes.
@@ -383,7 +386,15 @@ impl LoadedPreset {
             let value = parse_value(v.trim());
             let k = k.trim();
             let top = k.split('.').next().unwrap_or("");
-            if ["scene", "camera", "render", "tonemap", "techniques", "view"].contains(&top) {
+            if [
+                "scene",
+                "camera",
+                "render",
+                "tonemap",
+                "techniques",
+                "view",
+                "experiment",
+            ].contains(&top) {
                 set_path(&mut doc, k, value).with_context(|| format!("--set {kv}"))?;
             } else if let Some(toml::Value::Array(list)) = doc.get_mut("techniques") {
                 for t in list.iter_mut() {

@@ -63,7 +63,30 @@ pub enum Command {
         #[command(flatten)]
         overrides: Overrides,
     },
-    /// Error of image A against reference B (linear HDR): MSE, relMSE, SMAPE.
+    /// Runs a convergence experiment (a preset with an [experiment] table): per run and frame
+    /// GPU time, rays and error against the reference; writes CSV, JSON, plots, images and a
+    /// Markdown report.
+    Converge {
+        /// Experiment file, e.g. presets/experiments/cornell-budgets.toml.
+        #[arg(required_unless_present = "merge")]
+        file: Option<PathBuf>,
+        /// Output folder (default: out/converge/<experiment name>[-shard-I-of-N]).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Run only every N-th run starting at I (e.g. a Slurm array task: --shard $SLURM_ARRAY_TASK_ID/N).
+        #[arg(long, value_name = "I/N")]
+        shard: Option<crate::experiment::Shard>,
+        /// Merge the outputs of shard runs (folders) into one report in --out.
+        #[arg(long, num_args = 1.., value_name = "DIR", conflicts_with_all = ["file", "shard"])]
+        merge: Vec<PathBuf>,
+        /// Reference cache folder.
+        #[arg(long, default_value = "cache/reference")]
+        cache: PathBuf,
+        #[command(flatten)]
+        overrides: Overrides,
+    },
+    /// Error of image A against reference B (linear HDR): MSE, relMSE, SMAPE, and LDR-FLIP
+    /// after the default display transform (ACES, 0 EV).
     Compare { image: PathBuf, reference: PathBuf },
     /// Benchmarks: BVH traversal Mrays/s and reference path tracer ms/frame.
     Bench {
@@ -141,10 +164,51 @@ pub fn run(cli: Cli) -> Result<()> {
             let a = io::read_exr(&image)?;
             let b = io::read_exr(&reference)?;
             let m = metrics::compare(&a, &b)?;
+            let flip = crate::compare::flip::ldr_flip(
+                &a,
+                &b,
+                crate::compare::tonemap::Operator::Aces,
+                0.0,
+            )?;
             println!(
-                "MSE {:.6e}  relMSE {:.6e}  SMAPE {:.6e}",
-                m.mse, m.rel_mse, m.smape
+                "MSE {:.6e}  relMSE {:.6e}  SMAPE {:.6e}  FLIP {:.6e}",
+                m.mse, m.rel_mse, m.smape, flip
             );
+            Ok(())
+        }
+        Some(Command::Converge {
+            file,
+            out,
+            shard,
+            merge,
+            cache,
+            overrides,
+        }) => {
+            use crate::experiment::run;
+            if !merge.is_empty() {
+                let out = out.unwrap_or_else(|| PathBuf::from("out/converge/merged"));
+                run::merge(&merge, &out)?;
+                println!("report: {}", out.join("report.md").display());
+                return Ok(());
+            }
+            let (p, gpu) = preset_and_gpu(file, &overrides, cli.backend)?;
+            let name = run::experiment_name(&p);
+            let out = out.unwrap_or_else(|| {
+                let mut dir = PathBuf::from("out/converge").join(&name);
+                if let Some(s) = shard {
+                    dir = PathBuf::from("out/converge")
+                        .join(format!("{name}-shard-{}-of-{}", s.index, s.count));
+                }
+                dir
+            });
+            let opts = run::ConvergeOptions {
+                out: out.clone(),
+                cache,
+                shard,
+                quiet: false,
+            };
+            run::converge(gpu, &p, &opts)?;
+            println!("report: {}", out.join("report.md").display());
             Ok(())
         }
         Some(Command::Bench {

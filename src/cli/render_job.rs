@@ -71,19 +71,7 @@ pub fn render_technique(
     let mut engine = engine_for_entry(gpu, p, index)?;
     let spf = engine.technique.samples_per_frame().max(1);
     let frames = preset.render.spp.div_ceil(spf).max(1);
-    let bar = if quiet {
-        ProgressBar::hidden()
-    } else {
-        ProgressBar::new(frames as u64)
-    };
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{prefix:>10} [{bar:30}] {pos}/{len} frames {elapsed_precise} eta {eta}",
-        )
-        .unwrap_or_else(|_| ProgressStyle::default_bar())
-        .progress_chars("=> "),
-    );
-    bar.set_prefix(entry.name.clone());
+    let bar = progress_bar(frames as u64, &entry.name, quiet);
     let mut by_pass = std::collections::BTreeMap::new();
     for _ in 0..frames {
         let report = engine.render_frame()?;
@@ -262,9 +250,40 @@ pub fn reference_key_for_camera(p: &LoadedPreset, camera: &crate::scene::Camera)
 }
 
 pub fn reference(gpu: Arc<Gpu>, p: &LoadedPreset, cache: &Path, force: bool) -> Result<PathBuf> {
+    let scene = p.load_scene()?;
+    let camera = p.camera(&scene);
     let key = reference_key(p)?;
+    let (_, path) = reference_image(gpu, p, scene, camera, &key, cache, force, false)?;
+    Ok(path)
+}
+
+/// The cached reference of `scene` seen from `camera` under key `key` (renders and caches
+/// it when missing or `force`): the image and its EXR path.
+#[allow(clippy::too_many_arguments)]
+pub fn reference_image(
+    gpu: Arc<Gpu>,
+    p: &LoadedPreset,
+    scene: crate::scene::Scene,
+    camera: crate::scene::Camera,
+    key: &str,
+    cache: &Path,
+    force: bool,
+    quiet: bool,
+) -> Result<(Image, PathBuf)> {
+    let path = cache.join(format!("{key}.exr"));
+    if path.exists() && !force {
+        if !quiet {
+            println!("reference: cached {}", path.display());
+        }
+        let image = io::read_exr(&path)?;
+        anyhow::ensure!(
+            [image.width, image.height] == p.preset.render.size,
+            "{}: cached reference has the wrong size (delete it)",
+            path.display()
+        );
+        return Ok((image, path));
+    }
     let setup = reference_setup(p);
-    let mut p = p.clone();
     // Only the reference technique renders a reference, whatever the preset lists; frames
     // of up to 16 samples keep the progress bar moving.
     let mut params = setup.params;
@@ -272,25 +291,63 @@ pub fn reference(gpu: Arc<Gpu>, p: &LoadedPreset, cache: &Path, force: bool) -> 
         "samples_per_frame".into(),
         (setup.spp.min(16) as i64).into(),
     );
-    p.preset.techniques = vec![TechniqueEntry {
+    let entry = TechniqueEntry {
         params,
         ..TechniqueEntry::new("reference")
-    }];
+    };
+    let mut technique = create_technique("reference")?;
+    technique.set_params(&entry.params)?;
+    let settings = EngineSettings {
+        extent: p.preset.render.size,
+        seed: setup.seed,
+        camera,
+    };
+    let mut engine = Engine::new(gpu, ShaderLibrary::discover(), scene, technique, settings)?;
+    let spf = engine.technique.samples_per_frame().max(1);
+    let frames = setup.spp.div_ceil(spf).max(1);
+    let bar = progress_bar(frames as u64, "reference", quiet);
+    let mut by_pass = std::collections::BTreeMap::new();
+    for _ in 0..frames {
+        let report = engine.render_frame()?;
+        for (name, ms) in report.gpu_ms_by_pass {
+            *by_pass.entry(name).or_insert(0.0) += ms / frames as f64;
+        }
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let image = engine.read_output()?;
+    let mut p = p.clone();
+    p.preset.techniques = vec![entry.clone()];
     p.preset.render.spp = setup.spp;
     p.preset.render.seed = setup.seed;
-    let path = cache.join(format!("{key}.exr"));
-    if path.exists() && !force {
-        println!("cached (use --force to render again)");
-        return Ok(path);
+    let meta = metadata(&engine, &p, &entry, &image, by_pass)?;
+    write_outputs(cache, key, &image, &meta, &p)?;
+    if !quiet {
+        println!(
+            "reference: {} spp, {:.1} s GPU, {:.2} rays/pixel, non-finite pixels {}",
+            meta.spp,
+            meta.gpu_ms_total / 1e3,
+            meta.rays_per_pixel,
+            meta.non_finite_pixels
+        );
     }
-    let (image, meta) = render_technique(gpu, &p, 0, false)?;
-    write_outputs(cache, &key, &image, &meta, &p)?;
-    println!(
-        "reference: {} spp, {:.1} s GPU, {:.2} rays/pixel, non-finite pixels {}",
-        meta.spp,
-        meta.gpu_ms_total / 1e3,
-        meta.rays_per_pixel,
-        meta.non_finite_pixels
+    Ok((image, path))
+}
+
+/// A progress bar in gilab's style (hidden when `quiet`).
+pub fn progress_bar(len: u64, prefix: &str, quiet: bool) -> ProgressBar {
+    let bar = if quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(len)
+    };
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{prefix:>10} [{bar:30}] {pos}/{len} frames {elapsed_precise} eta {eta} {msg}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
     );
-    Ok(path)
+    bar.set_prefix(prefix.to_string());
+    bar
 }

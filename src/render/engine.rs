@@ -200,6 +200,25 @@ impl Engine {
         self.reset();
     }
 
+    /// A scripted scene edit while running: swaps in the edited scene (uploaded by the
+    /// caller, shared between runs) without a full reset: counters, frame count and the
+    /// technique's reuse history continue; accumulation restarts (`Technique::on_scene_change`).
+    pub fn change_scene(&mut self, scene: Arc<Scene>, gpu_scene: Arc<GpuScene>) -> Result<()> {
+        self.scene = scene;
+        self.gpu_scene = gpu_scene;
+        self.technique.build(&render_context!(self))?;
+        self.gpu.check_errors()?;
+        self.technique.on_scene_change(&self.gpu);
+        Ok(())
+    }
+
+    /// A scripted camera move while running: the next frame reprojects from the old camera
+    /// (motion vectors), accumulation restarts, counters and reuse history continue.
+    pub fn move_camera(&mut self, camera: Camera) {
+        self.camera = camera;
+        self.technique.on_scene_change(&self.gpu);
+    }
+
     pub fn set_params(&mut self, params: &toml::Table) -> Result<()> {
         self.technique.set_params(params)?;
         self.technique.build(&render_context!(self))?;

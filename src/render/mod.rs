@@ -111,6 +111,13 @@ pub trait Technique {
     fn build(&mut self, ctx: &RenderContext) -> Result<()>;
     /// Forget accumulated history (camera cut, scene edit, parameter change).
     fn reset_history(&mut self, gpu: &Gpu);
+    /// A scripted change while running (light switched, material edited, camera moved; the
+    /// lag experiments): progressive accumulation must restart, but history a real-time
+    /// technique would keep across such a change (reservoirs, caches) stays, so its lag shows.
+    /// Default: forget everything.
+    fn on_scene_change(&mut self, gpu: &Gpu) {
+        self.reset_history(gpu);
+    }
     /// Samples per pixel one frame adds (what the frame uniforms' `samples_per_frame` carries).
     fn samples_per_frame(&self) -> u32;
     /// Maximum path depth passed in the frame uniforms (0 = unbounded).

@@ -6,7 +6,7 @@ use anyhow::{bail, Result};
 use glam::{Vec2, Vec3};
 
 pub const NAMES: &[(&str, &str)] = &[
-    ("cornell", "the classic Cornell box with a ceiling area light (Lambertian walls)"),
+    ("cornell", "the classic Cornell box with a ceiling area light (Lambertian walls); `lamp` adds a small back-wall emitter (material `lamp`) of that radiance, 0 = off"),
     ("furnace", "closed sphere seen from inside, Lambertian albedo `albedo`, emission `emission`: radiance E/(1-a) everywhere"),
     ("many-lights", "a pillared hall lit by `lights` (default 1024) small coloured ceiling emitters: the many-light stress case"),
     ("thin-wall", "a sunlit exterior and a closed room of zero-thickness walls; `interior_light` 0 makes any light inside a leak"),
@@ -70,7 +70,16 @@ pub fn build(name: &str, params: &toml::Table) -> Result<Scene> {
         known: Vec::new(),
     };
     let scene = match name {
-        "cornell" => cornell(),
+        "cornell" => {
+            // The lamp exists only when asked for (0 = present but off: events switch it on).
+            let lamp = if params.contains_key("lamp") {
+                Some(p.f32("lamp", 0.0)?)
+            } else {
+                p.known.push("lamp");
+                None
+            };
+            cornell_with_lamp(lamp)
+        }
         "furnace" => {
             let albedo = p.f32("albedo", 0.8)?;
             let emission = p.f32("emission", 1.0)?;
@@ -103,8 +112,14 @@ pub fn build(name: &str, params: &toml::Table) -> Result<Scene> {
 
 /// The Cornell box after the Cornell program's measured data (units: 1 = 100 mm), with the
 /// colours and light of Mitsuba's version: pure Lambert walls so external renderers can match.
-#[allow(clippy::approx_constant)] // 3.14 is a measured Cornell box coordinate, not pi.
 pub fn cornell() -> Scene {
+    cornell_with_lamp(None)
+}
+
+/// The Cornell box, optionally with a small back-wall emitter (material `lamp`) of the
+/// given radiance; 0 keeps the geometry with the light off, for scripted switch-on events.
+#[allow(clippy::approx_constant)] // 3.14 is a measured Cornell box coordinate, not pi.
+pub fn cornell_with_lamp(lamp: Option<f32>) -> Scene {
     let mut s = Scene::new("cornell");
     let white = s.add_material(Material::lambert("white", Vec3::new(0.725, 0.71, 0.68)));
     let red = s.add_material(Material::lambert("red", Vec3::new(0.63, 0.065, 0.05)));
@@ -149,6 +164,21 @@ pub fn cornell() -> Scene {
         v(2.13, y, 3.32),
         light,
     );
+    if let Some(radiance) = lamp {
+        // Back wall, left of the tall block as seen, facing the camera; warm white.
+        let m = s.add_material(Material::emitter(
+            "lamp",
+            Vec3::new(1.0, 0.85, 0.6) * radiance.max(0.0),
+        ));
+        let z = l - 0.001;
+        s.add_quad(
+            v(1.2, 2.0, z),
+            v(1.2, 2.6, z),
+            v(2.0, 2.6, z),
+            v(2.0, 2.0, z),
+            m,
+        );
+    }
     let block = |s: &mut Scene, top: [Vec3; 4]| {
         let b = top.map(|t| Vec3::new(t.x, 0.0, t.z));
         s.add_box(

@@ -414,6 +414,15 @@ impl Technique for Restir {
         gpu.queue.submit([enc.finish()]);
     }
 
+    /// Restarts accumulation only: the reservoirs carry over, as they would in a game.
+    fn on_scene_change(&mut self, gpu: &Gpu) {
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        for b in [&self.mean, &self.m2].into_iter().flatten() {
+            enc.clear_buffer(b, 0, None);
+        }
+        gpu.queue.submit([enc.finish()]);
+    }
+
     fn samples_per_frame(&self) -> u32 {
         1
     }

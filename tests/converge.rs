@@ -1,0 +1,250 @@
+//! `gilab converge`: the error columns are right (FLIP against NVIDIA's published tool,
+//! MSE/relMSE against `gilab compare`), runs are deterministic, shards merge to the unsharded
+//! result, the reference's error falls as 1/N, and events give finite lag.
+
+mod common;
+
+use gilab::experiment::run::{self, ConvergeOptions, Row, Summary};
+use gilab::experiment::Shard;
+use gilab::preset::LoadedPreset;
+use std::path::{Path, PathBuf};
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("gilab-converge-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// One cache for the whole test binary: references are rendered once.
+fn cache() -> PathBuf {
+    let d = std::env::temp_dir().join(format!("gilab-converge-{}-cache", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn converge(p: &LoadedPreset, out: &Path, shard: Option<Shard>) -> (Summary, Vec<Row>) {
+    let opts = ConvergeOptions {
+        out: out.to_path_buf(),
+        cache: cache(),
+        shard,
+        quiet: true,
+    };
+    run::converge(common::gpu(), p, &opts).unwrap();
+    run::read_output_dir(out).unwrap()
+}
+
+/// The error columns (and rays) of every row: what must not change between identical runs.
+fn error_columns(rows: &[Row]) -> Vec<(usize, u32, u64, [u64; 4])> {
+    rows.iter()
+        .map(|r| {
+            (
+                r.run,
+                r.frame,
+                r.rays,
+                [r.mse, r.rel_mse, r.smape, r.flip].map(f64::to_bits),
+            )
+        })
+        .collect()
+}
+
+/// The image pair of tests/data (generated here) and its mean LDR-FLIP from NVIDIA's own
+/// Python package `flip-evaluator` 1.7 (`flip_evaluator.evaluate(ref/255, test/255, "LDR")`,
+/// default 67.02 pixels per degree): 0.09945804625749588.
+fn flip_pair() -> (Vec<u8>, Vec<u8>) {
+    let (w, h) = (64usize, 64usize);
+    let (mut reference, mut test) = (Vec::new(), Vec::new());
+    let mut s: u64 = 12345;
+    for y in 0..h {
+        for x in 0..w {
+            let mut v = [(x * 4) % 256, (y * 4) % 256, ((x + y) * 2) % 256];
+            if (16..40).contains(&x) && (20..44).contains(&y) {
+                v = [230, 40, 40];
+            }
+            for c in v {
+                s = (s * 1_103_515_245 + 12345) % (1 << 31);
+                let n = ((s >> 16) % 41) as i64 - 20;
+                reference.push(c as u8);
+                test.push((c as i64 + n).clamp(0, 255) as u8);
+            }
+        }
+    }
+    (reference, test)
+}
+
+#[test]
+fn flip_matches_nvidias_published_tool() {
+    let (reference, test) = flip_pair();
+    let flip = gilab::compare::flip::ldr_flip_srgb8(&test, &reference, 64, 64).unwrap();
+    eprintln!("FLIP {flip:.6} against flip-evaluator 1.7's 0.099458");
+    assert!((flip - 0.099_458).abs() < 1e-3, "FLIP {flip}");
+    let same = gilab::compare::flip::ldr_flip_srgb8(&reference, &reference, 64, 64).unwrap();
+    assert_eq!(same, 0.0);
+}
+
+const SMALL: &str = r#"
+[scene]
+source = "cornell"
+params = { lamp = 0.0 }
+[render]
+size = [32, 32]
+seed = 3
+reference_spp = 64
+[[techniques]]
+name = "reference"
+[[techniques]]
+name = "restir"
+params = { accumulate = true }
+[experiment]
+frames = 6
+[[experiment.sweep]]
+technique = "restir"
+param = "budget"
+values = [3, 12]
+[[experiment.event]]
+frame = 4
+material = "lamp"
+emissive = [30.0, 30.0, 30.0]
+"#;
+
+fn gilab_compare(image: &Path, reference: &Path) -> (f64, f64) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_gilab"))
+        .arg("compare")
+        .arg(image)
+        .arg(reference)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(out.status.success(), "{text}");
+    let field = |name: &str| -> f64 {
+        let mut it = text.split_whitespace();
+        while let Some(w) = it.next() {
+            if w == name {
+                return it.next().unwrap().parse().unwrap();
+            }
+        }
+        panic!("no {name} in {text}")
+    };
+    (field("MSE"), field("relMSE"))
+}
+
+#[test]
+fn converge_columns_match_compare_are_deterministic_and_shards_merge() {
+    let p = LoadedPreset::from_text(SMALL, None).unwrap();
+    let a_dir = tmp("a");
+    let (a, a_rows) = converge(&p, &a_dir, None);
+    assert_eq!(a.runs.len(), 3, "reference + restir × 2 budgets");
+    assert_eq!(a_rows.len(), 3 * 6);
+    for f in ["convergence.csv", "summary.json", "report.md", "error_vs_time.png", "error_vs_rays.png", "error_vs_frame.png", "pareto.png"] {
+        assert!(a_dir.join(f).exists(), "{f} missing");
+    }
+    // Budgets map to different settings, hence different rays per pixel.
+    let rpp: Vec<f64> = a.runs.iter().map(|r| r.rays_per_pixel_per_frame).collect();
+    assert!(rpp[2] > rpp[1], "budget 12 turns GI on, budget 3 cannot afford it: {rpp:?}");
+
+    // The last frame's EXR, compared with `gilab compare`, gives the CSV's numbers.
+    for run in &a.runs {
+        let last = a_rows.iter().filter(|r| r.run == run.spec.index).max_by_key(|r| r.frame).unwrap();
+        let reference = a_dir.join(format!("runs/reference-state{}.exr", last.state));
+        let (mse, rel) = gilab_compare(&a_dir.join(&run.image), &reference);
+        for (cli, csv) in [(mse, last.mse), (rel, last.rel_mse)] {
+            assert!((cli - csv).abs() <= 1e-5 * csv.abs() + 1e-12, "{}: compare {cli} vs CSV {csv}", run.spec.label);
+        }
+    }
+
+    // Same seed, same adapter: identical error columns.
+    let (_, b_rows) = converge(&p, &tmp("b"), None);
+    assert_eq!(error_columns(&a_rows), error_columns(&b_rows));
+
+    // Two shards merged give the unsharded error columns and analysis errors.
+    let s0 = tmp("s0");
+    let s1 = tmp("s1");
+    converge(&p, &s0, Some(Shard { index: 0, count: 2 }));
+    converge(&p, &s1, Some(Shard { index: 1, count: 2 }));
+    let merged_dir = tmp("merged");
+    run::merge(&[s0, s1], &merged_dir).unwrap();
+    let (m, m_rows) = run::read_output_dir(&merged_dir).unwrap();
+    assert_eq!(error_columns(&a_rows), error_columns(&m_rows));
+    // Per-run results too (the analysis's equal-time columns depend on timings, which differ
+    // from run to run, so they are not compared).
+    let finals = |s: &Summary| -> Vec<(String, [u64; 4], f64)> {
+        s.runs
+            .iter()
+            .map(|r| {
+                (
+                    r.spec.label.clone(),
+                    [r.final_mse, r.final_rel_mse, r.final_smape, r.final_flip].map(f64::to_bits),
+                    r.rays_per_pixel_per_frame,
+                )
+            })
+            .collect()
+    };
+    assert_eq!(finals(&a), finals(&m));
+    assert!(merged_dir.join("report.md").exists());
+
+    // The lamp switched on at frame 4: every run reports a lag entry with its errors.
+    assert_eq!(a.analysis.lag.len(), 3);
+}
+
+#[test]
+fn reference_error_falls_as_one_over_n() {
+    let text = r#"
+[scene]
+source = "cornell"
+[render]
+size = [32, 32]
+seed = 5
+reference_spp = 4096
+[[techniques]]
+name = "reference"
+params = { samples_per_frame = 1 }
+[experiment]
+frames = 64
+"#;
+    let p = LoadedPreset::from_text(text, None).unwrap();
+    let (_, rows) = converge(&p, &tmp("slope"), None);
+    // Least-squares slope of log relMSE against log frames.
+    let pts: Vec<(f64, f64)> = rows.iter().map(|r| ((r.frame as f64).ln(), r.rel_mse.ln())).collect();
+    let n = pts.len() as f64;
+    let (mx, my) = (pts.iter().map(|p| p.0).sum::<f64>() / n, pts.iter().map(|p| p.1).sum::<f64>() / n);
+    let slope = pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum::<f64>()
+        / pts.iter().map(|p| (p.0 - mx).powi(2)).sum::<f64>();
+    eprintln!("slope of log relMSE vs log frames: {slope:.3}");
+    assert!((-1.1..=-0.9).contains(&slope), "slope {slope}");
+}
+
+#[test]
+fn lag_experiment_settles_for_every_technique() {
+    let mut p = LoadedPreset::load(Path::new("presets/experiments/lag-light-on.toml")).unwrap();
+    // The shipped experiment, smaller: 32², event at frame 12 of 40.
+    p.preset.render.size = [32, 32];
+    p.preset.render.reference_spp = 256;
+    let exp = p.preset.experiment.as_mut().unwrap();
+    exp.frames = 40;
+    exp.events[0].frame = 12;
+    let (s, _) = converge(&p, &tmp("lag"), None);
+    assert_eq!(s.analysis.lag.len(), s.runs.len());
+    for l in &s.analysis.lag {
+        eprintln!("{}: {} -> {}, settles in {:?} frames", l.label, l.error_before, l.error_after, l.settle_frames);
+        assert!(l.error_after > l.error_before, "{}: the switch must show as error", l.label);
+        assert!(l.settle_frames.is_some(), "{} never settled", l.label);
+    }
+}
+
+#[test]
+fn bad_experiments_fail_with_clear_errors() {
+    let bad_material = SMALL.replace("material = \"lamp\"", "material = \"lmap\"");
+    let p = LoadedPreset::from_text(&bad_material, None).unwrap();
+    let opts = ConvergeOptions { out: tmp("bad"), cache: cache(), shard: None, quiet: true };
+    let e = run::converge(common::gpu(), &p, &opts).unwrap_err().to_string();
+    assert!(e.contains("no material 'lmap'") && e.contains("lamp"), "{e}");
+
+    let bad_sweep = SMALL.replace("technique = \"restir\"\nparam", "technique = \"restr\"\nparam");
+    let p = LoadedPreset::from_text(&bad_sweep, None).unwrap();
+    let e = run::converge(common::gpu(), &p, &opts).unwrap_err().to_string();
+    assert!(e.contains("'restr'"), "{e}");
+
+    let typo = SMALL.replace("frames = 6", "frame = 6");
+    let e = LoadedPreset::from_text(&typo, None).unwrap_err().to_string();
+    assert!(e.contains(":") && e.contains("frame"), "{e}");
+}
