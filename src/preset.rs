@@ -394,7 +394,9 @@ impl LoadedPreset {
                 "techniques",
                 "view",
                 "experiment",
-            ].contains(&top) {
+            ]
+            .contains(&top)
+            {
                 set_path(&mut doc, k, value).with_context(|| format!("--set {kv}"))?;
             } else if let Some(toml::Value::Array(list)) = doc.get_mut("techniques") {
                 for t in list.iter_mut() {

@@ -135,20 +135,39 @@ fn converge_columns_match_compare_are_deterministic_and_shards_merge() {
     let (a, a_rows) = converge(&p, &a_dir, None);
     assert_eq!(a.runs.len(), 3, "reference + restir × 2 budgets");
     assert_eq!(a_rows.len(), 3 * 6);
-    for f in ["convergence.csv", "summary.json", "report.md", "error_vs_time.png", "error_vs_rays.png", "error_vs_frame.png", "pareto.png"] {
+    for f in [
+        "convergence.csv",
+        "summary.json",
+        "report.md",
+        "error_vs_time.png",
+        "error_vs_rays.png",
+        "error_vs_frame.png",
+        "pareto.png",
+    ] {
         assert!(a_dir.join(f).exists(), "{f} missing");
     }
     // Budgets map to different settings, hence different rays per pixel.
     let rpp: Vec<f64> = a.runs.iter().map(|r| r.rays_per_pixel_per_frame).collect();
-    assert!(rpp[2] > rpp[1], "budget 12 turns GI on, budget 3 cannot afford it: {rpp:?}");
+    assert!(
+        rpp[2] > rpp[1],
+        "budget 12 turns GI on, budget 3 cannot afford it: {rpp:?}"
+    );
 
     // The last frame's EXR, compared with `gilab compare`, gives the CSV's numbers.
     for run in &a.runs {
-        let last = a_rows.iter().filter(|r| r.run == run.spec.index).max_by_key(|r| r.frame).unwrap();
+        let last = a_rows
+            .iter()
+            .filter(|r| r.run == run.spec.index)
+            .max_by_key(|r| r.frame)
+            .unwrap();
         let reference = a_dir.join(format!("runs/reference-state{}.exr", last.state));
         let (mse, rel) = gilab_compare(&a_dir.join(&run.image), &reference);
         for (cli, csv) in [(mse, last.mse), (rel, last.rel_mse)] {
-            assert!((cli - csv).abs() <= 1e-5 * csv.abs() + 1e-12, "{}: compare {cli} vs CSV {csv}", run.spec.label);
+            assert!(
+                (cli - csv).abs() <= 1e-5 * csv.abs() + 1e-12,
+                "{}: compare {cli} vs CSV {csv}",
+                run.spec.label
+            );
         }
     }
 
@@ -204,9 +223,15 @@ frames = 64
     let p = LoadedPreset::from_text(text, None).unwrap();
     let (_, rows) = converge(&p, &tmp("slope"), None);
     // Least-squares slope of log relMSE against log frames.
-    let pts: Vec<(f64, f64)> = rows.iter().map(|r| ((r.frame as f64).ln(), r.rel_mse.ln())).collect();
+    let pts: Vec<(f64, f64)> = rows
+        .iter()
+        .map(|r| ((r.frame as f64).ln(), r.rel_mse.ln()))
+        .collect();
     let n = pts.len() as f64;
-    let (mx, my) = (pts.iter().map(|p| p.0).sum::<f64>() / n, pts.iter().map(|p| p.1).sum::<f64>() / n);
+    let (mx, my) = (
+        pts.iter().map(|p| p.0).sum::<f64>() / n,
+        pts.iter().map(|p| p.1).sum::<f64>() / n,
+    );
     let slope = pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum::<f64>()
         / pts.iter().map(|p| (p.0 - mx).powi(2)).sum::<f64>();
     eprintln!("slope of log relMSE vs log frames: {slope:.3}");
@@ -225,8 +250,15 @@ fn lag_experiment_settles_for_every_technique() {
     let (s, _) = converge(&p, &tmp("lag"), None);
     assert_eq!(s.analysis.lag.len(), s.runs.len());
     for l in &s.analysis.lag {
-        eprintln!("{}: {} -> {}, settles in {:?} frames", l.label, l.error_before, l.error_after, l.settle_frames);
-        assert!(l.error_after > l.error_before, "{}: the switch must show as error", l.label);
+        eprintln!(
+            "{}: {} -> {}, settles in {:?} frames",
+            l.label, l.error_before, l.error_after, l.settle_frames
+        );
+        assert!(
+            l.error_after > l.error_before,
+            "{}: the switch must show as error",
+            l.label
+        );
         assert!(l.settle_frames.is_some(), "{} never settled", l.label);
     }
 }
@@ -235,16 +267,33 @@ fn lag_experiment_settles_for_every_technique() {
 fn bad_experiments_fail_with_clear_errors() {
     let bad_material = SMALL.replace("material = \"lamp\"", "material = \"lmap\"");
     let p = LoadedPreset::from_text(&bad_material, None).unwrap();
-    let opts = ConvergeOptions { out: tmp("bad"), cache: cache(), shard: None, quiet: true };
-    let e = run::converge(common::gpu(), &p, &opts).unwrap_err().to_string();
-    assert!(e.contains("no material 'lmap'") && e.contains("lamp"), "{e}");
+    let opts = ConvergeOptions {
+        out: tmp("bad"),
+        cache: cache(),
+        shard: None,
+        quiet: true,
+    };
+    let e = run::converge(common::gpu(), &p, &opts)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("no material 'lmap'") && e.contains("lamp"),
+        "{e}"
+    );
 
-    let bad_sweep = SMALL.replace("technique = \"restir\"\nparam", "technique = \"restr\"\nparam");
+    let bad_sweep = SMALL.replace(
+        "technique = \"restir\"\nparam",
+        "technique = \"restr\"\nparam",
+    );
     let p = LoadedPreset::from_text(&bad_sweep, None).unwrap();
-    let e = run::converge(common::gpu(), &p, &opts).unwrap_err().to_string();
+    let e = run::converge(common::gpu(), &p, &opts)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("'restr'"), "{e}");
 
     let typo = SMALL.replace("frames = 6", "frame = 6");
-    let e = LoadedPreset::from_text(&typo, None).unwrap_err().to_string();
+    let e = LoadedPreset::from_text(&typo, None)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains(":") && e.contains("frame"), "{e}");
 }

@@ -9,9 +9,18 @@ use std::path::Path;
 
 pub const FILES: [(&str, &str); 4] = [
     ("error_vs_time.png", "Error against GPU time (log-log)"),
-    ("error_vs_rays.png", "Error against rays per pixel (log-log)"),
-    ("error_vs_frame.png", "Error against frame, scripted events marked"),
-    ("pareto.png", "Error against GPU ms per frame, Pareto front joined"),
+    (
+        "error_vs_rays.png",
+        "Error against rays per pixel (log-log)",
+    ),
+    (
+        "error_vs_frame.png",
+        "Error against frame, scripted events marked",
+    ),
+    (
+        "pareto.png",
+        "Error against GPU ms per frame, Pareto front joined",
+    ),
 ];
 
 const SIZE: (u32, u32) = (960, 640);
@@ -39,7 +48,9 @@ fn log_range(values: impl Iterator<Item = f64>) -> Option<std::ops::Range<f64>> 
         lo = lo.min(v);
         hi = hi.max(v);
     }
-    (lo <= hi).then(|| 10f64.powf(lo.log10().floor())..10f64.powf(hi.log10().ceil().max(lo.log10().floor() + 1.0)))
+    (lo <= hi).then(|| {
+        10f64.powf(lo.log10().floor())..10f64.powf(hi.log10().ceil().max(lo.log10().floor() + 1.0))
+    })
 }
 
 /// Tableau 10: distinct on white, unlike plotters' default palette's pale yellows.
@@ -61,7 +72,10 @@ fn series(s: &Summary, rows: &[Row], x: impl Fn(&Row) -> f64, all_states: bool) 
                 .map(|r| (r.frame, (x(r), r.error(metric))))
                 .collect();
             pts.sort_by_key(|p| p.0);
-            (run.spec.label.clone(), pts.into_iter().map(|p| p.1).collect())
+            (
+                run.spec.label.clone(),
+                pts.into_iter().map(|p| p.1).collect(),
+            )
         })
         .collect()
 }
@@ -77,17 +91,17 @@ fn png(path: &Path, draw: impl FnOnce(&Root) -> Result<()>) -> Result<()> {
         draw(&root)?;
         root.present().map_err(err)?;
     }
-    let img = image::RgbImage::from_raw(SIZE.0, SIZE.1, buf).ok_or_else(|| anyhow!("plot buffer"))?;
-    img.save(path).map_err(|e| anyhow!("writing {}: {e}", path.display()))
+    let img =
+        image::RgbImage::from_raw(SIZE.0, SIZE.1, buf).ok_or_else(|| anyhow!("plot buffer"))?;
+    img.save(path)
+        .map_err(|e| anyhow!("writing {}: {e}", path.display()))
 }
 
 fn log_log(path: &Path, title: &str, x_desc: &str, y_desc: &str, data: &Series) -> Result<()> {
     png(path, |root| {
         let pts = || data.iter().flat_map(|(_, p)| p.iter());
-        let (Some(xr), Some(yr)) = (
-            log_range(pts().map(|p| p.0)),
-            log_range(pts().map(|p| p.1)),
-        ) else {
+        let (Some(xr), Some(yr)) = (log_range(pts().map(|p| p.0)), log_range(pts().map(|p| p.1)))
+        else {
             return Ok(());
         };
         let mut chart = ChartBuilder::on(root)
@@ -107,12 +121,18 @@ fn log_log(path: &Path, title: &str, x_desc: &str, y_desc: &str, data: &Series) 
             .map_err(err)?;
         for (i, (label, p)) in data.iter().enumerate() {
             let colour = colour(i);
-            let p: Vec<(f64, f64)> = p.iter().copied().filter(|(x, y)| *x > 0.0 && *y > 0.0).collect();
+            let p: Vec<(f64, f64)> = p
+                .iter()
+                .copied()
+                .filter(|(x, y)| *x > 0.0 && *y > 0.0)
+                .collect();
             chart
                 .draw_series(LineSeries::new(p, colour.stroke_width(2)))
                 .map_err(err)?
                 .label(label.as_str())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
+                });
         }
         chart
             .configure_series_labels()
@@ -126,7 +146,6 @@ fn log_log(path: &Path, title: &str, x_desc: &str, y_desc: &str, data: &Series) 
     })
 }
 
-
 fn by_frame(path: &Path, s: &Summary, rows: &[Row]) -> Result<()> {
     let data = series(s, rows, |r| r.frame as f64, true);
     png(path, |root| {
@@ -136,7 +155,10 @@ fn by_frame(path: &Path, s: &Summary, rows: &[Row]) -> Result<()> {
         };
         let (y0, y1) = (yr.start, yr.end);
         let mut chart = ChartBuilder::on(root)
-            .caption(format!("{} against frame", s.analysis.metric), ("sans-serif", 22))
+            .caption(
+                format!("{} against frame", s.analysis.metric),
+                ("sans-serif", 22),
+            )
             .margin(12)
             .x_label_area_size(44)
             .y_label_area_size(72)
@@ -152,10 +174,13 @@ fn by_frame(path: &Path, s: &Summary, rows: &[Row]) -> Result<()> {
         for e in &s.settings.events {
             let x = e.frame as f64 + 0.5;
             chart
-                .draw_series(std::iter::once(PathElement::new(vec![(x, y0), (x, y1)], RED.stroke_width(1))))
+                .draw_series(std::iter::once(PathElement::new(
+                    vec![(x, y0), (x, y1)],
+                    BLACK.stroke_width(1),
+                )))
                 .map_err(err)?
                 .label(e.describe())
-                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
+                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK));
         }
         for (i, (label, p)) in data.iter().enumerate() {
             let colour = colour(i);
@@ -164,7 +189,9 @@ fn by_frame(path: &Path, s: &Summary, rows: &[Row]) -> Result<()> {
                 .draw_series(LineSeries::new(p, colour.stroke_width(2)))
                 .map_err(err)?
                 .label(label.as_str())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
+                });
         }
         chart
             .configure_series_labels()
@@ -189,7 +216,10 @@ fn pareto(path: &Path, s: &Summary) -> Result<()> {
         };
         let mut chart = ChartBuilder::on(root)
             .caption(
-                format!("{} after {} frames against GPU ms/frame", a.metric, a.pareto_frame),
+                format!(
+                    "{} after {} frames against GPU ms/frame",
+                    a.metric, a.pareto_frame
+                ),
                 ("sans-serif", 22),
             )
             .margin(12)
@@ -218,7 +248,11 @@ fn pareto(path: &Path, s: &Summary) -> Result<()> {
         for (i, p) in a.pareto.iter().enumerate().filter(|(_, p)| p.error > 0.0) {
             let colour = colour(i);
             chart
-                .draw_series(std::iter::once(Circle::new((p.ms_per_frame, p.error), 6, colour.filled())))
+                .draw_series(std::iter::once(Circle::new(
+                    (p.ms_per_frame, p.error),
+                    6,
+                    colour.filled(),
+                )))
                 .map_err(err)?
                 .label(p.label.as_str())
                 .legend(move |(x, y)| Circle::new((x + 10, y), 5, colour.filled()));

@@ -72,8 +72,11 @@ pub struct Lag {
 }
 
 /// The rows of one run before the first event (state 0), in frame order.
-fn segment<'a>(rows: &'a [Row], run: usize) -> Vec<&'a Row> {
-    let mut v: Vec<&Row> = rows.iter().filter(|r| r.run == run && r.state == 0).collect();
+fn segment(rows: &[Row], run: usize) -> Vec<&Row> {
+    let mut v: Vec<&Row> = rows
+        .iter()
+        .filter(|r| r.run == run && r.state == 0)
+        .collect();
     v.sort_by_key(|r| r.frame);
     v
 }
@@ -81,7 +84,10 @@ fn segment<'a>(rows: &'a [Row], run: usize) -> Vec<&'a Row> {
 /// Median error of the last frames of a state (up to 8, at most half of the state's frames).
 pub fn steady_error(rows: &[&Row], metric: Metric) -> f64 {
     let n = (rows.len() / 2).clamp(1, 8).min(rows.len());
-    let mut tail: Vec<f64> = rows[rows.len() - n..].iter().map(|r| r.error(metric)).collect();
+    let mut tail: Vec<f64> = rows[rows.len() - n..]
+        .iter()
+        .map(|r| r.error(metric))
+        .collect();
     tail.sort_by(f64::total_cmp);
     tail.get(tail.len() / 2).copied().unwrap_or(f64::NAN)
 }
@@ -166,7 +172,9 @@ pub fn analyse(summary: &Summary, rows: &[Row]) -> Analysis {
     });
     let time_to_error = match target_error {
         Some(target) => {
-            let base = base_seg.as_ref().and_then(|b| time_to_error(b, metric, target));
+            let base = base_seg
+                .as_ref()
+                .and_then(|b| time_to_error(b, metric, target));
             segs.iter()
                 .map(|(label, v)| {
                     let t = time_to_error(v, metric, target);
@@ -331,14 +339,28 @@ pub fn headline(s: &Summary) -> String {
     t
 }
 
+/// A `| run | frames | value | ratio |` table row.
+fn ratio_row(m: &mut String, label: &str, frames: Option<u32>, value: String, r: Option<f64>) {
+    let frames = frames.map_or("—".into(), |f| f.to_string());
+    let _ = writeln!(m, "| {label} | {frames} | {value} | {} |", ratio_text(r));
+}
+
 pub fn markdown(s: &Summary) -> String {
     let a = &s.analysis;
     let mut m = String::new();
     let _ = writeln!(m, "# Convergence experiment: {}\n", s.experiment);
     let _ = writeln!(m, "| | |\n| --- | --- |");
     let _ = writeln!(m, "| file | `{}` |", s.file.as_deref().unwrap_or("—"));
-    let _ = writeln!(m, "| adapter | {} ({}, {}) |", s.adapter.name, s.adapter.backend, s.adapter.device_type);
-    let _ = writeln!(m, "| driver | {} {} |", s.adapter.driver, s.adapter.driver_info);
+    let _ = writeln!(
+        m,
+        "| adapter | {} ({}, {}) |",
+        s.adapter.name, s.adapter.backend, s.adapter.device_type
+    );
+    let _ = writeln!(
+        m,
+        "| driver | {} {} |",
+        s.adapter.driver, s.adapter.driver_info
+    );
     let _ = writeln!(m, "| git commit | `{}` |", s.git_commit);
     let _ = writeln!(m, "| preset SHA-256 | `{}` |", s.preset_sha256);
     let _ = writeln!(m, "| image | {}×{} |", s.size[0], s.size[1]);
@@ -353,7 +375,23 @@ pub fn markdown(s: &Summary) -> String {
             String::new()
         }
     );
-    let _ = writeln!(m, "| runs | {} of {}{} |", s.runs.len(), s.total_runs, if s.shards.is_empty() { String::new() } else { format!(" (shards {:?})", s.shards.iter().map(|x| format!("{}/{}", x.index, x.count)).collect::<Vec<_>>()) });
+    let _ = writeln!(
+        m,
+        "| runs | {} of {}{} |",
+        s.runs.len(),
+        s.total_runs,
+        if s.shards.is_empty() {
+            String::new()
+        } else {
+            format!(
+                " (shards {:?})",
+                s.shards
+                    .iter()
+                    .map(|x| format!("{}/{}", x.index, x.count))
+                    .collect::<Vec<_>>()
+            )
+        }
+    );
     for r in &s.references {
         let _ = writeln!(
             m,
@@ -380,7 +418,9 @@ pub fn markdown(s: &Summary) -> String {
             "| {} | {}{} | {:.2} | {:.2} | {} | {} | {:.4} |",
             r.spec.label,
             r.spec.technique,
-            r.spec.budget.map_or(String::new(), |b| format!(" (budget {b})")),
+            r.spec
+                .budget
+                .map_or(String::new(), |b| format!(" (budget {b})")),
             r.rays_per_pixel_per_frame,
             r.gpu_ms_per_frame,
             r.passes_run.join(", "),
@@ -391,7 +431,11 @@ pub fn markdown(s: &Summary) -> String {
     let skipped: Vec<String> = s
         .runs
         .iter()
-        .flat_map(|r| r.passes_skipped.iter().map(move |p| format!("{}: {p}", r.spec.label)))
+        .flat_map(|r| {
+            r.passes_skipped
+                .iter()
+                .map(move |p| format!("{}: {p}", r.spec.label))
+        })
         .collect();
     if !skipped.is_empty() {
         let _ = writeln!(m, "\nPasses not dispatched (scene analysis):\n");
@@ -402,25 +446,52 @@ pub fn markdown(s: &Summary) -> String {
     let base = a.baseline.as_deref().unwrap_or("—");
     if let Some(ms) = a.equal_time_ms {
         let _ = writeln!(m, "\n## Equal time: {} at {ms:.1} GPU ms\n\nThe image each run had finished by the budget; ratio to `{base}` (below 1: better).\n", a.metric);
-        let _ = writeln!(m, "| run | frames | {} | ratio |\n| --- | ---: | ---: | ---: |", a.metric);
+        let _ = writeln!(
+            m,
+            "| run | frames | {} | ratio |\n| --- | ---: | ---: | ---: |",
+            a.metric
+        );
         for e in &a.equal_time {
-            let _ = writeln!(m, "| {} | {} | {} | {} |", e.label, e.frames.map_or("—".into(), |f| f.to_string()), opt(e.error, 4), ratio_text(e.ratio));
+            ratio_row(&mut m, &e.label, e.frames, opt(e.error, 4), e.ratio);
         }
     }
     if let Some(t) = a.target_error {
-        let _ = writeln!(m, "\n## Time to {} ≤ {}\n\nRatio to `{base}` (below 1: faster).\n", a.metric, opt(Some(t), 4));
-        let _ = writeln!(m, "| run | frames | GPU ms | ratio |\n| --- | ---: | ---: | ---: |");
+        let _ = writeln!(
+            m,
+            "\n## Time to {} ≤ {}\n\nRatio to `{base}` (below 1: faster).\n",
+            a.metric,
+            opt(Some(t), 4)
+        );
+        let _ = writeln!(
+            m,
+            "| run | frames | GPU ms | ratio |\n| --- | ---: | ---: | ---: |"
+        );
         for e in &a.time_to_error {
-            let _ = writeln!(m, "| {} | {} | {} | {} |", e.label, e.frames.map_or("—".into(), |f| f.to_string()), opt(e.ms, 1), ratio_text(e.ratio));
+            ratio_row(&mut m, &e.label, e.frames, opt(e.ms, 1), e.ratio);
         }
     }
     if !a.pareto.is_empty() {
-        let _ = writeln!(m, "\n## Pareto front: {} after {} frames against GPU ms per frame\n", a.metric, a.pareto_frame);
-        let _ = writeln!(m, "| run | ms/frame | {} | on the front |\n| --- | ---: | ---: | :---: |", a.metric);
+        let _ = writeln!(
+            m,
+            "\n## Pareto front: {} after {} frames against GPU ms per frame\n",
+            a.metric, a.pareto_frame
+        );
+        let _ = writeln!(
+            m,
+            "| run | ms/frame | {} | on the front |\n| --- | ---: | ---: | :---: |",
+            a.metric
+        );
         let mut pts = a.pareto.clone();
         pts.sort_by(|x, y| x.ms_per_frame.total_cmp(&y.ms_per_frame));
         for p in pts {
-            let _ = writeln!(m, "| {} | {:.2} | {} | {} |", p.label, p.ms_per_frame, opt(Some(p.error), 4), if p.on_front { "●" } else { "" });
+            let _ = writeln!(
+                m,
+                "| {} | {:.2} | {} | {} |",
+                p.label,
+                p.ms_per_frame,
+                opt(Some(p.error), 4),
+                if p.on_front { "●" } else { "" }
+            );
         }
     }
     if !a.lag.is_empty() {
@@ -435,7 +506,19 @@ pub fn markdown(s: &Summary) -> String {
         let _ = writeln!(m, "\n## Lag after events\n\nSettled: {rule} (each frame against the reference of the state it saw).\n");
         let _ = writeln!(m, "| event | run | before | first frame after | steady after | threshold | settle frames | settle GPU ms |\n| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |");
         for l in &a.lag {
-            let _ = writeln!(m, "| {} | {} | {} | {} | {} | {} | {} | {} |", l.event, l.label, opt(Some(l.error_before), 4), opt(Some(l.error_after), 4), opt(Some(l.steady_error), 4), opt(Some(l.threshold), 4), l.settle_frames.map_or("not settled".into(), |f| f.to_string()), opt(l.settle_ms, 1));
+            let _ = writeln!(
+                m,
+                "| {} | {} | {} | {} | {} | {} | {} | {} |",
+                l.event,
+                l.label,
+                opt(Some(l.error_before), 4),
+                opt(Some(l.error_after), 4),
+                opt(Some(l.steady_error), 4),
+                opt(Some(l.threshold), 4),
+                l.settle_frames
+                    .map_or("not settled".into(), |f| f.to_string()),
+                opt(l.settle_ms, 1)
+            );
         }
     }
     let _ = writeln!(m, "\n## Plots\n");

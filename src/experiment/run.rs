@@ -181,7 +181,11 @@ pub fn experiment_name(p: &LoadedPreset) -> String {
 }
 
 fn sorted_events(p: &LoadedPreset) -> Result<Vec<Event>> {
-    let exp = p.preset.experiment.as_ref().context("no [experiment] table")?;
+    let exp = p
+        .preset
+        .experiment
+        .as_ref()
+        .context("no [experiment] table")?;
     let mut events = exp.events.clone();
     events.sort_by_key(|e| e.frame);
     for e in &events {
@@ -281,7 +285,10 @@ pub fn converge(gpu: Arc<Gpu>, p: &LoadedPreset, opts: &ConvergeOptions) -> Resu
     let states = build_states(&gpu, p, &events, &opts.cache, opts.quiet)?;
     for s in &states {
         let name = format!("reference-state{}", s.info.state);
-        io::write_exr(&opts.out.join("runs").join(format!("{name}.exr")), &s.reference)?;
+        io::write_exr(
+            &opts.out.join("runs").join(format!("{name}.exr")),
+            &s.reference,
+        )?;
         io::write_png(
             &opts.out.join("runs").join(format!("{name}.png")),
             &s.reference,
@@ -317,7 +324,12 @@ pub fn converge(gpu: Arc<Gpu>, p: &LoadedPreset, opts: &ConvergeOptions) -> Resu
         git_commit: git_commit(),
         adapter: gpu.summary.clone(),
         size: p.preset.render.size,
-        seeds: runs.iter().map(|r| r.seed).collect::<std::collections::BTreeSet<_>>().into_iter().collect(),
+        seeds: runs
+            .iter()
+            .map(|r| r.seed)
+            .collect::<std::collections::BTreeSet<_>>()
+            .into_iter()
+            .collect(),
         tonemap: p.preset.tonemap.clone(),
         settings: exp.clone(),
         total_runs: runs.len(),
@@ -392,7 +404,9 @@ fn run_one(
         let m = metrics::compare(&image, reference)?;
         let flip = flip::ldr_flip(&image, reference, op, ev)?;
         let rays = engine.ray_counts()?;
-        let prev = rows.last().map_or((0.0, 0.0), |r: &Row| (r.gpu_ms_cum, r.wall_ms_cum));
+        let prev = rows
+            .last()
+            .map_or((0.0, 0.0), |r: &Row| (r.gpu_ms_cum, r.wall_ms_cum));
         let k = |name: &str| {
             RAY_KINDS
                 .iter()
@@ -469,7 +483,11 @@ fn run_one(
             gpu_ms_total: last.gpu_ms_cum,
             gpu_ms_per_frame: last.gpu_ms_cum / frames as f64,
             gpu_ms_by_pass: meta_by_pass,
-            passes_run: passes.iter().filter(|p| p.runs).map(|p| p.name.to_string()).collect(),
+            passes_run: passes
+                .iter()
+                .filter(|p| p.runs)
+                .map(|p| p.name.to_string())
+                .collect(),
             passes_skipped: passes
                 .iter()
                 .filter(|p| !p.runs)
@@ -547,7 +565,10 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<Summary> {
     summary.shards.sort_by_key(|s| s.index);
     let missing = summary.total_runs - summary.runs.len();
     if missing > 0 {
-        eprintln!("warning: {missing} of {} runs are in none of the merged folders", summary.total_runs);
+        eprintln!(
+            "warning: {missing} of {} runs are in none of the merged folders",
+            summary.total_runs
+        );
     }
     rows.sort_by_key(|r| (r.run, r.frame));
     report::finish(summary, rows, out)

@@ -268,11 +268,18 @@ pub fn expand_runs(p: &LoadedPreset) -> Result<Vec<RunSpec>> {
                 .collect::<Vec<_>>()
                 .join(", ")
         );
-        ensure!(!s.values.is_empty(), "sweep over '{}.{}' has no values", s.technique, s.param);
+        ensure!(
+            !s.values.is_empty(),
+            "sweep over '{}.{}' has no values",
+            s.technique,
+            s.param
+        );
         if s.param == "budget" {
             for v in &s.values {
                 ensure!(
-                    v.as_float().or(v.as_integer().map(|i| i as f64)).is_some_and(|b| b > 0.0),
+                    v.as_float()
+                        .or(v.as_integer().map(|i| i as f64))
+                        .is_some_and(|b| b > 0.0),
                     "sweep '{}.budget': {v} is not a positive number of rays per pixel",
                     s.technique
                 );
@@ -296,7 +303,11 @@ pub fn expand_runs(p: &LoadedPreset) -> Result<Vec<RunSpec>> {
     for entry in entries {
         // Cross product of this entry's sweeps: one Vec<(param, value)> per combination.
         let mut combos: Vec<Vec<(String, toml::Value)>> = vec![Vec::new()];
-        for s in exp.sweeps.iter().filter(|s| s.technique == entry.display_name()) {
+        for s in exp
+            .sweeps
+            .iter()
+            .filter(|s| s.technique == entry.display_name())
+        {
             combos = combos
                 .into_iter()
                 .flat_map(|c| {
@@ -352,8 +363,14 @@ impl std::str::FromStr for Shard {
         let (i, n) = s
             .split_once('/')
             .ok_or_else(|| anyhow::anyhow!("--shard {s}: expected I/N, e.g. 0/4"))?;
-        let index: usize = i.trim().parse().map_err(|_| anyhow::anyhow!("--shard {s}: bad I"))?;
-        let count: usize = n.trim().parse().map_err(|_| anyhow::anyhow!("--shard {s}: bad N"))?;
+        let index: usize = i
+            .trim()
+            .parse()
+            .map_err(|_| anyhow::anyhow!("--shard {s}: bad I"))?;
+        let count: usize = n
+            .trim()
+            .parse()
+            .map_err(|_| anyhow::anyhow!("--shard {s}: bad N"))?;
         ensure!(count > 0 && index < count, "--shard {s}: need 0 <= I < N");
         Ok(Shard { index, count })
     }
