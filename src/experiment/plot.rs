@@ -59,6 +59,44 @@ fn colour(i: usize) -> RGBAColor {
     RGBAColor(c.r, c.g, c.b, 1.0)
 }
 
+type Chart<'a, X, Y> = ChartContext<'a, BitMapBackend<'a>, Cartesian2d<X, Y>>;
+
+/// One line per run, in the run's colour, with its legend entry; `keep` drops points a log
+/// axis cannot show.
+fn lines<X, Y>(
+    chart: &mut Chart<'_, X, Y>,
+    data: &Series,
+    keep: impl Fn(&(f64, f64)) -> bool,
+) -> Result<()>
+where
+    X: Ranged<ValueType = f64>,
+    Y: Ranged<ValueType = f64>,
+{
+    for (i, (label, p)) in data.iter().enumerate() {
+        let colour = colour(i);
+        let p: Vec<(f64, f64)> = p.iter().copied().filter(|v| keep(v)).collect();
+        chart
+            .draw_series(LineSeries::new(p, colour.stroke_width(2)))
+            .map_err(err)?
+            .label(label.as_str())
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
+            });
+    }
+    Ok(())
+}
+
+fn legend<X: Ranged, Y: Ranged>(chart: &mut Chart<'_, X, Y>) -> Result<()> {
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 15))
+        .position(SeriesLabelPosition::UpperRight)
+        .draw()
+        .map_err(err)
+}
+
 type Series = Vec<(String, Vec<(f64, f64)>)>;
 
 fn series(s: &Summary, rows: &[Row], x: impl Fn(&Row) -> f64, all_states: bool) -> Series {
@@ -119,29 +157,8 @@ fn log_log(path: &Path, title: &str, x_desc: &str, y_desc: &str, data: &Series) 
             .y_label_formatter(&|v| format!("{v:.0e}"))
             .draw()
             .map_err(err)?;
-        for (i, (label, p)) in data.iter().enumerate() {
-            let colour = colour(i);
-            let p: Vec<(f64, f64)> = p
-                .iter()
-                .copied()
-                .filter(|(x, y)| *x > 0.0 && *y > 0.0)
-                .collect();
-            chart
-                .draw_series(LineSeries::new(p, colour.stroke_width(2)))
-                .map_err(err)?
-                .label(label.as_str())
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
-                });
-        }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .label_font(("sans-serif", 15))
-            .position(SeriesLabelPosition::UpperRight)
-            .draw()
-            .map_err(err)?;
+        lines(&mut chart, data, |(x, y)| *x > 0.0 && *y > 0.0)?;
+        legend(&mut chart)?;
         Ok(())
     })
 }
@@ -182,25 +199,8 @@ fn by_frame(path: &Path, s: &Summary, rows: &[Row]) -> Result<()> {
                 .label(e.describe())
                 .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK));
         }
-        for (i, (label, p)) in data.iter().enumerate() {
-            let colour = colour(i);
-            let p: Vec<(f64, f64)> = p.iter().copied().filter(|(_, y)| *y > 0.0).collect();
-            chart
-                .draw_series(LineSeries::new(p, colour.stroke_width(2)))
-                .map_err(err)?
-                .label(label.as_str())
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
-                });
-        }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .label_font(("sans-serif", 15))
-            .position(SeriesLabelPosition::UpperRight)
-            .draw()
-            .map_err(err)?;
+        lines(&mut chart, &data, |(_, y)| *y > 0.0)?;
+        legend(&mut chart)?;
         Ok(())
     })
 }
@@ -257,14 +257,7 @@ fn pareto(path: &Path, s: &Summary) -> Result<()> {
                 .label(p.label.as_str())
                 .legend(move |(x, y)| Circle::new((x + 10, y), 5, colour.filled()));
         }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .label_font(("sans-serif", 15))
-            .position(SeriesLabelPosition::UpperRight)
-            .draw()
-            .map_err(err)?;
+        legend(&mut chart)?;
         Ok(())
     })
 }
