@@ -149,7 +149,13 @@ fn random_rays(n: usize, lo: Vec3, hi: Vec3, seed: u64) -> Vec<(Vec3, Vec3)> {
 
 #[test]
 fn bvh_matches_brute_force_on_random_rays() {
-    for name in ["cornell", "glossy", "many-lights", "hard-cases"] {
+    for name in [
+        "cornell",
+        "glossy",
+        "many-lights",
+        "hard-cases",
+        "courtyard",
+    ] {
         let scene = builtin::build(name, &toml::Table::new()).unwrap();
         let tris: Vec<[Vec3; 3]> = scene
             .triangles
@@ -480,4 +486,45 @@ fn restir_budget_maps_rays_to_settings() {
     let large = r.params_for_ray_budget(16.0, Some(8.0)).expect("change");
     assert_eq!(large["gi"].as_bool(), Some(true), "{large:?}");
     assert!(large["candidates"].as_integer().unwrap() > 8, "{large:?}");
+}
+
+/// The light pool keeps each class contiguous (local lights first, directional lights last) and
+/// a power-proportional CDF within each class, which ReSTIR's per-class candidates sample; the
+/// pool-wide CDF (path tracer NEE) is unchanged.
+#[test]
+fn light_pool_has_per_class_cdfs() {
+    use gilab::scene::gpu_scene::{SceneData, LIGHT_DIRECTIONAL};
+    let mut scene = builtin::courtyard(15.0, 1.0, 1.0);
+    // A second sun listed before the lantern: the pool must still put it last.
+    let mut sun = scene.lights[0].clone();
+    sun.intensity *= 0.25;
+    scene.lights.insert(0, sun);
+    let data = SceneData::new(&scene);
+    let lights = &data.lights;
+    let local = lights
+        .iter()
+        .take_while(|l| l.kind != LIGHT_DIRECTIONAL)
+        .count();
+    assert_eq!(local, 5, "4 lamp triangles and the lantern first");
+    assert!(lights[local..].iter().all(|l| l.kind == LIGHT_DIRECTIONAL));
+    assert_eq!(lights.len() - local, 2);
+    for class in [&lights[..local], &lights[local..]] {
+        let sum: f32 = class.iter().map(|l| l.class_pmf).sum();
+        assert!((sum - 1.0).abs() < 1e-5, "class pmfs sum to {sum}");
+        assert_eq!(class.last().unwrap().class_cdf, 1.0);
+        assert!(class.windows(2).all(|w| w[0].class_cdf <= w[1].class_cdf));
+    }
+    // The two suns keep their 4:1 power ratio within their class.
+    let ratio = lights[local].class_pmf / lights[local + 1].class_pmf;
+    assert!(
+        (ratio - 4.0).abs() < 1e-3 || (1.0 / ratio - 4.0).abs() < 1e-3,
+        "{ratio}"
+    );
+    // The sun holds almost all of the pool's power: the reason for per-class candidates.
+    let local_mass: f32 = lights[..local].iter().map(|l| l.pmf).sum();
+    assert!(
+        local_mass < 0.01,
+        "local lights' share of the pool {local_mass}"
+    );
+    assert_eq!(lights.last().unwrap().cdf, 1.0);
 }

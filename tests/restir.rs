@@ -201,6 +201,9 @@ fn reuse_lowers_single_frame_error() {
     spatial_count = 0 });
     let temporal = err(toml::toml! { accumulate = false
     spatial_count = 0 });
+    let spatial = err(toml::toml! { accumulate = false
+    temporal = false
+    spatial_radius = 4.0 });
     let both = err(toml::toml! { accumulate = false
     spatial_radius = 4.0 });
     let biased = err(toml::toml! { accumulate = false
@@ -208,13 +211,16 @@ fn reuse_lowers_single_frame_error() {
     unbiased = false });
     eprintln!(
         "many-lights direct, frame 16 relMSE: no reuse {none:.3e}, temporal {temporal:.3e}, \
-         temporal+spatial {both:.3e}, biased with visibility reuse {biased:.3e}"
+         spatial {spatial:.3e}, temporal+spatial {both:.3e}, biased with visibility reuse {biased:.3e}"
     );
     assert!(
         temporal < 0.85 * none,
         "temporal reuse: {temporal} vs {none}"
     );
-    assert!(both < temporal, "spatial reuse: {both} vs {temporal}");
+    assert!(spatial < 0.85 * none, "spatial reuse: {spatial} vs {none}");
+    // On top of temporal reuse the spatial gain is within this test's noise (2.12 against 2.16
+    // in one RNG stream, 2.19 against 2.11 in another), so only a bound is checked.
+    assert!(both < 0.85 * none, "temporal + spatial: {both} vs {none}");
 }
 
 /// DI + GI accumulated over 256 frames at 128² converges to the full reference.
@@ -352,4 +358,136 @@ fn debug_views_hold_reservoir_data() {
         let cells = debug.iter().filter(|d| d[3] > 0.0).count();
         assert_eq!(cells > 0, regir, "ReGIR cells present: {cells}");
     }
+}
+
+/// Per light class candidates (local, directional, sky) on `courtyard`, where all three exist:
+/// unbiased DI with sky candidates converges to the reference's direct light (sky included:
+/// the reference reaches it by BSDF sampling), and DI + GI with sky candidates converges to the
+/// full reference, so direct sky light is not counted twice (GI rays that escape add nothing).
+#[test]
+fn light_classes_with_sky_converge_to_reference() {
+    let size = [48, 48];
+    let scene = || builtin::courtyard(15.0, 1.0, 1.0);
+    let (truth, _) = direct_reference(scene(), size, 1024, 7, 0);
+    let params: toml::Table = toml::toml! { gi = false
+    sky_candidates = 2 };
+    let (di, _) = restir(scene(), size, 128, 1, params);
+    let ratio = energy(&di) / energy(&truth);
+    let m = metrics::compare(&di, &truth).unwrap();
+    eprintln!(
+        "courtyard DI, local + directional + sky classes, 128 frames: energy ratio {ratio:.4}, relMSE {:.2e}",
+        m.rel_mse
+    );
+    assert!((ratio - 1.0).abs() < 0.02, "energy ratio {ratio}");
+    // Under the porch roof the merge by unshadowed target mostly picks the occluded sun, so
+    // relMSE falls slowly there (0.078 measured); the bound catches outliers, not convergence.
+    assert!(m.rel_mse < 0.15, "relMSE {}", m.rel_mse);
+    // The sky's share arrives through the sky class: without it DI misses it.
+    let no_sky: toml::Table = toml::toml! { gi = false
+    sky_candidates = 0 };
+    let (without, _) = restir(scene(), size, 32, 1, no_sky);
+    let without_ratio = energy(&without) / energy(&truth);
+    eprintln!("courtyard DI without sky candidates: energy ratio {without_ratio:.4}");
+    assert!(
+        without_ratio < 0.93,
+        "sky missing yet ratio {without_ratio}"
+    );
+
+    let full = common::render_reference(scene(), size, 1024, 64, 11, 0).image;
+    let mut energies = Vec::new();
+    for sky in [0, 2] {
+        let mut params = toml::Table::new();
+        params.insert("sky_candidates".into(), sky.into());
+        let (img, _) = restir(scene(), size, 128, 1, params);
+        let ratio = energy(&img) / energy(&full);
+        let m = metrics::compare(&img, &full).unwrap();
+        eprintln!(
+            "courtyard DI+GI, sky_candidates {sky}, 128 frames: energy ratio {ratio:.4}, relMSE {:.2e}",
+            m.rel_mse
+        );
+        // 1.5-2% low at 128 frames with or without the sky class (measured 0.985 and 0.980):
+        // the metal sphere's glossy sky reflections come from cosine-sampled GI rays, whose
+        // rare high-weight samples leave the mean low at finite frame counts.
+        assert!(
+            (ratio - 1.0).abs() < 0.03,
+            "sky {sky}: energy ratio {ratio}"
+        );
+        energies.push(energy(&img));
+    }
+    // Sky light counted once: the sky is ~15% of this image, so counting it in both DI and GI
+    // would move this ratio far outside the bound.
+    let sky_ratio = energies[1] / energies[0];
+    assert!(
+        (sky_ratio - 1.0).abs() < 0.02,
+        "sky class / GI sky {sky_ratio}"
+    );
+}
+
+/// The talk's reason for classes: a strong sun holds almost all of the light power, so one
+/// power-proportional pool spends nearly every candidate on it and the porch lamps are rarely
+/// drawn. With classes the local lights get their own candidates. Initial candidates only (no
+/// reuse), sky off so both see the same lights, equal rays.
+#[test]
+fn light_classes_beat_one_pool_under_a_strong_sun() {
+    let size = [48, 48];
+    let scene = || builtin::courtyard(15.0, 1.0, 0.0);
+    let (truth, _) = direct_reference(scene(), size, 2048, 7, 0);
+    let mut errors = Vec::new();
+    for classes in [true, false] {
+        let mut params: toml::Table = toml::toml! { gi = false
+        temporal = false
+        spatial_count = 0 };
+        params.insert("light_classes".into(), classes.into());
+        // Equal candidates: 8 local + 1 directional against 9 from the pool.
+        params.insert("candidates".into(), (if classes { 8 } else { 9 }).into());
+        let (img, rays) = restir(scene(), size, 16, 1, params);
+        let m = metrics::compare(&img, &truth).unwrap();
+        eprintln!(
+            "courtyard DI initial candidates, light_classes {classes}: relMSE {:.3e}, {} rays",
+            m.rel_mse,
+            rays.total()
+        );
+        errors.push((m.rel_mse, rays.total()));
+    }
+    // Rays: one camera ray and at most one final visibility ray per pixel for both (the latter
+    // only where the pick contributes), so within a few percent.
+    let ray_ratio = errors[0].1 as f64 / errors[1].1 as f64;
+    assert!((0.95..1.05).contains(&ray_ratio), "rays {ray_ratio}");
+    assert!(
+        errors[0].0 * 4.0 < errors[1].0,
+        "classes {} vs one pool {}",
+        errors[0].0,
+        errors[1].0
+    );
+}
+
+/// Biased mode: testing each class's pick before the merge (the talk's fix) against testing
+/// only the merged pick, where the shadowed sun wins the merge under the porch roof.
+#[test]
+fn per_class_visibility_beats_merged_visibility() {
+    let size = [48, 48];
+    let scene = || builtin::courtyard(15.0, 1.0, 0.0);
+    let (truth, _) = direct_reference(scene(), size, 2048, 7, 0);
+    let mut errors = Vec::new();
+    for mode in [1, 2] {
+        let mut params: toml::Table = toml::toml! { gi = false
+        unbiased = false
+        temporal = false
+        spatial_count = 0 };
+        params.insert("candidate_visibility".into(), mode.into());
+        let (img, rays) = restir(scene(), size, 16, 1, params);
+        let m = metrics::compare(&img, &truth).unwrap();
+        let rays_px = rays.total() as f64 / (size[0] * size[1] * 16) as f64;
+        eprintln!(
+            "courtyard biased DI, candidate_visibility {mode}: relMSE {:.3e}, {rays_px:.2} rays/px/frame",
+            m.rel_mse
+        );
+        errors.push(m.rel_mse);
+    }
+    assert!(
+        errors[0] < 0.75 * errors[1],
+        "per class {} vs merged {}",
+        errors[0],
+        errors[1]
+    );
 }

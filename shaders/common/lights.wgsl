@@ -23,19 +23,42 @@ struct LightSample {
     valid: bool,
 }
 
-// Index of the first light whose inclusive CDF exceeds u.
-fn select_light(u: f32) -> u32 {
-    var lo = 0u;
-    var hi = light_pool.count - 1u;
+// Inclusive CDF of light i: over the whole pool, or within its class (see LightPool).
+fn light_cdf(i: u32, in_class: bool) -> f32 {
+    let l = light_pool.lights[i];
+    return select(l.cdf, l.class_cdf, in_class);
+}
+
+// Index of the light in [first, end) whose inclusive CDF first exceeds u (binary search).
+fn search_cdf(u: f32, first: u32, end: u32, in_class: bool) -> u32 {
+    var lo = first;
+    var hi = end - 1u;
     while lo < hi {
         let mid = (lo + hi) / 2u;
-        if light_pool.lights[mid].cdf > u {
+        if light_cdf(mid, in_class) > u {
             hi = mid;
         } else {
             lo = mid + 1u;
         }
     }
     return lo;
+}
+
+// A light picked by power over the whole pool (path tracer NEE).
+fn select_light(u: f32) -> u32 {
+    return search_cdf(u, 0u, light_pool.count, false);
+}
+
+// A light picked by power within one class: local lights [0, local_count) or directional
+// lights [local_count, count) (ReSTIR's per-class candidates).
+fn select_light_in_class(u: f32, first: u32, end: u32) -> u32 {
+    return search_cdf(u, first, end, true);
+}
+
+// Factor that turns a sample's pool pdf (LightSample.pdf / area_pdf) into its pdf within its class.
+fn class_pdf_scale(light_index: u32) -> f32 {
+    let l = light_pool.lights[light_index];
+    return l.class_pmf / l.pmf;
 }
 
 // Emitted radiance of a triangle towards direction `to_viewer` (single-sided unless the material says so).

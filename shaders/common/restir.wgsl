@@ -11,9 +11,11 @@
 #import gilab::math::PI
 
 struct RestirParams {
-    // RIS candidates per pixel per frame drawn from the light pool by power.
+    // RIS candidates per pixel per frame from the local lights (triangles, point, spot) by
+    // power, or from the pixel's ReGIR cell; 0 when the scene has none.
     candidates: u32,
-    // 1: trace one visibility ray for the chosen candidate (talk: conservative visibility).
+    // Visibility test before reuse (talk: conservative visibility), biased mode only:
+    // 0 off, 1 each light class's chosen candidate before the classes are merged, 2 the merged one.
     candidate_visibility: u32,
     // 1: reuse last frame's reservoir at the reprojected pixel.
     temporal: u32,
@@ -40,7 +42,18 @@ struct RestirParams {
     regir_dims: u32,
     // Light reservoirs per cell.
     regir_slots: u32,
+    // RIS candidates per pixel per frame from the directional lights; 0 when there are none.
+    directional_candidates: u32,
+    // RIS candidates per pixel per frame from the sky (directions); 0 when the sky is black or
+    // out of reach. When non-zero the sky is direct light: GI sample rays that escape add nothing.
+    sky_candidates: u32,
+    // 1: one power-proportional pool over all lights instead of classes; no sky candidates.
+    single_pool: u32,
+    pad: u32,
 }
+
+const VISIBILITY_PER_CLASS: u32 = 1u;
+const VISIBILITY_MERGED: u32 = 2u;
 
 // A primary hit (or a miss, valid = 0) as the passes need it.
 struct GSurface {
@@ -59,8 +72,9 @@ struct GSurface {
 }
 
 struct Reservoir {
+    // Light pool index, or SKY_SAMPLE for a direction to the sky.
     light: u32,
-    // Barycentrics of the point on a triangle light.
+    // Barycentrics of the point on a triangle light; the octahedral-encoded direction of a sky sample.
     bary_u: f32,
     bary_v: f32,
     w_sum: f32,
@@ -100,15 +114,45 @@ fn surface_material(s: GSurface) -> Surface {
     return Surface(s.base_metal.xyz, s.base_metal.w, s.normal_alpha.w, s.geo_specular.w);
 }
 
-// Unshadowed contribution of a stored light sample at a surface, per unit of the light's
-// measure (area for triangles): f * cos * Le * G. Zero below the geometric surface.
+// The sky as a light class: a sample is a direction (solid-angle measure, the same at every
+// pixel, so reuse needs no Jacobian), stored octahedral-encoded in the barycentric slots.
+const SKY_SAMPLE: u32 = 0xffffffffu;
+
+fn oct_encode(d: vec3<f32>) -> vec2<f32> {
+    let p = d.xy / (abs(d.x) + abs(d.y) + abs(d.z));
+    if d.z >= 0.0 {
+        return p;
+    }
+    return (1.0 - abs(p.yx)) * select(vec2<f32>(-1.0), vec2<f32>(1.0), p >= vec2<f32>(0.0));
+}
+
+fn oct_decode(e: vec2<f32>) -> vec3<f32> {
+    var d = vec3<f32>(e, 1.0 - abs(e.x) - abs(e.y));
+    if d.z < 0.0 {
+        d = vec3<f32>((1.0 - abs(d.yx)) * select(vec2<f32>(-1.0), vec2<f32>(1.0), d.xy >= vec2<f32>(0.0)), d.z);
+    }
+    return normalize(d);
+}
+
+// A stored sample seen from p: a light pool sample, or the sky in a direction (infinitely far).
+fn eval_sample(light: u32, bary: vec2<f32>, p: vec3<f32>) -> LightSample {
+    if light == SKY_SAMPLE {
+        let sky = frame.sky.xyz;
+        return LightSample(oct_decode(bary), 1e30, sky, 0.0, 0.0, 1.0, false, any(sky > vec3<f32>(0.0)));
+    }
+    return eval_light_point(light, bary, p);
+}
+
+// Unshadowed contribution of a stored light sample at a surface, per unit of the sample's
+// measure (area for triangles, solid angle for the sky): f * cos * Le * G. Zero below the
+// geometric surface.
 struct Contribution {
     value: vec3<f32>,
     light: LightSample,
 }
 
 fn contribution(s: GSurface, light: u32, bary: vec2<f32>) -> Contribution {
-    var c = Contribution(vec3<f32>(0.0), eval_light_point(light, bary, s.pos.xyz));
+    var c = Contribution(vec3<f32>(0.0), eval_sample(light, bary, s.pos.xyz));
     if s.pos.w < 0.5 || !c.light.valid || dot(c.light.wi, s.geo_specular.xyz) <= 0.0 {
         return c;
     }
@@ -126,7 +170,8 @@ fn target_at(s: GSurface, r: Reservoir) -> f32 {
 // Shadow test from a surface to a light sample (true = visible).
 fn visible(s: GSurface, l: LightSample) -> bool {
     let p = offset_ray_origin(s.pos.xyz, s.geo_specular.xyz);
-    let t_max = select(l.dist * (1.0 - 1e-4), 1e30, l.is_delta && l.dist >= 1e30);
+    // Directional lights and the sky are infinitely far.
+    let t_max = select(l.dist * (1.0 - 1e-4), 1e30, l.dist >= 1e30);
     return !trace_any(p, l.wi, 0.0, t_max);
 }
 

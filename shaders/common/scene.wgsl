@@ -51,6 +51,11 @@ struct Light {
     // Inclusive cumulative selection probability (power-proportional); the last light has 1.
     cdf: f32,
     pmf: f32,
+    // The same within the light's class (local: triangles, point, spot; directional).
+    class_cdf: f32,
+    class_pmf: f32,
+    pad_a: u32,
+    pad_b: u32,
     position: vec4<f32>,
     // rgb: intensity (point/spot, W/sr) or irradiance (directional, W/m^2).
     intensity: vec4<f32>,
@@ -60,11 +65,12 @@ struct Light {
     spot: vec4<f32>,
 }
 
+// Local lights come first ([0, local_count)), directional lights after them.
 struct LightPool {
     count: u32,
     emissive_count: u32,
     punctual_count: u32,
-    pad: u32,
+    local_count: u32,
     lights: array<Light>,
 }
 

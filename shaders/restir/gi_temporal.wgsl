@@ -36,8 +36,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                         // Area-measure source pdf: solid-angle pdf times the geometry term.
                         gi_update(&r, cand, luminance(e.value) / (pdf * e.geom), 0.0, rand(&rng));
                     }
-                } else {
-                    // Sky: direct light from the environment, estimated by this sample alone.
+                } else if params.sky_candidates == 0u {
+                    // Sky without a DI sky class: direct light from the environment,
+                    // estimated by this sample alone (with the class, it is ReSTIR DI's).
                     let f = bsdf_eval(surface_material(s), n, s.wo_dist.xyz, wi).f;
                     sky = f * local.z * path.radiance / pdf;
                 }

@@ -1,16 +1,31 @@
-// ReSTIR pass 2: initial candidates by RIS from the light pool (target: unshadowed f * Le * G),
-// an optional visibility test of the chosen candidate (biased mode), then temporal reuse of last frame's
-// reservoir at the reprojected pixel (normal/depth similarity, history clamp).
+// ReSTIR pass 2: initial candidates by RIS per light class ("Making Connections": local,
+// directional, sky; each class sampled the way its lights call for, into its own reservoir),
+// the class reservoirs merged before visibility (optionally each class's pick visibility-tested
+// first, biased mode), then temporal reuse of last frame's reservoir at the reprojected pixel
+// (normal/depth similarity, history clamp). Target everywhere: unshadowed f * Le * G.
 #import gilab::rng::{Rng, rng_init, rand, rand_pair}
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts, RAY_CANDIDATE}
-#import gilab::math::luminance
+#import gilab::math::{PI, luminance, to_world}
 #import gilab::scene::light_pool
-#import gilab::lights::select_light
-#import gilab::sampling::sample_triangle
-#import gilab::restir::{params, surfaces, reservoirs, GSurface, Reservoir, surface_index, reservoir_index, parity, empty_reservoir, reproject, regir_cell, regir_slots, contribution, target_at, visible, update, similar, TEMPORAL_SEGMENT}
+#import gilab::lights::{select_light, select_light_in_class, class_pdf_scale}
+#import gilab::sampling::{sample_triangle, sample_cosine_hemisphere}
+#import gilab::brdf::{bsdf_eval, bsdf_sample}
+#import gilab::restir::{params, surfaces, reservoirs, GSurface, Reservoir, surface_index, reservoir_index, parity, empty_reservoir, reproject, regir_cell, regir_slots, contribution, target_at, visible, update, similar, surface_material, oct_encode, SKY_SAMPLE, VISIBILITY_PER_CLASS, VISIBILITY_MERGED, TEMPORAL_SEGMENT}
 
-fn initial_candidates(s: GSurface, rng: ptr<function, Rng>) -> Reservoir {
+// W = w_sum / (M p-hat(y)) of a reservoir filled by RIS.
+fn finish_ris(s: GSurface, r_in: Reservoir) -> Reservoir {
+    var r = r_in;
+    r.target_pdf = target_at(s, r);
+    if r.target_pdf > 0.0 && r.m > 0.0 {
+        r.big_w = r.w_sum / (r.m * r.target_pdf);
+    }
+    return r;
+}
+
+// Local lights (emissive triangles, point and spot lights): by power within the class, or
+// the pixel's ReGIR cell. In single-pool mode: by power over every light.
+fn local_candidates(s: GSurface, rng: ptr<function, Rng>) -> Reservoir {
     var r = empty_reservoir();
     let cell = regir_cell(s.pos.xyz);
     if params.regir == 1u && cell >= 0 {
@@ -25,25 +40,122 @@ fn initial_candidates(s: GSurface, rng: ptr<function, Rng>) -> Reservoir {
             }
             update(&r, Reservoir(slot.light, slot.bary_u, slot.bary_v, 0.0, 0.0, 0.0, 0.0, 0.0), w, 1.0, rand(rng));
         }
-        r.target_pdf = target_at(s, r);
-        if r.target_pdf > 0.0 && r.m > 0.0 {
-            r.big_w = r.w_sum / (r.m * r.target_pdf);
-        }
-        return r;
+        return finish_ris(s, r);
     }
     for (var i = 0u; i < params.candidates; i++) {
-        let li = select_light(rand(rng));
+        var li = 0u;
+        var scale = 1.0;
+        if params.single_pool == 1u {
+            li = select_light(rand(rng));
+        } else {
+            li = select_light_in_class(rand(rng), 0u, light_pool.local_count);
+            scale = class_pdf_scale(li);
+        }
         let b = sample_triangle(rand_pair(rng));
         let c = contribution(s, li, b);
+        let pdf = c.light.area_pdf * scale;
         var w = 0.0;
-        if c.light.area_pdf > 0.0 {
-            w = luminance(c.value) / c.light.area_pdf;
+        if pdf > 0.0 {
+            w = luminance(c.value) / pdf;
         }
         update(&r, Reservoir(li, b.x, b.y, 0.0, 0.0, 0.0, 0.0, 0.0), w, 1.0, rand(rng));
     }
+    return finish_ris(s, r);
+}
+
+// Directional lights: by power within the class.
+fn directional_candidates(s: GSurface, rng: ptr<function, Rng>) -> Reservoir {
+    var r = empty_reservoir();
+    for (var i = 0u; i < params.directional_candidates; i++) {
+        let li = select_light_in_class(rand(rng), light_pool.local_count, light_pool.count);
+        let c = contribution(s, li, vec2<f32>(0.0));
+        let pdf = light_pool.lights[li].class_pmf;
+        var w = 0.0;
+        if pdf > 0.0 {
+            w = luminance(c.value) / pdf;
+        }
+        update(&r, Reservoir(li, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0), w, 1.0, rand(rng));
+    }
+    return finish_ris(s, r);
+}
+
+// The sky: directions from an equal mix of the BSDF's own sampling and the cosine lobe (the
+// mix keeps the pdf non-zero wherever f * cos is, also on mirrors).
+fn sky_candidates(s: GSurface, rng: ptr<function, Rng>) -> Reservoir {
+    var r = empty_reservoir();
+    let n = s.normal_alpha.xyz;
+    let wo = s.wo_dist.xyz;
+    let m = surface_material(s);
+    for (var i = 0u; i < params.sky_candidates; i++) {
+        let u_mix = rand(rng);
+        let u_lobe = rand(rng);
+        let u = rand_pair(rng);
+        var wi = to_world(sample_cosine_hemisphere(u), n);
+        var valid = true;
+        if u_mix < 0.5 {
+            // A failed BSDF sample is a candidate of weight 0 (the pdf below is the density
+            // of the valid ones).
+            let bs = bsdf_sample(m, n, wo, u_lobe, u);
+            wi = bs.wi;
+            valid = bs.valid;
+        }
+        let pdf = 0.5 * max(dot(n, wi), 0.0) / PI + 0.5 * bsdf_eval(m, n, wo, wi).pdf;
+        let e = oct_encode(wi);
+        var w = 0.0;
+        if valid && pdf > 0.0 {
+            w = luminance(contribution(s, SKY_SAMPLE, e).value) / pdf;
+        }
+        update(&r, Reservoir(SKY_SAMPLE, e.x, e.y, 0.0, 0.0, 0.0, 0.0, 0.0), w, 1.0, rand(rng));
+    }
+    return finish_ris(s, r);
+}
+
+// A conservative visibility test of one reservoir's pick (biased mode): an occluded pick is
+// kept out of reuse; its candidate count still counts.
+fn drop_if_occluded(s: GSurface, r: ptr<function, Reservoir>, counts: ptr<function, array<u32, 16>>) {
+    if (*r).big_w <= 0.0 {
+        return;
+    }
+    (*counts)[RAY_CANDIDATE] += 1u;
+    let c = contribution(s, (*r).light, vec2<f32>((*r).bary_u, (*r).bary_v));
+    if !visible(s, c.light) {
+        (*r).big_w = 0.0;
+        (*r).w_sum = 0.0;
+    }
+}
+
+// One reservoir from the three class reservoirs. Their samples come from disjoint domains, so
+// each class is its own RIS estimator: the merge picks class c's sample with weight
+// p-hat(y_c) W_c, and W = sum of the weights / p-hat(y). M is the total candidate count.
+fn initial_candidates(s: GSurface, rng: ptr<function, Rng>, counts: ptr<function, array<u32, 16>>) -> Reservoir {
+    var classes = array<Reservoir, 3>(empty_reservoir(), empty_reservoir(), empty_reservoir());
+    if params.candidates > 0u {
+        classes[0] = local_candidates(s, rng);
+    }
+    if params.directional_candidates > 0u {
+        classes[1] = directional_candidates(s, rng);
+    }
+    if params.sky_candidates > 0u {
+        classes[2] = sky_candidates(s, rng);
+    }
+    let test_each = params.candidate_visibility == VISIBILITY_PER_CLASS && params.unbiased == 0u;
+    var r = empty_reservoir();
+    for (var c = 0u; c < 3u; c++) {
+        var rc = classes[c];
+        if rc.m <= 0.0 {
+            continue;
+        }
+        if test_each {
+            drop_if_occluded(s, &rc, counts);
+        }
+        update(&r, rc, rc.target_pdf * rc.big_w, rc.m, rand(rng));
+    }
     r.target_pdf = target_at(s, r);
-    if r.target_pdf > 0.0 && r.m > 0.0 {
-        r.big_w = r.w_sum / (r.m * r.target_pdf);
+    if r.target_pdf > 0.0 {
+        r.big_w = r.w_sum / r.target_pdf;
+    }
+    if params.candidate_visibility == VISIBILITY_MERGED && params.unbiased == 0u {
+        drop_if_occluded(s, &r, counts);
     }
     return r;
 }
@@ -56,18 +168,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         var rng = rng_init(gid.xy, frame.sample_offset * 4u + 1u, frame.seed);
         let s = surfaces[surface_index(parity(), idx)];
         var r = empty_reservoir();
-        if s.pos.w > 0.5 && light_pool.count > 0u {
-            r = initial_candidates(s, &rng);
+        if s.pos.w > 0.5 {
             // Zeroing occluded candidates narrows what a reservoir can hold below the unshadowed
-            // support the 1/Z weights assume, so the unbiased mode does not do it.
-            if params.candidate_visibility == 1u && params.unbiased == 0u && r.big_w > 0.0 {
-                counts[RAY_CANDIDATE] += 1u;
-                let c = contribution(s, r.light, vec2<f32>(r.bary_u, r.bary_v));
-                if !visible(s, c.light) {
-                    r.big_w = 0.0;
-                    r.w_sum = 0.0;
-                }
-            }
+            // support the 1/Z weights assume, so the unbiased mode never tests candidates.
+            r = initial_candidates(s, &rng, &counts);
             if params.temporal == 1u && frame.frame_index > 0u {
                 // Where this surface point was on screen last frame.
                 let prev = reproject(s.pos.xyz);

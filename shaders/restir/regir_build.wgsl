@@ -1,12 +1,12 @@
 // ReGIR pass: fills every (cell, slot) of the camera-centred grid with one light sample chosen
-// by RIS from the global pool; target: emitted strength / squared distance to the cell centre
+// by RIS from the local lights (from every light in single-pool mode); target: emitted strength / squared distance to the cell centre
 // (clamped at the cell's half-diagonal, no cosine), so no light that may reach the cell is
 // ever given zero weight and pixels can use the slots' weights unbiasedly.
 #import gilab::rng::{rng_init, rand, rand_pair}
 #import gilab::frame::frame
 #import gilab::math::luminance
 #import gilab::scene::light_pool
-#import gilab::lights::{select_light, light_emitter}
+#import gilab::lights::{select_light, select_light_in_class, class_pdf_scale, light_emitter}
 #import gilab::sampling::sample_triangle
 #import gilab::restir::{params, regir_slots, RegirSlot, regir_cell_centre}
 
@@ -25,7 +25,7 @@ fn cell_target(light: u32, b: vec2<f32>, centre: vec3<f32>, min_dist_sq: f32) ->
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let dims = params.regir_dims;
     let total = dims * dims * dims * params.regir_slots;
-    if gid.x >= total || light_pool.count == 0u {
+    if gid.x >= total || params.candidates == 0u {
         return;
     }
     let cell = gid.x / params.regir_slots;
@@ -37,14 +37,22 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     var chosen = RegirSlot(0u, 0.0, 0.0, 0.0);
     var chosen_target = 0.0;
     for (var i = 0u; i < CANDIDATES_PER_SLOT; i++) {
-        let li = select_light(rand(&rng));
+        var li = 0u;
+        var scale = 1.0;
+        if params.single_pool == 1u {
+            li = select_light(rand(&rng));
+        } else {
+            li = select_light_in_class(rand(&rng), 0u, light_pool.local_count);
+            scale = class_pdf_scale(li);
+        }
         let b = sample_triangle(rand_pair(&rng));
         let e = light_emitter(li, b);
-        if e.area_pdf <= 0.0 {
+        let pdf = e.area_pdf * scale;
+        if pdf <= 0.0 {
             continue;
         }
         let t = cell_target(li, b, centre, min_dist_sq);
-        let w = t / e.area_pdf;
+        let w = t / pdf;
         w_sum += w;
         if w > 0.0 && rand(&rng) * w_sum < w {
             chosen = RegirSlot(li, b.x, b.y, 0.0);

@@ -4,7 +4,8 @@
 #import gilab::counters::{flush_counts, no_counts, RAY_SHADOW, COUNT_INVALID_SAMPLES}
 #import gilab::math::is_finite_vec
 #import gilab::accumulate::welford_add
-#import gilab::restir::{params, surfaces, reservoirs, gi_reservoirs, gi_sky, surface_index, reservoir_index, parity, contribution, visible, gi_contribution, gi_visible, regir_cell, debug_out}
+#import gilab::restir::{params, surfaces, reservoirs, gi_reservoirs, gi_sky, surface_index, reservoir_index, parity, contribution, visible, gi_contribution, gi_visible, regir_cell, debug_out, SKY_SAMPLE}
+#import gilab::scene::light_pool
 
 @group(1) @binding(5) var<storage, read_write> accum_mean: array<vec4<f32>>;
 @group(1) @binding(6) var<storage, read_write> accum_m2: array<vec4<f32>>;
@@ -36,7 +37,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             }
         }
         var light_id = 0.0;
-        if r.big_w > 0.0 {
+        if r.big_w > 0.0 && r.light == SKY_SAMPLE {
+            light_id = f32(light_pool.count + 1u);
+        } else if r.big_w > 0.0 {
             light_id = f32(r.light + 1u);
         }
         var cell_id = 0.0;

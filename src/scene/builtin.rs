@@ -11,6 +11,7 @@ pub const NAMES: &[(&str, &str)] = &[
     ("many-lights", "a pillared hall lit by `lights` (default 1024) small coloured ceiling emitters: the many-light stress case"),
     ("thin-wall", "a sunlit exterior and a closed room of zero-thickness walls; `interior_light` 0 makes any light inside a leak"),
     ("glossy", "metal spheres of roughness 0, 0.1, 0.3, 0.7 before a mirror wall, under an area light"),
+    ("courtyard", "an open porch beside a sunlit yard under a blue sky: the roof shadows the porch from the sun, wall lamps of radiance `lamp` (15) and a lantern light it; every light class (local, directional, sky); `sun` and `sky` scale the sun and the sky (1)"),
     ("hard-cases", "degenerate triangles, zero normals, roughness 0/1, metallic 1, a light inside a box, emission `emission` (1e6), grazing camera"),
 ];
 
@@ -97,6 +98,7 @@ pub fn build(name: &str, params: &toml::Table) -> Result<Scene> {
         "thin-wall" => thin_wall(p.f32("interior_light", 0.6)?),
         "glossy" => glossy(),
         "hard-cases" => hard_cases(p.f32("emission", 1e6)?),
+        "courtyard" => courtyard(p.f32("lamp", 15.0)?, p.f32("sun", 1.0)?, p.f32("sky", 1.0)?),
         other => {
             let names: Vec<&str> = NAMES.iter().map(|(n, _)| *n).collect();
             bail!(
@@ -689,6 +691,108 @@ pub fn hard_cases(emission: f32) -> Scene {
         target: v(-5.0, 1.2, -4.99),
         up: Vec3::Y,
         fov_y: 70.0,
+    });
+    s
+}
+
+/// "Making Connections"' bistro case in miniature: an open porch beside a sunlit yard. The roof
+/// shadows the porch from a strong sun, two small wall lamps and a lantern light it, and the sky
+/// reaches it through the open front, so every light class is present: local (lamps, lantern),
+/// directional (the sun, which holds almost all of the scene's light power) and the sky.
+pub fn courtyard(lamp: f32, sun: f32, sky: f32) -> Scene {
+    let mut s = Scene::new("courtyard");
+    let ground = s.add_material(Material::lambert("ground", Vec3::new(0.45, 0.42, 0.38)));
+    let plaster = s.add_material(Material::lambert("plaster", Vec3::new(0.75, 0.7, 0.62)));
+    let stone = s.add_material(Material::lambert("stone", Vec3::new(0.5, 0.5, 0.52)));
+    let metal = s.add_material(Material::glossy(
+        "metal",
+        Vec3::new(0.95, 0.85, 0.6),
+        1.0,
+        0.25,
+    ));
+    let lamp_m = s.add_material(Material::emitter("lamp", Vec3::new(1.0, 0.8, 0.55) * lamp));
+    let v = Vec3::new;
+    s.add_quad(
+        v(-25.0, 0.0, -25.0),
+        v(-25.0, 0.0, 25.0),
+        v(25.0, 0.0, 25.0),
+        v(25.0, 0.0, -25.0),
+        ground,
+    );
+    // The porch: back wall, side walls and roof (zero thickness), open towards +z.
+    let (w, h, back, front) = (4.0f32, 3.2f32, -4.0f32, -0.5f32);
+    s.add_quad(
+        v(-w, 0.0, back),
+        v(w, 0.0, back),
+        v(w, h, back),
+        v(-w, h, back),
+        plaster,
+    );
+    s.add_quad(
+        v(-w, 0.0, back),
+        v(-w, h, back),
+        v(-w, h, front),
+        v(-w, 0.0, front),
+        plaster,
+    );
+    s.add_quad(
+        v(w, 0.0, back),
+        v(w, 0.0, front),
+        v(w, h, front),
+        v(w, h, back),
+        plaster,
+    );
+    s.add_quad(
+        v(-w - 0.3, h, back),
+        v(w + 0.3, h, back),
+        v(w + 0.3, h, front),
+        v(-w - 0.3, h, front),
+        stone,
+    );
+    // Wall lamps facing +z, 1 cm in front of the back wall.
+    for x in [-2.0f32, 2.0] {
+        let z = back + 0.01;
+        s.add_quad(
+            v(x - 0.15, 2.05, z),
+            v(x + 0.15, 2.05, z),
+            v(x + 0.15, 2.35, z),
+            v(x - 0.15, 2.35, z),
+            lamp_m,
+        );
+    }
+    // A pillar in the yard (sun shadow) and a metal sphere (sky and sun reflections).
+    let (px, pz, r) = (2.5f32, 2.0f32, 0.25f32);
+    let b = [
+        v(px - r, 0.0, pz - r),
+        v(px - r, 0.0, pz + r),
+        v(px + r, 0.0, pz + r),
+        v(px + r, 0.0, pz - r),
+    ];
+    let t = b.map(|p| p + v(0.0, 2.2, 0.0));
+    s.add_box([b[0], b[1], b[2], b[3], t[0], t[1], t[2], t[3]], stone);
+    add_uv_sphere(&mut s, v(-2.0, 0.8, 1.5), 0.8, metal, 16, 32);
+    s.lights.push(PunctualLight {
+        kind: PunctualKind::Directional,
+        position: Vec3::ZERO,
+        direction: v(0.5, -0.9, -0.3).normalize(),
+        intensity: v(5.0, 4.7, 4.2) * sun,
+        inner_cone: 0.0,
+        outer_cone: 0.0,
+    });
+    s.lights.push(PunctualLight {
+        kind: PunctualKind::Point,
+        position: v(0.0, 2.7, -2.2),
+        direction: Vec3::NEG_Y,
+        intensity: v(3.0, 2.6, 2.0),
+        inner_cone: 0.0,
+        outer_cone: 0.0,
+    });
+    s.sky = v(0.3, 0.42, 0.7) * sky;
+    s.camera = Some(Camera {
+        position: v(1.0, 2.0, 8.0),
+        target: v(0.0, 1.4, -2.0),
+        up: Vec3::Y,
+        fov_y: 55.0,
     });
     s
 }

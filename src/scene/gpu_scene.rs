@@ -42,8 +42,14 @@ pub const LIGHT_DIRECTIONAL: u32 = 3;
 pub struct GpuLight {
     pub kind: u32,
     pub tri: u32,
+    /// Selection over the whole pool (next-event estimation of the path tracers).
     pub cdf: f32,
     pub pmf: f32,
+    /// Selection within the light's class (local: triangles, points, spots; directional),
+    /// for ReSTIR's per-class candidates.
+    pub class_cdf: f32,
+    pub class_pmf: f32,
+    pub pad: [u32; 2],
     pub position: [f32; 4],
     pub intensity: [f32; 4],
     pub direction: [f32; 4],
@@ -151,7 +157,10 @@ impl SceneData {
                 powers.push(power);
             }
         }
-        for l in &scene.lights {
+        // Local lights first, directional ones last: each class is one contiguous range.
+        let mut punctual: Vec<&super::PunctualLight> = scene.lights.iter().collect();
+        punctual.sort_by_key(|l| matches!(l.kind, PunctualKind::Directional));
+        for l in punctual {
             let lum = luminance(l.intensity);
             if !(lum > 0.0 && lum.is_finite()) {
                 continue;
@@ -170,13 +179,11 @@ impl SceneData {
             let scale = 1.0 / (ci - co).max(1e-4);
             lights.push(GpuLight {
                 kind,
-                tri: 0,
-                cdf: 0.0,
-                pmf: 0.0,
                 position: l.position.extend(1.0).to_array(),
                 intensity: l.intensity.extend(0.0).to_array(),
                 direction: l.direction.normalize_or(Vec3::NEG_Y).extend(0.0).to_array(),
                 spot: [co, scale, -co * scale, 0.0],
+                ..Default::default()
             });
             powers.push(power);
         }
@@ -190,6 +197,12 @@ impl SceneData {
         if let Some(last) = lights.last_mut() {
             last.cdf = 1.0;
         }
+        let local = lights
+            .iter()
+            .filter(|l| l.kind != LIGHT_DIRECTIONAL)
+            .count();
+        set_class_cdf(&mut lights[..local], &powers[..local]);
+        set_class_cdf(&mut lights[local..], &powers[local..]);
 
         let mut tri_geom = Vec::with_capacity(tris.len());
         let mut tri_attr = Vec::with_capacity(tris.len());
@@ -237,6 +250,20 @@ impl SceneData {
             vertices,
             features,
         }
+    }
+}
+
+/// Power-proportional selection within one class of lights (inclusive CDF, last = 1).
+fn set_class_cdf(lights: &mut [GpuLight], powers: &[f32]) {
+    let total: f64 = powers.iter().map(|&p| p as f64).sum();
+    let mut acc = 0.0f64;
+    for (l, p) in lights.iter_mut().zip(powers) {
+        acc += *p as f64;
+        l.class_pmf = (*p as f64 / total) as f32;
+        l.class_cdf = (acc / total) as f32;
+    }
+    if let Some(last) = lights.last_mut() {
+        last.class_cdf = 1.0;
     }
 }
 
@@ -296,11 +323,16 @@ impl GpuScene {
             .iter()
             .filter(|l| l.kind == LIGHT_TRIANGLE)
             .count() as u32;
+        let local = data
+            .lights
+            .iter()
+            .filter(|l| l.kind != LIGHT_DIRECTIONAL)
+            .count() as u32;
         let header = [
             data.lights.len() as u32,
             emissive,
             data.lights.len() as u32 - emissive,
-            0,
+            local,
         ];
         light_bytes.extend_from_slice(bytemuck::cast_slice(&header));
         light_bytes.extend_from_slice(bytemuck::cast_slice(&data.lights));

@@ -4,11 +4,21 @@
 //! Connections" (GDC; shared/seeds/003) and Bitterli et al. 2020. Per pixel and frame:
 //!
 //! 1. `primary`: a jittered camera ray (the reference's jitter sequence) stores the surface.
-//! 2. `initial_temporal`: `candidates` lights drawn from the power-proportional light pool
-//!    (emissive triangles and punctual lights) are resampled by the unshadowed target
-//!    f · Le · G into a weighted reservoir; optionally the chosen one is visibility-tested
-//!    (the talk's conservative test); then last frame's reservoir at the reprojected pixel is
+//! 2. `initial_temporal`: initial candidates per light class, as in the talk, each class
+//!    resampled by the unshadowed target f · Le · G into its own reservoir:
+//!    - local lights (emissive triangles, point and spot lights): `candidates` drawn by power
+//!      within the class, or from the pixel's ReGIR cell;
+//!    - directional lights: `directional_candidates` drawn by power within the class;
+//!    - the sky: `sky_candidates` directions from an equal mix of BSDF and cosine sampling
+//!      (0 by default: the GI sample ray then estimates direct sky light, which measured better).
+//!
+//!    A class the scene lacks gets no candidates (rule 3). The class reservoirs are merged
+//!    before visibility (disjoint domains: each class is its own RIS estimator); in biased mode
+//!    each class's pick can be visibility-tested first (the talk's fix for a strong, shadowed
+//!    sun), or only the merged pick. Then last frame's reservoir at the reprojected pixel is
 //!    merged if the surfaces are similar, its M clamped to `max_history` × the current M.
+//!    `light_classes = false` gives the single power-proportional pool over every light, with
+//!    the sky left to GI rays, for A/B comparisons.
 //! 3. `spatial`: `spatial_count` neighbours within `spatial_radius` pixels are merged.
 //!    Unbiased mode weights by 1/Z (only reservoirs that could have produced the sample count,
 //!    with a visibility ray each when candidate visibility is on); biased mode weights by M and
@@ -17,8 +27,9 @@
 //! 4. `shade`: one visibility ray for the final sample; emission + f · Le · G · V · W is
 //!    accumulated over frames (Welford), like the reference, so a static view converges.
 //!
-//! Samples live in the light's own measure (area for triangles), so reuse across pixels needs
-//! no Jacobian.
+//! Samples live in the light's own measure (area for triangles, solid angle for sky directions),
+//! so reuse across pixels needs no Jacobian. With a sky class, GI sample rays that escape add
+//! nothing: direct sky light is ReSTIR DI's.
 //! Shaders: shaders/restir/*.wgsl, shared state in shaders/common/restir.wgsl.
 
 use crate::gpu::{timing::PassTimer, Gpu};
@@ -47,6 +58,41 @@ pub struct RestirParamsGpu {
     pub regir_cell_size: f32,
     pub regir_dims: u32,
     pub regir_slots: u32,
+    pub directional_candidates: u32,
+    pub sky_candidates: u32,
+    pub single_pool: u32,
+    pub pad: u32,
+}
+
+/// Which initial candidates are visibility-tested before reuse (biased mode only).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CandidateVisibility {
+    Off = 0,
+    /// Each light class's pick, before the classes are merged (one ray per class present).
+    PerClass = 1,
+    /// Only the merged pick (one ray): a strong shadowed light can crowd out visible ones.
+    Merged = 2,
+}
+
+impl CandidateVisibility {
+    fn parse(v: &toml::Value) -> Option<Self> {
+        match v {
+            toml::Value::Boolean(b) => Some(if *b { Self::PerClass } else { Self::Off }),
+            toml::Value::Integer(0) => Some(Self::Off),
+            toml::Value::Integer(1) => Some(Self::PerClass),
+            toml::Value::Integer(2) => Some(Self::Merged),
+            toml::Value::Float(f) if [0.0, 1.0, 2.0].contains(f) => {
+                Self::parse(&toml::Value::Integer(*f as i64))
+            }
+            toml::Value::String(s) => match s.as_str() {
+                "off" => Some(Self::Off),
+                "per_class" => Some(Self::PerClass),
+                "merged" => Some(Self::Merged),
+                _ => None,
+            },
+            _ => None,
+        }
+    }
 }
 
 /// Bytes of `GSurface`, `Reservoir` and `GiReservoir` in shaders/common/restir.wgsl.
@@ -60,8 +106,13 @@ const MAX_SPATIAL: u32 = 8;
 
 #[derive(Clone, Debug, PartialEq)]
 pub struct RestirSettings {
+    /// Candidates from the local lights (all lights when `light_classes` is off).
     pub candidates: u32,
-    pub candidate_visibility: bool,
+    pub directional_candidates: u32,
+    pub sky_candidates: u32,
+    /// Candidates per light class; false: one pool over every light, sky through GI only.
+    pub light_classes: bool,
+    pub candidate_visibility: CandidateVisibility,
     pub temporal: bool,
     pub max_history: f32,
     pub spatial_count: u32,
@@ -83,7 +134,12 @@ impl Default for RestirSettings {
         // The talk's defaults: 8 initial candidates, max history 8, a couple of spatial samples.
         RestirSettings {
             candidates: 8,
-            candidate_visibility: true,
+            directional_candidates: 1,
+            // Off by default, measured: merged into the one DI reservoir, sky samples lose to
+            // the GI ray's own sky estimate on `courtyard` (README, ReSTIR section).
+            sky_candidates: 0,
+            light_classes: true,
+            candidate_visibility: CandidateVisibility::PerClass,
             temporal: true,
             max_history: 8.0,
             spatial_count: 3,
@@ -125,10 +181,28 @@ pub struct Restir {
     mean: Option<wgpu::Buffer>,
     m2: Option<wgpu::Buffer>,
     extent: [u32; 2],
-    has_lights: bool,
+    classes: LightClasses,
     many_lights: bool,
     /// Cell size in use (the setting, or the automatic one for this scene).
     regir_cell: f32,
+}
+
+/// Which light classes the scene has (rule 3: a class it lacks gets no candidates).
+#[derive(Clone, Copy, Debug, Default)]
+struct LightClasses {
+    local: usize,
+    directional: usize,
+    sky: bool,
+}
+
+impl LightClasses {
+    fn of(f: &SceneFeatures) -> Self {
+        LightClasses {
+            local: f.emissive_triangle_count + f.point_lights + f.spot_lights,
+            directional: f.directional_lights,
+            sky: f.sky_visible,
+        }
+    }
 }
 
 const PASSES: [&str; 7] = [
@@ -144,13 +218,41 @@ const PASSES: [&str; 7] = [
 impl Restir {
     /// ReGIR runs only where the scene calls for it: many lights (rule 3).
     pub fn regir_active(&self) -> bool {
-        self.settings.regir && self.many_lights
+        self.settings.regir && self.many_lights && self.class_candidates()[0] > 0
+    }
+
+    /// Candidates per frame of each class (local, directional, sky) as dispatched: 0 for a
+    /// class the scene lacks; in single-pool mode all lights are "local" and the sky has none.
+    fn class_candidates(&self) -> [u32; 3] {
+        self.candidates_for(&self.classes)
+    }
+
+    fn candidates_for(&self, c: &LightClasses) -> [u32; 3] {
+        let s = &self.settings;
+        if !s.light_classes {
+            let any = c.local + c.directional > 0;
+            return [if any { s.candidates } else { 0 }, 0, 0];
+        }
+        [
+            if c.local > 0 { s.candidates } else { 0 },
+            if c.directional > 0 {
+                s.directional_candidates
+            } else {
+                0
+            },
+            if c.sky { s.sky_candidates } else { 0 },
+        ]
+    }
+
+    fn has_direct_sources(&self) -> bool {
+        self.class_candidates().iter().any(|&n| n > 0)
     }
 
     fn gpu_params(&self, pixels: u32) -> RestirParamsGpu {
         let s = &self.settings;
+        let [local, directional, sky] = self.class_candidates();
         RestirParamsGpu {
-            candidates: s.candidates,
+            candidates: local,
             candidate_visibility: s.candidate_visibility as u32,
             temporal: s.temporal as u32,
             max_history: s.max_history,
@@ -166,16 +268,75 @@ impl Restir {
             regir_cell_size: self.regir_cell,
             regir_dims: REGIR_DIMS,
             regir_slots: s.regir_lights_per_cell,
+            directional_candidates: directional,
+            sky_candidates: sky,
+            single_pool: !s.light_classes as u32,
+            pad: 0,
         }
     }
 
+    /// What the initial candidates are drawn from, class by class, and what is skipped and why.
+    fn candidate_summary(&self, f: &SceneFeatures) -> String {
+        let c = LightClasses::of(f);
+        let [local, directional, sky] = self.candidates_for(&c);
+        let s = &self.settings;
+        let source = if s.regir && f.many_lights {
+            "ReGIR cell"
+        } else {
+            "by power"
+        };
+        if !s.light_classes {
+            return format!(
+                "one pool (light_classes = false): {local} candidates from {} lights {source}, sky only through GI rays",
+                c.local + c.directional
+            );
+        }
+        let mut parts = Vec::new();
+        parts.push(if local > 0 {
+            format!("local: {local} candidates over {} lights {source}", c.local)
+        } else {
+            "local: none in the scene".into()
+        });
+        parts.push(if directional > 0 {
+            format!(
+                "directional: {directional} candidates over {} lights",
+                c.directional
+            )
+        } else {
+            "directional: none in the scene".into()
+        });
+        parts.push(if sky > 0 {
+            format!("sky: {sky} candidate directions")
+        } else if f.sky_visible {
+            "sky: sky_candidates = 0, through GI rays".into()
+        } else {
+            "sky: black or out of reach".into()
+        });
+        let test = match (s.unbiased, s.candidate_visibility) {
+            (true, _) => "no candidate test (unbiased)",
+            (false, CandidateVisibility::Off) => "no candidate test",
+            (false, CandidateVisibility::PerClass) => "each class's pick tested",
+            (false, CandidateVisibility::Merged) => "merged pick tested",
+        };
+        format!(
+            "RIS per light class ({}), merged before visibility, {test}",
+            parts.join("; ")
+        )
+    }
+
     /// Rays per pixel per frame of everything but GI: camera, final DI visibility, the
-    /// candidate test (biased mode), the bidirectional test per neighbour.
+    /// candidate tests (biased mode), the bidirectional test per neighbour.
     pub fn direct_rays_per_pixel(&self) -> f64 {
         let s = &self.settings;
         let mut rays = 2.0;
-        if s.candidate_visibility && !s.unbiased {
-            rays += 1.0;
+        if !s.unbiased {
+            rays += match s.candidate_visibility {
+                CandidateVisibility::Off => 0.0,
+                CandidateVisibility::Merged => 1.0,
+                CandidateVisibility::PerClass => {
+                    self.class_candidates().iter().filter(|&&n| n > 0).count() as f64
+                }
+            };
         }
         if s.bidirectional {
             rays += s.spatial_count as f64;
@@ -190,8 +351,11 @@ impl Technique for Restir {
     }
 
     fn passes(&self, f: &SceneFeatures) -> Vec<PassInfo> {
-        let lights = f.light_count() > 0;
-        let no_lights = || "no emissive triangles or punctual lights".to_string();
+        let lights = self
+            .candidates_for(&LightClasses::of(f))
+            .iter()
+            .any(|&n| n > 0);
+        let no_lights = || "no emissive triangles, punctual lights or reachable sky".to_string();
         vec![
             PassInfo {
                 name: "primary",
@@ -203,9 +367,8 @@ impl Technique for Restir {
                 runs: lights,
                 why: if lights {
                     format!(
-                        "RIS over {} lights ({} emissive triangles), temporal reuse {}",
-                        f.light_count(),
-                        f.emissive_triangle_count,
+                        "{}; temporal reuse {}",
+                        self.candidate_summary(f),
                         if self.settings.temporal { "on" } else { "off" }
                     )
                 } else {
@@ -312,7 +475,7 @@ impl Technique for Restir {
         let [w, h] = ctx.extent;
         let pixels = w * h;
         let features = &ctx.scene.data.features;
-        self.has_lights = features.light_count() > 0;
+        self.classes = LightClasses::of(features);
         self.many_lights = features.many_lights;
         self.regir_cell = if self.settings.regir_cell_size > 0.0 {
             self.settings.regir_cell_size
@@ -450,9 +613,9 @@ impl Technique for Restir {
         }
         let steps = [
             (PASSES[1], &p.primary, true),
-            (PASSES[2], &p.initial_temporal, self.has_lights),
+            (PASSES[2], &p.initial_temporal, self.has_direct_sources()),
             // With spatial_count = 0 this pass only copies the temporal result through.
-            (PASSES[3], &p.spatial, self.has_lights),
+            (PASSES[3], &p.spatial, self.has_direct_sources()),
             (PASSES[4], &p.gi_temporal, self.settings.gi),
             (PASSES[5], &p.gi_spatial, self.settings.gi),
             (PASSES[6], &p.shade, true),
@@ -494,7 +657,16 @@ impl Technique for Restir {
         let s = &self.settings;
         let mut t = toml::Table::new();
         t.insert("candidates".into(), (s.candidates as i64).into());
-        t.insert("candidate_visibility".into(), s.candidate_visibility.into());
+        t.insert(
+            "directional_candidates".into(),
+            (s.directional_candidates as i64).into(),
+        );
+        t.insert("sky_candidates".into(), (s.sky_candidates as i64).into());
+        t.insert("light_classes".into(), s.light_classes.into());
+        t.insert(
+            "candidate_visibility".into(),
+            (s.candidate_visibility as i64).into(),
+        );
         t.insert("temporal".into(), s.temporal.into());
         t.insert("max_history".into(), (s.max_history as f64).into());
         t.insert("spatial_count".into(), (s.spatial_count as i64).into());
@@ -519,13 +691,20 @@ impl Technique for Restir {
             let num = v.as_float().or(v.as_integer().map(|i| i as f64));
             let flag = v.as_bool().or(v.as_integer().map(|i| i != 0));
             match (k.as_str(), num, flag) {
-                ("candidates", Some(n), _) if (1.0..=256.0).contains(&n) => s.candidates = n as u32,
+                ("candidates", Some(n), _) if (0.0..=256.0).contains(&n) => s.candidates = n as u32,
                 ("max_history", Some(n), _) if (0.0..=1000.0).contains(&n) => s.max_history = n as f32,
                 ("spatial_count", Some(n), _) if (0.0..=MAX_SPATIAL as f64).contains(&n) => {
                     s.spatial_count = n as u32
                 }
                 ("spatial_radius", Some(n), _) if (1.0..=256.0).contains(&n) => s.spatial_radius = n as f32,
-                ("candidate_visibility", _, Some(b)) => s.candidate_visibility = b,
+                ("directional_candidates", Some(n), _) if (0.0..=64.0).contains(&n) => {
+                    s.directional_candidates = n as u32
+                }
+                ("sky_candidates", Some(n), _) if (0.0..=64.0).contains(&n) => s.sky_candidates = n as u32,
+                ("light_classes", _, Some(b)) => s.light_classes = b,
+                ("candidate_visibility", _, _) if CandidateVisibility::parse(v).is_some() => {
+                    s.candidate_visibility = CandidateVisibility::parse(v).unwrap_or(s.candidate_visibility)
+                }
                 ("temporal", _, Some(b)) => s.temporal = b,
                 ("unbiased", _, Some(b)) => s.unbiased = b,
                 ("bidirectional", _, Some(b)) => s.bidirectional = b,
@@ -538,14 +717,14 @@ impl Technique for Restir {
                 }
                 ("gi_bounces", Some(n), _) if (0.0..=64.0).contains(&n) => s.gi_bounces = n as u32,
                 (
-                    "candidates" | "max_history" | "spatial_count" | "spatial_radius"
+                    "candidates" | "directional_candidates" | "sky_candidates" | "light_classes" | "max_history" | "spatial_count" | "spatial_radius"
                     | "candidate_visibility" | "temporal" | "unbiased" | "bidirectional" | "accumulate" | "gi" | "gi_bounces" | "regir" | "regir_cell_size"
                     | "regir_lights_per_cell",
                     _,
                     _,
                 ) => bail!("restir: parameter '{k}' out of range or of the wrong type: {v} (see the parameter docs)"),
                 _ => bail!(
-                    "restir has no parameter '{k}' (known: candidates, candidate_visibility, temporal, max_history, spatial_count, spatial_radius, unbiased, bidirectional, accumulate, gi, gi_bounces, regir, regir_cell_size, regir_lights_per_cell)"
+                    "restir has no parameter '{k}' (known: candidates, directional_candidates, sky_candidates, light_classes, candidate_visibility, temporal, max_history, spatial_count, spatial_radius, unbiased, bidirectional, accumulate, gi, gi_bounces, regir, regir_cell_size, regir_lights_per_cell)"
                 ),
             }
         }
@@ -566,19 +745,46 @@ impl Technique for Restir {
         vec![
             ParamDoc {
                 name: "candidates",
-                what: "initial RIS candidates per pixel per frame, drawn from the light pool by power",
+                what: "initial RIS candidates per pixel per frame from the local lights (emissive triangles, point, spot), by power or from the ReGIR cell",
                 higher: "better initial samples (many lights), more shading work, no extra rays",
-                lower: "cheaper, noisier before reuse",
-                min: 1.0,
+                lower: "cheaper, noisier before reuse; 0 leaves local lights out of direct light",
+                min: 0.0,
                 max: 64.0,
                 integer: true,
             },
+            ParamDoc {
+                name: "directional_candidates",
+                what: "initial RIS candidates per pixel per frame from the directional lights, by power (unused without directional lights)",
+                higher: "better choice among several suns, more shading work, no extra rays",
+                lower: "cheaper; 0 leaves directional lights out of direct light (biased dark)",
+                min: 0.0,
+                max: 16.0,
+                integer: true,
+            },
+            ParamDoc {
+                name: "sky_candidates",
+                what: "initial RIS candidates per pixel per frame from the sky: directions from an equal mix of BSDF and cosine sampling, merged with the other classes (unused when the sky is black or out of reach)",
+                higher: "sky light resampled and reused like the other lights; one DI sample then carries sun, lamps and sky (colour noise)",
+                lower: "0 (default): direct sky light comes from the GI sample ray instead (measured lower error on courtyard)",
+                min: 0.0,
+                max: 16.0,
+                integer: true,
+            },
             flag(
-                "candidate_visibility",
-                "1: one visibility ray for the chosen candidate before reuse",
-                "occluded lights are not spread to neighbours (faster convergence, +1 ray)",
-                "0: fewer rays, shadows spread through reuse until the final test",
+                "light_classes",
+                "1: candidates per light class (local, directional, sky), merged before visibility, as in the talk; 0: one power-proportional pool over every light, sky through GI rays only",
+                "every class gets its candidates: a strong sun cannot starve local lights",
+                "the single-pool baseline, for A/B comparisons",
             ),
+            ParamDoc {
+                name: "candidate_visibility",
+                what: "biased mode: visibility rays before reuse. 0 off, 1 each light class's pick before the merge (the talk's fix), 2 only the merged pick",
+                higher: "1: occluded lights are not spread to neighbours and a shadowed sun cannot crowd out visible local lights (+1 ray per class)",
+                lower: "0: fewer rays, shadows spread through reuse until the final test; 2: one ray, the talk's artifact under a shadowed sun",
+                min: 0.0,
+                max: 2.0,
+                integer: true,
+            },
             flag(
                 "temporal",
                 "1: merge last frame's reservoir at the reprojected pixel",
@@ -614,8 +820,8 @@ impl Technique for Restir {
             },
             flag(
                 "unbiased",
-                "1: 1/Z contribution weights (visibility-tested when candidate_visibility is on)",
-                "converges to the reference; extra rays",
+                "1: 1/Z contribution weights over the unshadowed support (no candidate visibility tests)",
+                "converges to the reference",
                 "0: M weights and visibility reuse, cheaper, darkens contact shadows (biased)",
             ),
             flag(
