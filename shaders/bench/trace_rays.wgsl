@@ -1,5 +1,6 @@
 // Traversal benchmark: per pixel a camera ray and up to three cosine-sampled bounce rays (closest hit), counted like every technique's rays.
-#import gilab::math::{offset_ray_origin, to_world}
+#import gilab::math::to_world
+#import gilab::ray::spawn_ray_origin
 #import gilab::rng::{rng_init, rand_pair}
 #import gilab::frame::{frame, camera_ray_dir}
 #import gilab::counters::{flush_counts, no_counts, RAY_CAMERA, RAY_INDIRECT}
@@ -28,8 +29,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             let g = tri_geom[hit.tri];
             var n = normalize(cross(g.edge_b.xyz, g.edge_c.xyz));
             n = select(n, -n, dot(n, dir) > 0.0);
-            origin = offset_ray_origin(origin + dir * hit.t, n);
+            let hit_point = origin + dir * hit.t;
             dir = to_world(sample_cosine_hemisphere(rand_pair(&rng)), n);
+            origin = spawn_ray_origin(hit_point, n, dir);
         }
         checksum[gid.y * frame.size.x + gid.x] += vec4<f32>(sum, 0.0, 0.0, 1.0);
     }

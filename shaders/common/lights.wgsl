@@ -4,6 +4,7 @@
 
 #import gilab::scene::{light_pool, Light, tri_geom, tri_attr, materials, tri_material, LIGHT_TRIANGLE, LIGHT_POINT, LIGHT_SPOT, LIGHT_DIRECTIONAL}
 #import gilab::sampling::sample_triangle
+#import gilab::ray::{RaySegment, spawn_ray_to, spawn_ray_to_infinity, INFINITE_DISTANCE}
 
 struct LightSample {
     wi: vec3<f32>,
@@ -21,6 +22,21 @@ struct LightSample {
     geom: f32,
     is_delta: bool,
     valid: bool,
+    // Normal of the light's surface at the sampled point (triangles); 0 for punctual lights and
+    // directions. Shadow rays offset their far end along it.
+    normal: vec3<f32>,
+}
+
+fn no_light_sample() -> LightSample {
+    return LightSample(vec3<f32>(0.0), 0.0, vec3<f32>(0.0), 0.0, 0.0, 0.0, false, false, vec3<f32>(0.0));
+}
+
+// The shadow ray from surface point p (geometric normal n) to a light sample taken at p.
+fn light_shadow_ray(p: vec3<f32>, n: vec3<f32>, l: LightSample) -> RaySegment {
+    if l.dist >= INFINITE_DISTANCE {
+        return spawn_ray_to_infinity(p, n, l.wi);
+    }
+    return spawn_ray_to(p, n, p + l.wi * l.dist, l.normal);
 }
 
 // Inclusive CDF of light i: over the whole pool, or within its class (see LightPool).
@@ -92,7 +108,7 @@ fn triangle_light_pdf(tri: u32, wi: vec3<f32>, dist: f32) -> f32 {
 
 fn sample_light(p: vec3<f32>, u_select: f32, u: vec2<f32>) -> LightSample {
     if light_pool.count == 0u {
-        return LightSample(vec3<f32>(0.0), 0.0, vec3<f32>(0.0), 0.0, 0.0, 0.0, false, false);
+        return no_light_sample();
     }
     return eval_light_point(select_light(u_select), sample_triangle(u), p);
 }
@@ -100,7 +116,7 @@ fn sample_light(p: vec3<f32>, u_select: f32, u: vec2<f32>) -> LightSample {
 // A light sample fixed by (light index, barycentrics on a triangle light; unused otherwise),
 // seen from the point p: what reservoirs store and re-evaluate at other pixels.
 fn eval_light_point(light_index: u32, b: vec2<f32>, p: vec3<f32>) -> LightSample {
-    var s = LightSample(vec3<f32>(0.0), 0.0, vec3<f32>(0.0), 0.0, 0.0, 0.0, false, false);
+    var s = no_light_sample();
     if light_index >= light_pool.count {
         return s;
     }
@@ -130,6 +146,7 @@ fn eval_light_point(light_index: u32, b: vec2<f32>, p: vec3<f32>) -> LightSample
             s.pdf = light.pmf * dist_sq / (cos_l * 0.5 * len);
             s.area_pdf = light.pmf / (0.5 * len);
             s.geom = cos_l / dist_sq;
+            s.normal = c / len;
             s.valid = any(s.radiance > vec3<f32>(0.0));
         }
         case LIGHT_POINT, LIGHT_SPOT: {
@@ -155,7 +172,7 @@ fn eval_light_point(light_index: u32, b: vec2<f32>, p: vec3<f32>) -> LightSample
         }
         case LIGHT_DIRECTIONAL: {
             s.wi = -light.direction.xyz;
-            s.dist = 1e30;
+            s.dist = INFINITE_DISTANCE;
             s.radiance = light.intensity.xyz;
             s.pdf = light.pmf;
             s.area_pdf = light.pmf;

@@ -42,10 +42,3 @@ fn is_finite_vec(v: vec3<f32>) -> bool {
     let a = abs(v);
     return a.x <= F32_MAX && a.y <= F32_MAX && a.z <= F32_MAX;
 }
-
-// Moves a ray origin off a surface along the geometric normal, scaled with the
-// position's magnitude so large scenes do not self-intersect (Wächter & Binder, RTG1 ch. 6).
-fn offset_ray_origin(p: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
-    let scale = 1e-4 + 2e-6 * max_component(abs(p));
-    return p + n * scale;
-}

@@ -2,14 +2,15 @@
 // (power heuristic against BSDF sampling), GGX/Lambert BSDF sampling, Russian roulette.
 #define_import_path gilab::path
 
-#import gilab::math::{max_component, offset_ray_origin}
+#import gilab::math::max_component
+#import gilab::ray::{spawn_ray_origin, unoccluded}
 #import gilab::rng::{Rng, rand, rand_pair}
 #import gilab::frame::frame
 #import gilab::scene::light_pool
-#import gilab::bvh::{trace_closest, trace_any, NO_HIT}
+#import gilab::bvh::{trace_closest, NO_HIT}
 #import gilab::surface::hit_surface
 #import gilab::brdf::{bsdf_eval, bsdf_sample}
-#import gilab::lights::{sample_light, triangle_emission, triangle_light_pdf}
+#import gilab::lights::{sample_light, light_shadow_ray, triangle_emission, triangle_light_pdf}
 #import gilab::sampling::power_heuristic
 
 // Hard safety cap on path length. With Russian roulette survival <= 0.95 the chance of
@@ -76,10 +77,8 @@ fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, 
             if ls.valid && ls.pdf > 0.0 && dot(ls.wi, surf.geo_normal) > 0.0 {
                 let e = bsdf_eval(m, surf.normal, wo, ls.wi);
                 if any(e.f > vec3<f32>(0.0)) {
-                    let p = offset_ray_origin(surf.position, surf.geo_normal);
-                    let t_max = select(ls.dist * (1.0 - 1e-4), 1e30, ls.is_delta && ls.dist >= 1e30);
                     out.shadow_rays += 1u;
-                    if !trace_any(p, ls.wi, 0.0, t_max) {
+                    if unoccluded(light_shadow_ray(surf.position, surf.geo_normal, ls)) {
                         let w = select(power_heuristic(ls.pdf, e.pdf), 1.0, ls.is_delta);
                         out.radiance += throughput * e.f * dot(surf.normal, ls.wi) * ls.radiance * (w / ls.pdf);
                     }
@@ -95,7 +94,7 @@ fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, 
         throughput *= bs.weight;
         prev_pdf = bs.pdf;
         prev_delta = bs.is_delta;
-        origin = offset_ray_origin(surf.position, surf.geo_normal);
+        origin = spawn_ray_origin(surf.position, surf.geo_normal, bs.wi);
         dir = bs.wi;
         if depth + 1u >= RR_START_DEPTH {
             let q = min(max_component(throughput), 0.95);

@@ -4,10 +4,10 @@
 #define_import_path gilab::restir
 
 #import gilab::frame::frame
-#import gilab::math::{luminance, offset_ray_origin}
+#import gilab::math::luminance
 #import gilab::brdf::{Surface, bsdf_eval}
-#import gilab::lights::{LightSample, eval_light_point}
-#import gilab::bvh::trace_any
+#import gilab::lights::{LightSample, eval_light_point, light_shadow_ray}
+#import gilab::ray::{spawn_ray_to, unoccluded, INFINITE_DISTANCE}
 #import gilab::math::PI
 
 struct RestirParams {
@@ -138,7 +138,7 @@ fn oct_decode(e: vec2<f32>) -> vec3<f32> {
 fn eval_sample(light: u32, bary: vec2<f32>, p: vec3<f32>) -> LightSample {
     if light == SKY_SAMPLE {
         let sky = frame.sky.xyz;
-        return LightSample(oct_decode(bary), 1e30, sky, 0.0, 0.0, 1.0, false, any(sky > vec3<f32>(0.0)));
+        return LightSample(oct_decode(bary), INFINITE_DISTANCE, sky, 0.0, 0.0, 1.0, false, any(sky > vec3<f32>(0.0)), vec3<f32>(0.0));
     }
     return eval_light_point(light, bary, p);
 }
@@ -169,10 +169,7 @@ fn target_at(s: GSurface, r: Reservoir) -> f32 {
 
 // Shadow test from a surface to a light sample (true = visible).
 fn visible(s: GSurface, l: LightSample) -> bool {
-    let p = offset_ray_origin(s.pos.xyz, s.geo_specular.xyz);
-    // Directional lights and the sky are infinitely far.
-    let t_max = select(l.dist * (1.0 - 1e-4), 1e30, l.dist >= 1e30);
-    return !trace_any(p, l.wi, 0.0, t_max);
+    return unoccluded(light_shadow_ray(s.pos.xyz, s.geo_specular.xyz, l));
 }
 
 // Weighted reservoir sampling: take `candidate` with weight w with probability w / w_sum.
@@ -303,9 +300,8 @@ fn gi_update(r: ptr<function, GiReservoir>, candidate: GiReservoir, w: f32, m: f
 }
 
 // Shadow test between a surface and a GI sample point (true = visible).
-fn gi_visible(s: GSurface, e: GiEval) -> bool {
-    let p = offset_ray_origin(s.pos.xyz, s.geo_specular.xyz);
-    return !trace_any(p, e.wi, 0.0, e.dist * (1.0 - 1e-3));
+fn gi_visible(s: GSurface, r: GiReservoir) -> bool {
+    return unoccluded(spawn_ray_to(s.pos.xyz, s.geo_specular.xyz, r.point.xyz, r.normal.xyz));
 }
 
 // Previous-frame pixel of a surface point, or -1 when it was off screen.

@@ -4,7 +4,8 @@
 #import gilab::rng::{rng_init, rand, rand_pair}
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts, RAY_SHADOW, RAY_INDIRECT}
-#import gilab::math::{PI, to_world, offset_ray_origin, luminance}
+#import gilab::math::{PI, to_world, luminance}
+#import gilab::ray::spawn_ray_origin
 #import gilab::sampling::sample_cosine_hemisphere
 #import gilab::brdf::bsdf_eval
 #import gilab::path::trace_path
@@ -26,7 +27,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             let pdf = local.z / PI;
             r.m = 1.0;
             if pdf > 0.0 && dot(wi, s.geo_specular.xyz) > 0.0 {
-                let path = trace_path(offset_ray_origin(s.pos.xyz, s.geo_specular.xyz), wi, &rng, params.gi_bounces, true);
+                let path = trace_path(spawn_ray_origin(s.pos.xyz, s.geo_specular.xyz, wi), wi, &rng, params.gi_bounces, true);
                 counts[RAY_INDIRECT] += path.first_rays + path.indirect_rays;
                 counts[RAY_SHADOW] += path.shadow_rays;
                 if path.first_hit.w > 0.5 {

@@ -55,7 +55,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 let e = gi_contribution(s, g);
                 if any(e.value > vec3<f32>(0.0)) {
                     counts[RAY_SHADOW] += 1u;
-                    if gi_visible(s, e) {
+                    if gi_visible(s, g) {
                         l += e.value * g.big_w;
                     }
                 }
