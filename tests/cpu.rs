@@ -528,3 +528,63 @@ fn light_pool_has_per_class_cdfs() {
     );
     assert_eq!(lights.last().unwrap().cdf, 1.0);
 }
+
+/// Every `rng_init` call names a `STREAM_*` constant of shaders/common/rng.wgsl, the constants
+/// have distinct values, and no two entry files of one technique (folder) draw from the same
+/// stream: passes never share random numbers, in one frame or across frames.
+#[test]
+fn random_streams_are_distinct_per_pass() {
+    let lib = ShaderLibrary::discover();
+    let files = lib.files().unwrap();
+    let rng = &files["common/rng.wgsl"];
+    let mut values = std::collections::BTreeMap::new();
+    for line in rng.lines().filter(|l| l.starts_with("const STREAM_")) {
+        let (name, value) = line["const ".len()..].split_once(": u32 = ").unwrap();
+        let value = value.trim_end_matches(';').to_string();
+        assert!(
+            !values.values().any(|v| *v == value),
+            "{name} reuses value {value}"
+        );
+        values.insert(name.to_string(), value);
+    }
+    assert!(values.len() >= 6, "streams: {values:?}");
+    let mut owner: std::collections::BTreeMap<(String, String), String> = Default::default();
+    let mut calls = 0;
+    for entry in lib.entry_files().unwrap() {
+        let src = &files[&entry];
+        let folder = entry.split('/').next().unwrap().to_string();
+        for (at, _) in src.match_indices("rng_init(") {
+            let args = &src[at + "rng_init(".len()..];
+            // The third argument: skip the pixel (which may hold commas inside vec2<u32>(..)).
+            let mut depth = 0;
+            let mut commas = Vec::new();
+            for (i, c) in args.char_indices() {
+                match c {
+                    '(' => depth += 1,
+                    ')' if depth == 0 => break,
+                    ')' => depth -= 1,
+                    ',' if depth == 0 => commas.push(i),
+                    _ => {}
+                }
+            }
+            assert_eq!(
+                commas.len(),
+                3,
+                "shaders/{entry}: rng_init takes pixel, sample index, stream, seed"
+            );
+            let stream = args[commas[1] + 1..commas[2]].trim().to_string();
+            assert!(
+                values.contains_key(&stream),
+                "shaders/{entry}: rng_init's stream `{stream}` is not a STREAM_ constant of rng.wgsl"
+            );
+            calls += 1;
+            if let Some(other) = owner.insert((folder.clone(), stream.clone()), entry.clone()) {
+                assert_eq!(
+                    other, entry,
+                    "{stream} is used by shaders/{other} and shaders/{entry}"
+                );
+            }
+        }
+    }
+    assert!(calls >= 8, "rng_init calls found: {calls}");
+}

@@ -10,7 +10,6 @@ use gilab::gpu::shaders::ShaderLibrary;
 use gilab::render::{create_technique, engine::Engine, engine::EngineSettings};
 use gilab::scene::{Camera, Material, Scene};
 use glam::Vec3;
-use std::f64::consts::PI;
 
 const LIGHT_HALF_SIZE: f32 = 0.1;
 const RADIANCE: f32 = 10.0;
@@ -50,22 +49,13 @@ fn scene(h: f32) -> Scene {
     s
 }
 
-/// Form factor from a differential area to a parallel rectangle a × b at distance h, the area
-/// lying under one of the rectangle's corners (signed sizes subtract).
-fn corner_form_factor(a: f64, b: f64, h: f64) -> f64 {
-    let (x, y) = (a.abs() / h, b.abs() / h);
-    let (sx, sy) = ((1.0 + x * x).sqrt(), (1.0 + y * y).sqrt());
-    let f = (x / sx * (y / sx).atan() + y / sy * (x / sy).atan()) / (2.0 * PI);
-    f * a.signum() * b.signum()
-}
-
 /// Radiance leaving the floor at (x, z): albedo · L · form factor to the light.
 fn analytic_radiance(x: f64, z: f64, h: f64) -> f64 {
     let s = LIGHT_HALF_SIZE as f64;
     let mut f = 0.0;
     for a in [s - x, s + x] {
         for b in [s - z, s + z] {
-            f += corner_form_factor(a, b, h);
+            f += common::corner_form_factor(a, b, h);
         }
     }
     ALBEDO as f64 * RADIANCE as f64 * f

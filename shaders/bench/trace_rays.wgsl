@@ -1,7 +1,7 @@
 // Traversal benchmark: per pixel a camera ray and up to three cosine-sampled bounce rays (closest hit), counted like every technique's rays.
 #import gilab::math::to_world
 #import gilab::ray::spawn_ray_origin
-#import gilab::rng::{rng_init, rand_pair}
+#import gilab::rng::{rng_init, rand_pair, STREAM_BENCH}
 #import gilab::frame::{frame, camera_ray_dir}
 #import gilab::counters::{flush_counts, no_counts, RAY_CAMERA, RAY_INDIRECT}
 #import gilab::bvh::{trace_closest, NO_HIT}
@@ -15,7 +15,7 @@
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
     var counts = no_counts();
     if gid.x < frame.size.x && gid.y < frame.size.y {
-        var rng = rng_init(gid.xy, frame.frame_index, frame.seed);
+        var rng = rng_init(gid.xy, frame.frame_index, STREAM_BENCH, frame.seed);
         var origin = frame.camera_pos.xyz;
         var dir = camera_ray_dir(vec2<f32>(gid.xy) + 0.5);
         var sum = 0.0;

@@ -11,8 +11,25 @@ fn pcg_hash(v: u32) -> u32 {
     return (word >> 22u) ^ word;
 }
 
-fn rng_init(pixel: vec2<u32>, sample_index: u32, seed: u32) -> Rng {
-    let h = pcg_hash(pixel.x ^ pcg_hash(pixel.y ^ pcg_hash(sample_index ^ pcg_hash(seed))));
+// Named random streams. Every pass that draws random numbers owns one, so no two passes of a
+// technique share numbers, in the same frame or across frames (streams derived from
+// `sample_index * 4 + k` collided: frame 5's first pass read frame 1's second pass's numbers).
+// tests/cpu.rs checks that each rng_init call names one of these and that no two entry files
+// of a technique use the same one.
+// Camera jitter, and the rest of the reference's path. ReSTIR's primary pass uses it too, on
+// purpose: its surfaces then sit at the reference's jitter positions.
+const STREAM_CAMERA: u32 = 1u;
+const STREAM_REGIR_BUILD: u32 = 2u;
+const STREAM_DI_INITIAL: u32 = 3u;
+const STREAM_DI_SPATIAL: u32 = 4u;
+const STREAM_GI_SAMPLE: u32 = 5u;
+const STREAM_GI_SPATIAL: u32 = 6u;
+const STREAM_BENCH: u32 = 7u;
+const STREAM_TEST: u32 = 8u;
+
+// The sequence for one pixel (or work item), sample index (frame or sample number) and stream.
+fn rng_init(pixel: vec2<u32>, sample_index: u32, stream: u32, seed: u32) -> Rng {
+    let h = pcg_hash(pixel.x ^ pcg_hash(pixel.y ^ pcg_hash(sample_index ^ pcg_hash(stream ^ pcg_hash(seed)))));
     return Rng(h);
 }
 

@@ -1,6 +1,6 @@
 // Reference path tracer: progressive, unbiased; NEE + MIS (power heuristic) over emissive triangles and punctual lights, Russian roulette, Welford per-pixel mean and variance.
 #import gilab::math::is_finite_vec
-#import gilab::rng::{rng_init, rand_pair}
+#import gilab::rng::{rng_init, rand_pair, STREAM_CAMERA}
 #import gilab::frame::{frame, camera_ray_dir, FLAG_NO_PRIMARY_EMISSION}
 #import gilab::counters::{flush_counts, no_counts, RAY_CAMERA, RAY_SHADOW, RAY_INDIRECT, COUNT_INVALID_SAMPLES}
 #import gilab::path::trace_path
@@ -25,7 +25,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     var counts = no_counts();
     if gid.x < frame.size.x && gid.y < frame.size.y {
         let idx = gid.y * frame.size.x + gid.x;
-        var rng = rng_init(gid.xy, frame.sample_offset + dispatch_sample.index, frame.seed);
+        var rng = rng_init(gid.xy, frame.sample_offset + dispatch_sample.index, STREAM_CAMERA, frame.seed);
         let jitter = rand_pair(&rng);
         let dir = camera_ray_dir(vec2<f32>(gid.xy) + jitter);
         let skip = (frame.flags & FLAG_NO_PRIMARY_EMISSION) != 0u;

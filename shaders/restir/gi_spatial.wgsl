@@ -1,7 +1,7 @@
 // ReSTIR GI pass 2: spatial reuse of GI samples from k neighbours in a disk (similar surfaces
 // only); the sample's weight at this pixel uses this pixel's geometry term to the sample point
 // (the reconnection Jacobian); 1/Z (unbiased) or M weights (biased).
-#import gilab::rng::{rng_init, rand, rand_pair}
+#import gilab::rng::{rng_init, rand, rand_pair, STREAM_GI_SPATIAL}
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts}
 #import gilab::restir::{params, surfaces, gi_reservoirs, surface_index, reservoir_index, parity, empty_gi_reservoir, spatial_neighbour, gi_target, gi_update, gi_jacobian_ok, similar, TEMPORAL_SEGMENT}
@@ -13,7 +13,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     var counts = no_counts();
     if gid.x < frame.size.x && gid.y < frame.size.y {
         let idx = gid.y * frame.size.x + gid.x;
-        var rng = rng_init(gid.xy, frame.sample_offset * 4u + 0u, frame.seed ^ 0x9e3779b9u);
+        var rng = rng_init(gid.xy, frame.sample_offset, STREAM_GI_SPATIAL, frame.seed);
         let s = surfaces[surface_index(parity(), idx)];
         let r0 = gi_reservoirs[reservoir_index(TEMPORAL_SEGMENT, idx)];
         var out = empty_gi_reservoir();

@@ -1,7 +1,7 @@
 // ReSTIR GI pass 1: one cosine-sampled sample path per pixel from the primary surface (its
 // first hit's own emission left out); the hit point and its outgoing radiance become a
 // candidate, merged with last frame's GI reservoir at the reprojected pixel.
-#import gilab::rng::{rng_init, rand, rand_pair}
+#import gilab::rng::{rng_init, rand, rand_pair, STREAM_GI_SAMPLE}
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts, RAY_SHADOW, RAY_INDIRECT}
 #import gilab::math::{PI, to_world, luminance}
@@ -16,7 +16,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     var counts = no_counts();
     if gid.x < frame.size.x && gid.y < frame.size.y {
         let idx = gid.y * frame.size.x + gid.x;
-        var rng = rng_init(gid.xy, frame.sample_offset * 4u + 3u, frame.seed);
+        var rng = rng_init(gid.xy, frame.sample_offset, STREAM_GI_SAMPLE, frame.seed);
         let s = surfaces[surface_index(parity(), idx)];
         var r = empty_gi_reservoir();
         var sky = vec3<f32>(0.0);

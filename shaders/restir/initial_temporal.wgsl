@@ -3,7 +3,7 @@
 // the class reservoirs merged before visibility (optionally each class's pick visibility-tested
 // first, biased mode), then temporal reuse of last frame's reservoir at the reprojected pixel
 // (normal/depth similarity, history clamp). Target everywhere: unshadowed f * Le * G.
-#import gilab::rng::{Rng, rng_init, rand, rand_pair}
+#import gilab::rng::{Rng, rng_init, rand, rand_pair, STREAM_DI_INITIAL}
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts, RAY_CANDIDATE}
 #import gilab::math::{PI, luminance, to_world}
@@ -165,7 +165,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     var counts = no_counts();
     if gid.x < frame.size.x && gid.y < frame.size.y {
         let idx = gid.y * frame.size.x + gid.x;
-        var rng = rng_init(gid.xy, frame.sample_offset * 4u + 1u, frame.seed);
+        var rng = rng_init(gid.xy, frame.sample_offset, STREAM_DI_INITIAL, frame.seed);
         let s = surfaces[surface_index(parity(), idx)];
         var r = empty_reservoir();
         if s.pos.w > 0.5 {

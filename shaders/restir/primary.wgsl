@@ -1,5 +1,5 @@
 // ReSTIR pass 1: trace a jittered camera ray per pixel and store the primary surface for this frame.
-#import gilab::rng::{rng_init, rand_pair}
+#import gilab::rng::{rng_init, rand_pair, STREAM_CAMERA}
 #import gilab::frame::{frame, camera_ray_dir}
 #import gilab::counters::{flush_counts, no_counts, RAY_CAMERA}
 #import gilab::bvh::{trace_closest, NO_HIT}
@@ -13,7 +13,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     if gid.x < frame.size.x && gid.y < frame.size.y {
         let idx = gid.y * frame.size.x + gid.x;
         // Same jitter sequence as the reference path tracer: pixel footprints match.
-        var rng = rng_init(gid.xy, frame.sample_offset, frame.seed);
+        var rng = rng_init(gid.xy, frame.sample_offset, STREAM_CAMERA, frame.seed);
         let origin = frame.camera_pos.xyz;
         let dir = camera_ray_dir(vec2<f32>(gid.xy) + rand_pair(&rng));
         let hit = trace_closest(origin, dir, 0.0, 1e30);

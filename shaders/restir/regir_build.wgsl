@@ -2,7 +2,7 @@
 // by RIS from the local lights (from every light in single-pool mode); target: emitted strength / squared distance to the cell centre
 // (clamped at the cell's half-diagonal, no cosine), so no light that may reach the cell is
 // ever given zero weight and pixels can use the slots' weights unbiasedly.
-#import gilab::rng::{rng_init, rand, rand_pair}
+#import gilab::rng::{rng_init, rand, rand_pair, STREAM_REGIR_BUILD}
 #import gilab::frame::frame
 #import gilab::math::luminance
 #import gilab::scene::light_pool
@@ -29,7 +29,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let cell = gid.x / params.regir_slots;
-    var rng = rng_init(vec2<u32>(gid.x, 0x52e6u), frame.sample_offset, frame.seed);
+    var rng = rng_init(vec2<u32>(gid.x, 0u), frame.sample_offset, STREAM_REGIR_BUILD, frame.seed);
     let centre = regir_cell_centre(cell);
     let half_diag = 0.87 * params.regir_cell_size;
     let min_dist_sq = half_diag * half_diag;

@@ -1,7 +1,7 @@
 // ReSTIR pass 3: spatial reuse from k neighbours in a disk (similar surfaces only), with 1/Z
 // (unbiased) or M-weighted (biased) contribution weights and the optional bidirectional
 // occlusion test; writes this frame's final reservoirs.
-#import gilab::rng::{rng_init, rand, rand_pair}
+#import gilab::rng::{rng_init, rand, rand_pair, STREAM_DI_SPATIAL}
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts, RAY_REUSE}
 #import gilab::restir::{params, surfaces, reservoirs, GSurface, Reservoir, surface_index, reservoir_index, parity, empty_reservoir, spatial_neighbour, contribution, target_at, visible, update, similar, TEMPORAL_SEGMENT}
@@ -13,7 +13,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     var counts = no_counts();
     if gid.x < frame.size.x && gid.y < frame.size.y {
         let idx = gid.y * frame.size.x + gid.x;
-        var rng = rng_init(gid.xy, frame.sample_offset * 4u + 2u, frame.seed);
+        var rng = rng_init(gid.xy, frame.sample_offset, STREAM_DI_SPATIAL, frame.seed);
         let s = surfaces[surface_index(parity(), idx)];
         let r0 = reservoirs[reservoir_index(TEMPORAL_SEGMENT, idx)];
         var out = empty_reservoir();

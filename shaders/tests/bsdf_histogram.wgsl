@@ -2,7 +2,7 @@
 // f·cos integrated over the same (theta, phi) bins, for chi-square tests of sampling against evaluation.
 #import gilab::math::PI
 #import gilab::brdf::{make_surface, bsdf_eval, bsdf_sample}
-#import gilab::rng::{rng_init, rand, rand_pair}
+#import gilab::rng::{rng_init, rand, rand_pair, STREAM_TEST}
 
 struct Params {
     theta_bins: u32,
@@ -53,7 +53,7 @@ fn sample_directions(@builtin(global_invocation_id) gid: vec3<u32>) {
     let c = cases[ci];
     let s = make_surface(c.base_metal.xyz, c.base_metal.w, c.misc.x, c.misc.y);
     let wo = wo_of(c);
-    var rng = rng_init(vec2<u32>(thread, ci), 0u, params.seed);
+    var rng = rng_init(vec2<u32>(thread, ci), 0u, STREAM_TEST, params.seed);
     var sum = vec4<f32>(0.0);
     for (var k = 0u; k < params.samples_per_thread; k++) {
         let b = bsdf_sample(s, N, wo, rand(&rng), rand_pair(&rng));

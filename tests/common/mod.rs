@@ -70,3 +70,13 @@ pub fn render_reference(
 pub fn luminance(p: [f64; 3]) -> f64 {
     0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]
 }
+
+/// Form factor from a differential area to a parallel rectangle a × b at distance h, the area
+/// lying under one of the rectangle's corners. Signed sizes subtract, so four of them give any
+/// point under (or beside) a rectangle.
+pub fn corner_form_factor(a: f64, b: f64, h: f64) -> f64 {
+    let (x, y) = (a.abs() / h, b.abs() / h);
+    let (sx, sy) = ((1.0 + x * x).sqrt(), (1.0 + y * y).sqrt());
+    let f = (x / sx * (y / sx).atan() + y / sy * (x / sy).atan()) / (2.0 * std::f64::consts::PI);
+    f * a.signum() * b.signum()
+}
