@@ -588,3 +588,61 @@ fn random_streams_are_distinct_per_pass() {
     }
     assert!(calls >= 8, "rng_init calls found: {calls}");
 }
+
+/// The README's parameter tables are the ones the techniques declare (`gilab params` prints them).
+#[test]
+fn readme_parameter_tables_match_the_declared_ones() {
+    let readme = std::fs::read_to_string("README.md").unwrap();
+    let tables = gilab::render::params_markdown();
+    assert!(
+        readme.contains(&tables),
+        "README.md's technique parameter tables are out of date: paste the output of `gilab params`"
+    );
+}
+
+/// Declared parameters: defaults in range, every value round-trips through a preset table, bad
+/// values and unknown names are refused with the expected range, and a failed set changes nothing.
+#[test]
+fn declared_parameters_validate_and_round_trip() {
+    for (name, _) in gilab::render::TECHNIQUES {
+        let mut t = gilab::render::create_technique(name).unwrap();
+        let defaults = t.params();
+        t.set_params(&defaults).unwrap();
+        assert_eq!(t.params(), defaults, "{name}: defaults do not round-trip");
+        for spec in t.param_set().specs() {
+            let (_, max) = spec.range();
+            let mut bad = toml::Table::new();
+            bad.insert(spec.name.into(), (max + 1.0).into());
+            let err = t.set_params(&bad).unwrap_err().to_string();
+            assert!(
+                err.contains(spec.name) && err.contains("must be"),
+                "{name}: {err}"
+            );
+            assert_eq!(
+                t.params(),
+                defaults,
+                "{name}: a refused value changed the parameters"
+            );
+        }
+        let err = t
+            .set_params(&toml::toml! { no_such_knob = 1 })
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("no_such_knob") && err.contains("known:"),
+            "{err}"
+        );
+    }
+    // Choices take their name, their index or (where a switch once stood) a boolean.
+    let mut r = gilab::render::create_technique("restir").unwrap();
+    for (v, want) in [
+        (toml::Value::from("merged"), 2),
+        (toml::Value::from(0), 0),
+        (toml::Value::from(true), 1),
+    ] {
+        let mut t = toml::Table::new();
+        t.insert("candidate_visibility".into(), v);
+        r.set_params(&t).unwrap();
+        assert_eq!(r.params()["candidate_visibility"].as_integer(), Some(want));
+    }
+}

@@ -5,6 +5,8 @@ mod common;
 
 use common::{gpu, render_reference};
 use gilab::compare::metrics;
+use gilab::gpu::shaders::ShaderLibrary;
+use gilab::render::{create_technique, engine::Engine, engine::EngineSettings};
 use gilab::scene::{builtin, Camera, Material, PunctualKind, PunctualLight, Scene};
 use glam::Vec3;
 
@@ -352,4 +354,60 @@ fn gbuffer_view_distance_matches_ray_casting() {
         agree as f64 >= 0.97 * total as f64,
         "{agree}/{total} pixels agree"
     );
+}
+
+/// A parameter change updates uniforms and parameter-sized buffers and compiles no pipeline; a
+/// shader rebuild compiles them all.
+#[test]
+fn parameter_changes_rebuild_no_pipeline() {
+    use gilab::render::pipelines::pipelines_created;
+    let changes: [(&str, toml::Table); 2] = [
+        (
+            "restir",
+            toml::toml! { candidates = 16
+            regir_lights_per_cell = 8
+            gi = false
+            max_history = 4.0
+            candidate_visibility = "merged" },
+        ),
+        (
+            "reference",
+            toml::toml! { samples_per_frame = 2
+            max_depth = 3 },
+        ),
+    ];
+    for (name, params) in changes {
+        let mut engine = Engine::new(
+            common::gpu(),
+            ShaderLibrary::discover(),
+            builtin::many_lights(128, 1),
+            create_technique(name).unwrap(),
+            EngineSettings {
+                extent: [16, 16],
+                seed: 1,
+                camera: builtin::many_lights(128, 1).default_camera(),
+            },
+        )
+        .unwrap();
+        engine.render_frame().unwrap();
+        let before = pipelines_created();
+        engine.set_params(&params).unwrap();
+        engine.render_frame().unwrap();
+        let now = engine.technique.params();
+        for (k, v) in params.iter().filter(|(_, v)| !v.is_str()) {
+            assert_eq!(&now[k], v, "{name}: {k} not applied");
+        }
+        assert_eq!(
+            pipelines_created(),
+            before,
+            "{name}: a parameter change compiled pipelines"
+        );
+        engine.rebuild().unwrap();
+        let rebuilt = pipelines_created() - before;
+        assert_eq!(
+            rebuilt as usize,
+            engine.technique.shader_files().len(),
+            "{name}: a rebuild compiles every pipeline"
+        );
+    }
 }

@@ -5,7 +5,7 @@
 use super::{ViewerApp, ViewerOptions};
 use crate::compare::tonemap::Operator;
 use crate::preset::{DisplayMode, Layout};
-use crate::render::{engine::TimingSource, TECHNIQUES};
+use crate::render::{engine::TimingSource, params::ParamKind, TECHNIQUES};
 use egui_plot::{Legend, Line, Plot, PlotPoints};
 use std::path::PathBuf;
 
@@ -194,7 +194,7 @@ fn side_contents(app: &mut ViewerApp, ui: &mut egui::Ui) {
                     action = Some((i, Action::Technique(name)));
                 }
                 let params = run.engine.technique.params();
-                for doc in run.engine.technique.param_docs() {
+                for doc in run.engine.technique.param_set().specs() {
                     let Some(v) = params.get(doc.name) else {
                         continue;
                     };
@@ -214,19 +214,40 @@ fn side_contents(app: &mut ViewerApp, ui: &mut egui::Ui) {
                         ui.small(doc.what);
                         continue;
                     }
+                    if let ParamKind::Choice(choices) = doc.kind {
+                        let current = v.as_integer().unwrap_or(0).max(0) as usize;
+                        let mut picked = current;
+                        egui::ComboBox::from_label(doc.name)
+                            .selected_text(choices.get(current).copied().unwrap_or("?"))
+                            .show_ui(ui, |ui| {
+                                for (k, c) in choices.iter().enumerate() {
+                                    ui.selectable_value(&mut picked, k, *c);
+                                }
+                            })
+                            .response
+                            .on_hover_text(hover);
+                        ui.small(doc.what);
+                        if picked != current {
+                            let mut t = toml::Table::new();
+                            t.insert(doc.name.to_string(), toml::Value::Integer(picked as i64));
+                            action = Some((i, Action::Params(t)));
+                        }
+                        continue;
+                    }
                     let mut x = v
                         .as_float()
                         .or(v.as_integer().map(|n| n as f64))
                         .unwrap_or(0.0);
-                    let mut slider = egui::Slider::new(&mut x, doc.min..=doc.max).text(doc.name);
-                    if doc.integer {
+                    let (min, max) = doc.range();
+                    let mut slider = egui::Slider::new(&mut x, min..=max).text(doc.name);
+                    if doc.is_integer() {
                         slider = slider.integer();
                     }
                     let r = ui.add(slider).on_hover_text(hover);
                     ui.small(doc.what);
                     if r.changed() && !r.dragged() || r.drag_stopped() {
                         let mut t = toml::Table::new();
-                        let value = if doc.integer {
+                        let value = if doc.is_integer() {
                             toml::Value::Integer(x.round() as i64)
                         } else {
                             toml::Value::Float(x)

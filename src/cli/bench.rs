@@ -4,6 +4,7 @@
 use crate::app::{headless::HeadlessViewer, session::ReferenceSource, ViewerOptions};
 use crate::gpu::{shaders::ShaderLibrary, timing::PassTimer, Gpu};
 use crate::preset::LoadedPreset;
+use crate::render::params::Params;
 use crate::render::{
     create_technique, engine::Engine, engine::EngineSettings, pipelines, PassInfo, RenderContext,
     Technique,
@@ -14,6 +15,8 @@ use std::sync::Arc;
 
 /// Camera ray plus three diffuse bounces per pixel, closest hit: traversal cost alone.
 struct TraceBench {
+    /// No parameters.
+    params: Params,
     pipeline: Option<wgpu::ComputePipeline>,
     bind_group: Option<wgpu::BindGroup>,
     checksum: Option<wgpu::Buffer>,
@@ -98,11 +101,11 @@ impl Technique for TraceBench {
     fn output(&self) -> &wgpu::Buffer {
         self.checksum.as_ref().expect("bench used before build()")
     }
-    fn params(&self) -> toml::Table {
-        toml::Table::new()
+    fn param_set(&self) -> &Params {
+        &self.params
     }
-    fn set_params(&mut self, _: &toml::Table) -> Result<()> {
-        Ok(())
+    fn set_params(&mut self, p: &toml::Table) -> Result<()> {
+        self.params.set("bench-trace", p)
     }
 }
 
@@ -148,6 +151,7 @@ pub fn run(gpu: Arc<Gpu>, extent: [u32; 2], frames: u32, scenes: &[String]) -> R
             camera,
         };
         let bench = Box::new(TraceBench {
+            params: Params::new("bench-trace", &[]),
             pipeline: None,
             bind_group: None,
             checksum: None,

@@ -88,6 +88,9 @@ pub enum Command {
     /// Error of image A against reference B (linear HDR): MSE, relMSE, SMAPE, and LDR-FLIP
     /// after the default display transform (ACES, 0 EV).
     Compare { image: PathBuf, reference: PathBuf },
+    /// Print every technique's parameters (name, what it does, higher/lower, range, default) as
+    /// the Markdown tables of the README's "Technique parameters" section.
+    Params,
     /// Benchmarks: BVH traversal Mrays/s and reference path tracer ms/frame.
     Bench {
         /// Image size: N or WxH.
@@ -209,6 +212,10 @@ pub fn run(cli: Cli) -> Result<()> {
             };
             run::converge(gpu, &p, &opts)?;
             println!("report: {}", out.join("report.md").display());
+            Ok(())
+        }
+        Some(Command::Params) => {
+            print!("{}", crate::render::params_markdown());
             Ok(())
         }
         Some(Command::Bench {

@@ -219,9 +219,12 @@ impl Engine {
         self.technique.on_scene_change(&self.gpu);
     }
 
+    /// New parameter values: uniforms and parameter-sized resources are updated; no pipeline is
+    /// rebuilt. History restarts.
     pub fn set_params(&mut self, params: &toml::Table) -> Result<()> {
         self.technique.set_params(params)?;
-        self.technique.build(&render_context!(self))?;
+        self.technique.apply_params(&render_context!(self))?;
+        self.gpu.check_errors()?;
         self.reset();
         Ok(())
     }

@@ -3,6 +3,7 @@
 
 pub mod engine;
 pub mod gbuffer;
+pub mod params;
 pub mod pipelines;
 
 use crate::gpu::{shaders::ShaderLibrary, timing::PassTimer, Gpu};
@@ -136,17 +137,22 @@ pub trait Technique {
     fn variance_m2(&self) -> Option<&wgpu::Buffer> {
         None
     }
-    fn params(&self) -> toml::Table;
+    /// The technique's parameters, declared in one table (`render::params`).
+    fn param_set(&self) -> &params::Params;
+    /// The parameters as a preset table.
+    fn params(&self) -> toml::Table {
+        self.param_set().table()
+    }
+    /// Checks and applies parameter values (all or none); `apply_params` makes them take effect.
     fn set_params(&mut self, params: &toml::Table) -> Result<()>;
-    /// What each parameter does, for the viewer's panel and the README.
-    fn param_docs(&self) -> Vec<ParamDoc> {
-        Vec::new()
+    /// Makes the current parameters take effect on the GPU: uniforms, and resources whose size
+    /// depends on a parameter. Never rebuilds pipelines (a slider move costs no shader compile);
+    /// the default does nothing, for techniques whose parameters travel in the frame uniforms.
+    fn apply_params(&mut self, _ctx: &RenderContext) -> Result<()> {
+        Ok(())
     }
     /// Entry files under `shaders/` this technique compiles (hot reload rebuilds on change).
     fn shader_files(&self) -> &'static [&'static str];
-    /// Maps a ray budget (rays per pixel per frame) to the technique's own knobs, given the
-    /// rays per pixel per frame measured at the current settings (None before any frame).
-    /// Returns the parameters to apply, or None when they would not change.
     /// The technique's own debug views: each shows one channel of `debug_buffer`.
     fn debug_views(&self) -> Vec<DebugView> {
         Vec::new()
@@ -155,7 +161,10 @@ pub trait Technique {
     fn debug_buffer(&self) -> Option<&wgpu::Buffer> {
         None
     }
-    /// The default: no budget knob.
+    /// Maps a ray budget (rays per pixel per frame) to the technique's own knobs, given the
+    /// rays per pixel per frame measured at the current settings (None before any frame).
+    /// Returns the parameters to apply, or None when they would not change. The default: no
+    /// budget knob.
     fn params_for_ray_budget(
         &self,
         _rays_per_pixel: f64,
@@ -174,19 +183,6 @@ pub struct DebugView {
     pub is_id: bool,
 }
 
-/// One documented parameter: what it does, what higher and lower values mean, its range.
-#[derive(Clone, Debug, Serialize)]
-pub struct ParamDoc {
-    pub name: &'static str,
-    pub what: &'static str,
-    pub higher: &'static str,
-    pub lower: &'static str,
-    pub min: f64,
-    pub max: f64,
-    /// Integer parameter (slider steps of 1).
-    pub integer: bool,
-}
-
 pub const TECHNIQUES: &[(&str, &str)] = &[
     (
         "reference",
@@ -197,6 +193,19 @@ pub const TECHNIQUES: &[(&str, &str)] = &[
         "ReSTIR DI: resampled direct light with temporal and spatial reuse",
     ),
 ];
+
+/// Every technique's parameter table in Markdown (`gilab params`; the README's section).
+pub fn params_markdown() -> String {
+    let mut out = String::new();
+    for (name, what) in TECHNIQUES {
+        let t = create_technique(name).expect("registered");
+        out += &format!(
+            "### `{name}`: {what}\n\n{}\n",
+            params::markdown_table(t.param_set().specs())
+        );
+    }
+    out
+}
 
 pub fn create_technique(name: &str) -> Result<Box<dyn Technique>> {
     match name {

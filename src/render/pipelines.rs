@@ -4,6 +4,16 @@
 use crate::gpu::{shaders::ShaderLibrary, Gpu};
 use anyhow::{anyhow, Result};
 use std::borrow::Cow;
+use std::cell::Cell;
+
+thread_local! {
+    static PIPELINES_CREATED: Cell<u64> = const { Cell::new(0) };
+}
+
+/// Compute pipelines this thread has created: a test checks that parameter changes create none.
+pub fn pipelines_created() -> u64 {
+    PIPELINES_CREATED.with(|c| c.get())
+}
 
 pub fn shader_module(
     gpu: &Gpu,
@@ -27,6 +37,7 @@ pub fn compute_pipeline(
     layouts: &[&wgpu::BindGroupLayout],
 ) -> Result<wgpu::ComputePipeline> {
     let module = shader_module(gpu, shaders, entry)?;
+    PIPELINES_CREATED.with(|c| c.set(c.get() + 1));
     let bind_group_layouts: Vec<Option<&wgpu::BindGroupLayout>> =
         layouts.iter().map(|l| Some(*l)).collect();
     gpu.scoped(&format!("compute pipeline shaders/{entry}"), || {

@@ -11,15 +11,16 @@
 //! Shader: shaders/reference/path_trace.wgsl.
 
 use crate::gpu::{timing::PassTimer, Gpu};
-use crate::render::{pipelines, ParamDoc, PassInfo, RenderContext, Technique};
+use crate::render::params::{ParamKind, ParamSpec, Params};
+use crate::render::{pipelines, PassInfo, RenderContext, Technique};
 use crate::scene::features::SceneFeatures;
-use anyhow::{bail, Result};
+use anyhow::Result;
 
 pub struct ReferencePathTracer {
-    /// Paths per pixel per frame. Higher: fewer frames to converge, longer frames.
-    pub samples_per_frame: u32,
-    /// Maximum bounces; 0 = unbounded (Russian roulette only), the unbiased default.
-    pub max_depth: u32,
+    params: Params,
+    /// `samples_per_frame` and `max_depth` of the table, typed.
+    samples_per_frame: u32,
+    max_depth: u32,
     pipeline: Option<wgpu::ComputePipeline>,
     bind_group: Option<wgpu::BindGroup>,
     mean: Option<wgpu::Buffer>,
@@ -31,6 +32,28 @@ pub struct ReferencePathTracer {
 
 /// Most samples one frame can take (one dispatch each).
 pub const MAX_SAMPLES_PER_FRAME: u32 = 64;
+
+pub const PARAMS: &[ParamSpec] = &[
+    ParamSpec {
+        name: "samples_per_frame",
+        what: "paths traced per pixel each frame (one dispatch each)",
+        higher: "faster convergence per frame, longer frames",
+        lower: "shorter frames, more frames to the same noise",
+        kind: ParamKind::Int {
+            min: 1,
+            max: MAX_SAMPLES_PER_FRAME as i64,
+        },
+        default: 1.0,
+    },
+    ParamSpec {
+        name: "max_depth",
+        what: "maximum bounces; 0 = unbounded (Russian roulette only, unbiased)",
+        higher: "more indirect light kept, longer paths",
+        lower: "cheaper paths that lose energy (biased dark) below the scene's needs",
+        kind: ParamKind::Int { min: 0, max: 1024 },
+        default: 0.0,
+    },
+];
 const SLOT_BYTES: u64 = 256;
 /// Rays one path costs before anything is measured (camera + a few bounces with shadow rays).
 const ASSUMED_RAYS_PER_PATH: f64 = 4.0;
@@ -38,6 +61,7 @@ const ASSUMED_RAYS_PER_PATH: f64 = 4.0;
 impl Default for ReferencePathTracer {
     fn default() -> Self {
         ReferencePathTracer {
+            params: Params::new("reference", PARAMS),
             samples_per_frame: 1,
             max_depth: 0,
             pipeline: None,
@@ -240,50 +264,15 @@ impl Technique for ReferencePathTracer {
         self.m2.as_ref()
     }
 
-    fn params(&self) -> toml::Table {
-        let mut t = toml::Table::new();
-        t.insert(
-            "samples_per_frame".into(),
-            (self.samples_per_frame as i64).into(),
-        );
-        t.insert("max_depth".into(), (self.max_depth as i64).into());
-        t
+    fn param_set(&self) -> &Params {
+        &self.params
     }
 
     fn set_params(&mut self, params: &toml::Table) -> Result<()> {
-        for (k, v) in params {
-            let n = v.as_integer().filter(|n| *n >= 0 && *n <= u32::MAX as i64);
-            match (k.as_str(), n) {
-                ("samples_per_frame", Some(n)) if (1..=MAX_SAMPLES_PER_FRAME as i64).contains(&n) => self.samples_per_frame = n as u32,
-                ("max_depth", Some(n)) => self.max_depth = n as u32,
-                ("samples_per_frame" | "max_depth", _) => bail!("reference: parameter '{k}' must be a non-negative integer (samples_per_frame 1..={MAX_SAMPLES_PER_FRAME}), got {v}"),
-                _ => bail!("reference has no parameter '{k}' (known: samples_per_frame, max_depth)"),
-            }
-        }
+        self.params.set("reference", params)?;
+        self.samples_per_frame = self.params.u32("samples_per_frame");
+        self.max_depth = self.params.u32("max_depth");
         Ok(())
-    }
-
-    fn param_docs(&self) -> Vec<ParamDoc> {
-        vec![
-            ParamDoc {
-                name: "samples_per_frame",
-                what: "paths traced per pixel each frame (one dispatch each)",
-                higher: "faster convergence per frame, longer frames",
-                lower: "shorter frames, more frames to the same noise",
-                min: 1.0,
-                max: MAX_SAMPLES_PER_FRAME as f64,
-                integer: true,
-            },
-            ParamDoc {
-                name: "max_depth",
-                what: "maximum bounces; 0 = unbounded (Russian roulette only, unbiased)",
-                higher: "more indirect light kept, longer paths",
-                lower: "cheaper paths that lose energy (biased dark) below the scene's needs",
-                min: 0.0,
-                max: 64.0,
-                integer: true,
-            },
-        ]
     }
 
     fn shader_files(&self) -> &'static [&'static str] {

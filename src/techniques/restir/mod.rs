@@ -33,9 +33,10 @@
 //! Shaders: shaders/restir/*.wgsl, shared state in shaders/common/restir.wgsl.
 
 use crate::gpu::{timing::PassTimer, Gpu};
-use crate::render::{pipelines, DebugView, ParamDoc, PassInfo, RenderContext, Technique};
+use crate::render::params::{ParamKind, ParamSpec, Params};
+use crate::render::{pipelines, DebugView, PassInfo, RenderContext, Technique};
 use crate::scene::features::SceneFeatures;
-use anyhow::{bail, Result};
+use anyhow::Result;
 use wgpu::util::DeviceExt;
 
 /// Matches `RestirParams` in shaders/common/restir.wgsl.
@@ -64,6 +65,147 @@ pub struct RestirParamsGpu {
     pub pad: u32,
 }
 
+/// ReSTIR's parameters: docs, ranges and defaults in one place (the talk's defaults: 8 initial
+/// candidates, max history 8, a few spatial neighbours).
+pub const PARAMS: &[ParamSpec] = &[
+    ParamSpec {
+        name: "candidates",
+        what: "initial RIS candidates per pixel per frame from the local lights (emissive triangles, point, spot), by power or from the ReGIR cell",
+        higher: "better initial samples (many lights), more shading work, no extra rays",
+        lower: "cheaper, noisier before reuse; 0 leaves local lights out of direct light",
+        kind: ParamKind::Int { min: 0, max: 256 },
+        default: 8.0,
+    },
+    ParamSpec {
+        name: "directional_candidates",
+        what: "initial RIS candidates per pixel per frame from the directional lights, by power (unused without directional lights)",
+        higher: "better choice among several suns, more shading work, no extra rays",
+        lower: "cheaper; 0 leaves directional lights out of direct light (biased dark)",
+        kind: ParamKind::Int { min: 0, max: 64 },
+        default: 1.0,
+    },
+    ParamSpec {
+        name: "sky_candidates",
+        what: "initial RIS candidates per pixel per frame from the sky: directions from an equal mix of BSDF and cosine sampling, merged with the other classes (unused when the sky is black or out of reach)",
+        higher: "sky light resampled and reused like the other lights; one DI sample then carries sun, lamps and sky (colour noise)",
+        lower: "0 (default): direct sky light comes from the GI sample ray instead (measured lower error on courtyard)",
+        kind: ParamKind::Int { min: 0, max: 64 },
+        default: 0.0,
+    },
+    ParamSpec {
+        name: "light_classes",
+        what: "on: candidates per light class (local, directional, sky), merged before visibility, as in the talk; off: one power-proportional pool over every light, sky through GI rays only",
+        higher: "every class gets its candidates: a strong sun cannot starve local lights",
+        lower: "the single-pool baseline, for A/B comparisons",
+        kind: ParamKind::Bool,
+        default: 1.0,
+    },
+    ParamSpec {
+        name: "candidate_visibility",
+        what: "biased mode: visibility rays before reuse: off, each light class's pick before the merge (the talk's fix), or only the merged pick",
+        higher: "per_class: occluded lights are not spread to neighbours and a shadowed sun cannot crowd out visible local lights (+1 ray per class)",
+        lower: "off: fewer rays, shadows spread through reuse until the final test; merged: one ray, the talk's artifact under a shadowed sun",
+        kind: ParamKind::Choice(&["off", "per_class", "merged"]),
+        default: 1.0,
+    },
+    ParamSpec {
+        name: "temporal",
+        what: "merge last frame's reservoir at the reprojected pixel",
+        higher: "on: more effective samples per pixel, some temporal lag",
+        lower: "off: no history, no lag, noisier",
+        kind: ParamKind::Bool,
+        default: 1.0,
+    },
+    ParamSpec {
+        name: "max_history",
+        what: "last frame's reservoir counts at most this many times the current candidates",
+        higher: "more stable, slower to follow changes (lag)",
+        lower: "reacts faster to changes, noisier (the talk's default is 8)",
+        kind: ParamKind::Float { min: 0.0, max: 64.0 },
+        default: 8.0,
+    },
+    ParamSpec {
+        name: "spatial_count",
+        what: "neighbour reservoirs merged per pixel",
+        higher: "less noise; in unbiased mode +1 ray per neighbour",
+        lower: "cheaper; 0 turns spatial reuse off",
+        kind: ParamKind::Int { min: 0, max: MAX_SPATIAL as i64 },
+        default: 3.0,
+    },
+    ParamSpec {
+        name: "spatial_radius",
+        what: "radius in pixels in which neighbours are picked",
+        higher: "more independent neighbours, more blur across geometry edges",
+        lower: "neighbours more similar, more correlated noise",
+        kind: ParamKind::Float { min: 1.0, max: 128.0 },
+        default: 16.0,
+    },
+    ParamSpec {
+        name: "unbiased",
+        what: "1/Z contribution weights over the unshadowed support (no candidate visibility tests)",
+        higher: "on: converges to the reference",
+        lower: "off: M weights and visibility reuse, cheaper, darkens contact shadows (biased)",
+        kind: ParamKind::Bool,
+        default: 1.0,
+    },
+    ParamSpec {
+        name: "bidirectional",
+        what: "reuse a neighbour's light only if it is visible from this pixel (the talk's bidirectional occlusion test)",
+        higher: "on: no runaway reuse under overlapping shadows, +1 ray per neighbour",
+        lower: "off: cheaper",
+        kind: ParamKind::Bool,
+        default: 0.0,
+    },
+    ParamSpec {
+        name: "accumulate",
+        what: "average frames progressively; off shows each frame as a real-time renderer would",
+        higher: "on: a static view converges (what the error plots measure)",
+        lower: "off: the noise of one frame, with temporal reuse only",
+        kind: ParamKind::Bool,
+        default: 1.0,
+    },
+    ParamSpec {
+        name: "gi",
+        what: "ReSTIR GI adds indirect light (one resampled sample path per pixel)",
+        higher: "on: full global illumination, +1 path per pixel",
+        lower: "off: direct light only",
+        kind: ParamKind::Bool,
+        default: 1.0,
+    },
+    ParamSpec {
+        name: "gi_bounces",
+        what: "bounces of a GI sample path after its first hit; 0 = unbounded (Russian roulette)",
+        higher: "more indirect light kept",
+        lower: "cheaper paths that lose multi-bounce light (biased dark); 0 is unbiased",
+        kind: ParamKind::Int { min: 0, max: 64 },
+        default: 0.0,
+    },
+    ParamSpec {
+        name: "regir",
+        what: "draw initial candidates from a camera-centred grid of per-cell pre-selected lights (only when the scene has many lights)",
+        higher: "on: candidates near the shading point, far less noise with many small lights",
+        lower: "off: candidates from the global pool by power only",
+        kind: ParamKind::Bool,
+        default: 1.0,
+    },
+    ParamSpec {
+        name: "regir_cell_size",
+        what: "ReGIR cell edge in world units (0 = scene diagonal / 24)",
+        higher: "fewer, coarser cells: pre-selection less local",
+        lower: "more local pre-selection; the 16^3 grid covers less of the scene",
+        kind: ParamKind::Float { min: 0.0, max: 1e6 },
+        default: 0.0,
+    },
+    ParamSpec {
+        name: "regir_lights_per_cell",
+        what: "light reservoirs kept per ReGIR cell, rebuilt each frame",
+        higher: "more diverse candidates per cell, more build work",
+        lower: "cheaper build, pixels in a cell share fewer lights (correlated noise)",
+        kind: ParamKind::Int { min: 1, max: 256 },
+        default: 16.0,
+    },
+];
+
 /// Which initial candidates are visibility-tested before reuse (biased mode only).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum CandidateVisibility {
@@ -75,22 +217,11 @@ pub enum CandidateVisibility {
 }
 
 impl CandidateVisibility {
-    fn parse(v: &toml::Value) -> Option<Self> {
-        match v {
-            toml::Value::Boolean(b) => Some(if *b { Self::PerClass } else { Self::Off }),
-            toml::Value::Integer(0) => Some(Self::Off),
-            toml::Value::Integer(1) => Some(Self::PerClass),
-            toml::Value::Integer(2) => Some(Self::Merged),
-            toml::Value::Float(f) if [0.0, 1.0, 2.0].contains(f) => {
-                Self::parse(&toml::Value::Integer(*f as i64))
-            }
-            toml::Value::String(s) => match s.as_str() {
-                "off" => Some(Self::Off),
-                "per_class" => Some(Self::PerClass),
-                "merged" => Some(Self::Merged),
-                _ => None,
-            },
-            _ => None,
+    fn from_index(i: u32) -> Self {
+        match i {
+            0 => Self::Off,
+            2 => Self::Merged,
+            _ => Self::PerClass,
         }
     }
 }
@@ -129,30 +260,34 @@ pub struct RestirSettings {
     pub regir_lights_per_cell: u32,
 }
 
+impl RestirSettings {
+    /// The settings the parameter table holds.
+    fn from_params(p: &Params) -> Self {
+        RestirSettings {
+            candidates: p.u32("candidates"),
+            directional_candidates: p.u32("directional_candidates"),
+            sky_candidates: p.u32("sky_candidates"),
+            light_classes: p.bool("light_classes"),
+            candidate_visibility: CandidateVisibility::from_index(p.u32("candidate_visibility")),
+            temporal: p.bool("temporal"),
+            max_history: p.f32("max_history"),
+            spatial_count: p.u32("spatial_count"),
+            spatial_radius: p.f32("spatial_radius"),
+            unbiased: p.bool("unbiased"),
+            bidirectional: p.bool("bidirectional"),
+            accumulate: p.bool("accumulate"),
+            gi: p.bool("gi"),
+            gi_bounces: p.u32("gi_bounces"),
+            regir: p.bool("regir"),
+            regir_cell_size: p.f32("regir_cell_size"),
+            regir_lights_per_cell: p.u32("regir_lights_per_cell"),
+        }
+    }
+}
+
 impl Default for RestirSettings {
     fn default() -> Self {
-        // The talk's defaults: 8 initial candidates, max history 8, a couple of spatial samples.
-        RestirSettings {
-            candidates: 8,
-            directional_candidates: 1,
-            // Off by default, measured: merged into the one DI reservoir, sky samples lose to
-            // the GI ray's own sky estimate on `courtyard` (README, ReSTIR section).
-            sky_candidates: 0,
-            light_classes: true,
-            candidate_visibility: CandidateVisibility::PerClass,
-            temporal: true,
-            max_history: 8.0,
-            spatial_count: 3,
-            spatial_radius: 16.0,
-            unbiased: true,
-            bidirectional: false,
-            accumulate: true,
-            gi: true,
-            gi_bounces: 0,
-            regir: true,
-            regir_cell_size: 0.0,
-            regir_lights_per_cell: 16,
-        }
+        RestirSettings::from_params(&Params::new("restir", PARAMS))
     }
 }
 
@@ -166,12 +301,14 @@ struct Pipelines {
     shade: wgpu::ComputePipeline,
 }
 
-#[derive(Default)]
 pub struct Restir {
+    params: Params,
+    /// The parameters as typed settings (refreshed whenever they change).
     pub settings: RestirSettings,
     pipelines: Option<Pipelines>,
+    layout: Option<wgpu::BindGroupLayout>,
     bind_group: Option<wgpu::BindGroup>,
-    params: Option<wgpu::Buffer>,
+    params_buffer: Option<wgpu::Buffer>,
     surfaces: Option<wgpu::Buffer>,
     reservoirs: Option<wgpu::Buffer>,
     gi_reservoirs: Option<wgpu::Buffer>,
@@ -185,6 +322,32 @@ pub struct Restir {
     many_lights: bool,
     /// Cell size in use (the setting, or the automatic one for this scene).
     regir_cell: f32,
+}
+
+impl Default for Restir {
+    fn default() -> Self {
+        let params = Params::new("restir", PARAMS);
+        Restir {
+            settings: RestirSettings::from_params(&params),
+            params,
+            pipelines: None,
+            layout: None,
+            bind_group: None,
+            params_buffer: None,
+            surfaces: None,
+            reservoirs: None,
+            gi_reservoirs: None,
+            gi_sky: None,
+            regir_slots: None,
+            debug: None,
+            mean: None,
+            m2: None,
+            extent: [0, 0],
+            classes: LightClasses::default(),
+            many_lights: false,
+            regir_cell: 0.0,
+        }
+    }
 }
 
 /// Which light classes the scene has (rule 3: a class it lacks gets no candidates).
@@ -322,6 +485,102 @@ impl Restir {
             "RIS per light class ({}), merged before visibility, {test}",
             parts.join("; ")
         )
+    }
+
+    /// Buffers, the parameter uniform and the bind group: on build, on a parameter change
+    /// (buffers whose size did not change are kept) and never with a pipeline.
+    fn build_resources(&mut self, ctx: &RenderContext) {
+        let gpu = ctx.gpu;
+        let [w, h] = ctx.extent;
+        let pixels = w * h;
+        let features = &ctx.scene.data.features;
+        self.classes = LightClasses::of(features);
+        self.many_lights = features.many_lights;
+        self.regir_cell = if self.settings.regir_cell_size > 0.0 {
+            self.settings.regir_cell_size
+        } else {
+            let lo = glam::Vec3::from(features.bounds_min);
+            let hi = glam::Vec3::from(features.bounds_max);
+            ((hi - lo).length() / 24.0).max(1e-3)
+        };
+        let params = gpu
+            .device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("restir params"),
+                contents: bytemuck::bytes_of(&self.gpu_params(pixels)),
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            });
+        let reuse = self.extent == ctx.extent && self.mean.is_some();
+        let buffer = |slot: &mut Option<wgpu::Buffer>, label: &str, bytes: u64| match slot
+            .take()
+            .filter(|_| reuse)
+        {
+            Some(b) => b,
+            None => pipelines::storage_buffer(gpu, label, bytes),
+        };
+        let px = pixels as u64;
+        let surfaces = buffer(
+            &mut self.surfaces,
+            "restir surfaces",
+            2 * px * SURFACE_BYTES,
+        );
+        let reservoirs = buffer(
+            &mut self.reservoirs,
+            "restir reservoirs",
+            3 * px * RESERVOIR_BYTES,
+        );
+        let gi_reservoirs = buffer(
+            &mut self.gi_reservoirs,
+            "restir gi reservoirs",
+            3 * px * GI_RESERVOIR_BYTES,
+        );
+        let gi_sky = buffer(&mut self.gi_sky, "restir gi sky", px * 16);
+        let cells = (REGIR_DIMS as u64).pow(3);
+        let regir_bytes = cells * self.settings.regir_lights_per_cell as u64 * REGIR_SLOT_BYTES;
+        let regir_slots = match self.regir_slots.take() {
+            Some(b) if b.size() == regir_bytes.max(16) => b,
+            _ => pipelines::storage_buffer(gpu, "restir regir slots", regir_bytes),
+        };
+        let debug = buffer(&mut self.debug, "restir debug", px * 16);
+        let mean = buffer(&mut self.mean, "restir mean", px * 16);
+        let m2 = buffer(&mut self.m2, "restir m2", px * 16);
+        let resources = [
+            ctx.uniforms.as_entire_binding(),
+            ctx.counters.as_entire_binding(),
+            params.as_entire_binding(),
+            surfaces.as_entire_binding(),
+            reservoirs.as_entire_binding(),
+            mean.as_entire_binding(),
+            m2.as_entire_binding(),
+            gi_reservoirs.as_entire_binding(),
+            gi_sky.as_entire_binding(),
+            regir_slots.as_entire_binding(),
+            debug.as_entire_binding(),
+        ];
+        let bind_entries: Vec<wgpu::BindGroupEntry> = resources
+            .into_iter()
+            .enumerate()
+            .map(|(i, resource)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource,
+            })
+            .collect();
+        let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("restir"),
+            layout: self.layout.as_ref().expect("built"),
+            entries: &bind_entries,
+        });
+        self.bind_group = Some(bind_group);
+        self.params_buffer = Some(params);
+        self.surfaces = Some(surfaces);
+        self.reservoirs = Some(reservoirs);
+        self.gi_reservoirs = Some(gi_reservoirs);
+        self.gi_sky = Some(gi_sky);
+        self.regir_slots = Some(regir_slots);
+        self.debug = Some(debug);
+        self.mean = Some(mean);
+        self.m2 = Some(m2);
+        self.extent = ctx.extent;
     }
 
     /// Rays per pixel per frame of everything but GI: camera, final DI visibility, the
@@ -472,97 +731,14 @@ impl Technique for Restir {
             gi_spatial: make("restir/gi_spatial.wgsl")?,
             shade: make("restir/shade.wgsl")?,
         };
-        let [w, h] = ctx.extent;
-        let pixels = w * h;
-        let features = &ctx.scene.data.features;
-        self.classes = LightClasses::of(features);
-        self.many_lights = features.many_lights;
-        self.regir_cell = if self.settings.regir_cell_size > 0.0 {
-            self.settings.regir_cell_size
-        } else {
-            let lo = glam::Vec3::from(features.bounds_min);
-            let hi = glam::Vec3::from(features.bounds_max);
-            ((hi - lo).length() / 24.0).max(1e-3)
-        };
-        let params = gpu
-            .device
-            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("restir params"),
-                contents: bytemuck::bytes_of(&self.gpu_params(pixels)),
-                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            });
-        let reuse = self.extent == ctx.extent && self.mean.is_some();
-        let buffer = |slot: &mut Option<wgpu::Buffer>, label: &str, bytes: u64| match slot
-            .take()
-            .filter(|_| reuse)
-        {
-            Some(b) => b,
-            None => pipelines::storage_buffer(gpu, label, bytes),
-        };
-        let px = pixels as u64;
-        let surfaces = buffer(
-            &mut self.surfaces,
-            "restir surfaces",
-            2 * px * SURFACE_BYTES,
-        );
-        let reservoirs = buffer(
-            &mut self.reservoirs,
-            "restir reservoirs",
-            3 * px * RESERVOIR_BYTES,
-        );
-        let gi_reservoirs = buffer(
-            &mut self.gi_reservoirs,
-            "restir gi reservoirs",
-            3 * px * GI_RESERVOIR_BYTES,
-        );
-        let gi_sky = buffer(&mut self.gi_sky, "restir gi sky", px * 16);
-        let cells = (REGIR_DIMS as u64).pow(3);
-        let regir_bytes = cells * self.settings.regir_lights_per_cell as u64 * REGIR_SLOT_BYTES;
-        let regir_slots = match self.regir_slots.take() {
-            Some(b) if b.size() == regir_bytes.max(16) => b,
-            _ => pipelines::storage_buffer(gpu, "restir regir slots", regir_bytes),
-        };
-        let debug = buffer(&mut self.debug, "restir debug", px * 16);
-        let mean = buffer(&mut self.mean, "restir mean", px * 16);
-        let m2 = buffer(&mut self.m2, "restir m2", px * 16);
-        let resources = [
-            ctx.uniforms.as_entire_binding(),
-            ctx.counters.as_entire_binding(),
-            params.as_entire_binding(),
-            surfaces.as_entire_binding(),
-            reservoirs.as_entire_binding(),
-            mean.as_entire_binding(),
-            m2.as_entire_binding(),
-            gi_reservoirs.as_entire_binding(),
-            gi_sky.as_entire_binding(),
-            regir_slots.as_entire_binding(),
-            debug.as_entire_binding(),
-        ];
-        let bind_entries: Vec<wgpu::BindGroupEntry> = resources
-            .into_iter()
-            .enumerate()
-            .map(|(i, resource)| wgpu::BindGroupEntry {
-                binding: i as u32,
-                resource,
-            })
-            .collect();
-        let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("restir"),
-            layout: &layout,
-            entries: &bind_entries,
-        });
         self.pipelines = Some(built);
-        self.bind_group = Some(bind_group);
-        self.params = Some(params);
-        self.surfaces = Some(surfaces);
-        self.reservoirs = Some(reservoirs);
-        self.gi_reservoirs = Some(gi_reservoirs);
-        self.gi_sky = Some(gi_sky);
-        self.regir_slots = Some(regir_slots);
-        self.debug = Some(debug);
-        self.mean = Some(mean);
-        self.m2 = Some(m2);
-        self.extent = ctx.extent;
+        self.layout = Some(layout);
+        self.build_resources(ctx);
+        Ok(())
+    }
+
+    fn apply_params(&mut self, ctx: &RenderContext) -> Result<()> {
+        self.build_resources(ctx);
         Ok(())
     }
 
@@ -653,229 +829,14 @@ impl Technique for Restir {
         self.debug.as_ref()
     }
 
-    fn params(&self) -> toml::Table {
-        let s = &self.settings;
-        let mut t = toml::Table::new();
-        t.insert("candidates".into(), (s.candidates as i64).into());
-        t.insert(
-            "directional_candidates".into(),
-            (s.directional_candidates as i64).into(),
-        );
-        t.insert("sky_candidates".into(), (s.sky_candidates as i64).into());
-        t.insert("light_classes".into(), s.light_classes.into());
-        t.insert(
-            "candidate_visibility".into(),
-            (s.candidate_visibility as i64).into(),
-        );
-        t.insert("temporal".into(), s.temporal.into());
-        t.insert("max_history".into(), (s.max_history as f64).into());
-        t.insert("spatial_count".into(), (s.spatial_count as i64).into());
-        t.insert("spatial_radius".into(), (s.spatial_radius as f64).into());
-        t.insert("unbiased".into(), s.unbiased.into());
-        t.insert("bidirectional".into(), s.bidirectional.into());
-        t.insert("accumulate".into(), s.accumulate.into());
-        t.insert("gi".into(), s.gi.into());
-        t.insert("gi_bounces".into(), (s.gi_bounces as i64).into());
-        t.insert("regir".into(), s.regir.into());
-        t.insert("regir_cell_size".into(), (s.regir_cell_size as f64).into());
-        t.insert(
-            "regir_lights_per_cell".into(),
-            (s.regir_lights_per_cell as i64).into(),
-        );
-        t
+    fn param_set(&self) -> &Params {
+        &self.params
     }
 
     fn set_params(&mut self, params: &toml::Table) -> Result<()> {
-        let mut s = self.settings.clone();
-        for (k, v) in params {
-            let num = v.as_float().or(v.as_integer().map(|i| i as f64));
-            let flag = v.as_bool().or(v.as_integer().map(|i| i != 0));
-            match (k.as_str(), num, flag) {
-                ("candidates", Some(n), _) if (0.0..=256.0).contains(&n) => s.candidates = n as u32,
-                ("max_history", Some(n), _) if (0.0..=1000.0).contains(&n) => s.max_history = n as f32,
-                ("spatial_count", Some(n), _) if (0.0..=MAX_SPATIAL as f64).contains(&n) => {
-                    s.spatial_count = n as u32
-                }
-                ("spatial_radius", Some(n), _) if (1.0..=256.0).contains(&n) => s.spatial_radius = n as f32,
-                ("directional_candidates", Some(n), _) if (0.0..=64.0).contains(&n) => {
-                    s.directional_candidates = n as u32
-                }
-                ("sky_candidates", Some(n), _) if (0.0..=64.0).contains(&n) => s.sky_candidates = n as u32,
-                ("light_classes", _, Some(b)) => s.light_classes = b,
-                ("candidate_visibility", _, _) if CandidateVisibility::parse(v).is_some() => {
-                    s.candidate_visibility = CandidateVisibility::parse(v).unwrap_or(s.candidate_visibility)
-                }
-                ("temporal", _, Some(b)) => s.temporal = b,
-                ("unbiased", _, Some(b)) => s.unbiased = b,
-                ("bidirectional", _, Some(b)) => s.bidirectional = b,
-                ("accumulate", _, Some(b)) => s.accumulate = b,
-                ("gi", _, Some(b)) => s.gi = b,
-                ("regir", _, Some(b)) => s.regir = b,
-                ("regir_cell_size", Some(n), _) if (0.0..=1e6).contains(&n) => s.regir_cell_size = n as f32,
-                ("regir_lights_per_cell", Some(n), _) if (1.0..=256.0).contains(&n) => {
-                    s.regir_lights_per_cell = n as u32
-                }
-                ("gi_bounces", Some(n), _) if (0.0..=64.0).contains(&n) => s.gi_bounces = n as u32,
-                (
-                    "candidates" | "directional_candidates" | "sky_candidates" | "light_classes" | "max_history" | "spatial_count" | "spatial_radius"
-                    | "candidate_visibility" | "temporal" | "unbiased" | "bidirectional" | "accumulate" | "gi" | "gi_bounces" | "regir" | "regir_cell_size"
-                    | "regir_lights_per_cell",
-                    _,
-                    _,
-                ) => bail!("restir: parameter '{k}' out of range or of the wrong type: {v} (see the parameter docs)"),
-                _ => bail!(
-                    "restir has no parameter '{k}' (known: candidates, directional_candidates, sky_candidates, light_classes, candidate_visibility, temporal, max_history, spatial_count, spatial_radius, unbiased, bidirectional, accumulate, gi, gi_bounces, regir, regir_cell_size, regir_lights_per_cell)"
-                ),
-            }
-        }
-        self.settings = s;
+        self.params.set("restir", params)?;
+        self.settings = RestirSettings::from_params(&self.params);
         Ok(())
-    }
-
-    fn param_docs(&self) -> Vec<ParamDoc> {
-        let flag = |name, what, higher, lower| ParamDoc {
-            name,
-            what,
-            higher,
-            lower,
-            min: 0.0,
-            max: 1.0,
-            integer: true,
-        };
-        vec![
-            ParamDoc {
-                name: "candidates",
-                what: "initial RIS candidates per pixel per frame from the local lights (emissive triangles, point, spot), by power or from the ReGIR cell",
-                higher: "better initial samples (many lights), more shading work, no extra rays",
-                lower: "cheaper, noisier before reuse; 0 leaves local lights out of direct light",
-                min: 0.0,
-                max: 64.0,
-                integer: true,
-            },
-            ParamDoc {
-                name: "directional_candidates",
-                what: "initial RIS candidates per pixel per frame from the directional lights, by power (unused without directional lights)",
-                higher: "better choice among several suns, more shading work, no extra rays",
-                lower: "cheaper; 0 leaves directional lights out of direct light (biased dark)",
-                min: 0.0,
-                max: 16.0,
-                integer: true,
-            },
-            ParamDoc {
-                name: "sky_candidates",
-                what: "initial RIS candidates per pixel per frame from the sky: directions from an equal mix of BSDF and cosine sampling, merged with the other classes (unused when the sky is black or out of reach)",
-                higher: "sky light resampled and reused like the other lights; one DI sample then carries sun, lamps and sky (colour noise)",
-                lower: "0 (default): direct sky light comes from the GI sample ray instead (measured lower error on courtyard)",
-                min: 0.0,
-                max: 16.0,
-                integer: true,
-            },
-            flag(
-                "light_classes",
-                "1: candidates per light class (local, directional, sky), merged before visibility, as in the talk; 0: one power-proportional pool over every light, sky through GI rays only",
-                "every class gets its candidates: a strong sun cannot starve local lights",
-                "the single-pool baseline, for A/B comparisons",
-            ),
-            ParamDoc {
-                name: "candidate_visibility",
-                what: "biased mode: visibility rays before reuse. 0 off, 1 each light class's pick before the merge (the talk's fix), 2 only the merged pick",
-                higher: "1: occluded lights are not spread to neighbours and a shadowed sun cannot crowd out visible local lights (+1 ray per class)",
-                lower: "0: fewer rays, shadows spread through reuse until the final test; 2: one ray, the talk's artifact under a shadowed sun",
-                min: 0.0,
-                max: 2.0,
-                integer: true,
-            },
-            flag(
-                "temporal",
-                "1: merge last frame's reservoir at the reprojected pixel",
-                "more effective samples per pixel, some temporal lag",
-                "0: no history, no lag, noisier",
-            ),
-            ParamDoc {
-                name: "max_history",
-                what: "last frame's reservoir counts at most this many times the current candidates",
-                higher: "more stable, slower to follow changes (lag)",
-                lower: "reacts faster to changes, noisier (the talk's default is 8)",
-                min: 0.0,
-                max: 64.0,
-                integer: false,
-            },
-            ParamDoc {
-                name: "spatial_count",
-                what: "neighbour reservoirs merged per pixel",
-                higher: "less noise; in unbiased mode +1 ray per neighbour",
-                lower: "cheaper; 0 turns spatial reuse off",
-                min: 0.0,
-                max: MAX_SPATIAL as f64,
-                integer: true,
-            },
-            ParamDoc {
-                name: "spatial_radius",
-                what: "radius in pixels in which neighbours are picked",
-                higher: "more independent neighbours, more blur across geometry edges",
-                lower: "neighbours more similar, more correlated noise",
-                min: 1.0,
-                max: 64.0,
-                integer: false,
-            },
-            flag(
-                "unbiased",
-                "1: 1/Z contribution weights over the unshadowed support (no candidate visibility tests)",
-                "converges to the reference",
-                "0: M weights and visibility reuse, cheaper, darkens contact shadows (biased)",
-            ),
-            flag(
-                "regir",
-                "1: draw initial candidates from a camera-centred grid of per-cell pre-selected lights (only when the scene has many lights)",
-                "candidates near the shading point, far less noise with many small lights",
-                "0: candidates from the global pool by power only",
-            ),
-            ParamDoc {
-                name: "regir_cell_size",
-                what: "ReGIR cell edge in world units (0 = scene diagonal / 24)",
-                higher: "fewer, coarser cells: pre-selection less local",
-                lower: "more local pre-selection; the 16^3 grid covers less of the scene",
-                min: 0.0,
-                max: 100.0,
-                integer: false,
-            },
-            ParamDoc {
-                name: "regir_lights_per_cell",
-                what: "light reservoirs kept per ReGIR cell, rebuilt each frame",
-                higher: "more diverse candidates per cell, more build work",
-                lower: "cheaper build, pixels in a cell share fewer lights (correlated noise)",
-                min: 1.0,
-                max: 256.0,
-                integer: true,
-            },
-            flag(
-                "gi",
-                "1: ReSTIR GI adds indirect light (one resampled sample path per pixel)",
-                "full global illumination, +1 path per pixel",
-                "0: direct light only",
-            ),
-            ParamDoc {
-                name: "gi_bounces",
-                what: "bounces of a GI sample path after its first hit; 0 = unbounded (Russian roulette)",
-                higher: "more indirect light kept",
-                lower: "cheaper paths that lose multi-bounce light (biased dark); 0 is unbiased",
-                min: 0.0,
-                max: 16.0,
-                integer: true,
-            },
-            flag(
-                "accumulate",
-                "1: average frames progressively; 0: show each frame as a real-time renderer would",
-                "a static view converges (what the error plots measure)",
-                "the noise of one frame, with temporal reuse only",
-            ),
-            flag(
-                "bidirectional",
-                "1: reuse a neighbour's light only if it is visible from this pixel (the talk's bidirectional occlusion test)",
-                "no runaway reuse under overlapping shadows, +1 ray per neighbour",
-                "0: cheaper",
-            ),
-        ]
     }
 
     fn shader_files(&self) -> &'static [&'static str] {
