@@ -119,7 +119,10 @@ fn gpu_struct_layouts_match_rust() {
     // ReSTIR's buffers.
     use gilab::techniques::restir;
     let size_of = wgsl_size("restir/initial_temporal.wgsl");
-    assert_eq!(size_of("GSurface") as u64, restir::SURFACE_BYTES);
+    assert_eq!(
+        size_of("GSurface") as u64,
+        gilab::render::primary::SURFACE_BYTES
+    );
     assert_eq!(size_of("Reservoir") as u64, restir::RESERVOIR_BYTES);
     assert_eq!(size_of("RegirSlot") as u64, restir::REGIR_SLOT_BYTES);
     assert_eq!(

@@ -404,10 +404,82 @@ fn parameter_changes_rebuild_no_pipeline() {
         );
         engine.rebuild().unwrap();
         let rebuilt = pipelines_created() - before;
+        // The technique's pipelines, and the engine's primary-surface pass when it runs.
+        let expected = engine.technique.shader_files().len()
+            + engine.technique.inputs().primary_surfaces as usize;
         assert_eq!(
-            rebuilt as usize,
-            engine.technique.shader_files().len(),
+            rebuilt as usize, expected,
             "{name}: a rebuild compiles every pipeline"
         );
     }
+}
+
+/// The engine's shared primary surfaces: each valid pixel's position lies at its depth along the
+/// direction to the viewer, its triangle's material is the stored one, misses say so, and after a
+/// camera move each surface's motion takes it back to where last frame's camera saw it.
+#[test]
+fn primary_surfaces_are_consistent_and_motion_reprojects() {
+    use gilab::render::primary::NO_SURFACE;
+    let scene = builtin::cornell();
+    let materials = scene.triangle_material.clone();
+    let cam0 = scene.default_camera();
+    let size = [32u32, 24];
+    let mut engine = Engine::new(
+        common::gpu(),
+        ShaderLibrary::discover(),
+        scene,
+        create_technique("restir").unwrap(),
+        EngineSettings {
+            extent: size,
+            seed: 3,
+            camera: cam0,
+        },
+    )
+    .unwrap();
+    assert_eq!(engine.passes()[0].name, "primary");
+    engine.render_frame().unwrap();
+    let first = engine
+        .read_primary_surfaces()
+        .unwrap()
+        .expect("restir uses them");
+    let mut hits = 0;
+    for s in &first {
+        if s.pos[3] < 0.5 {
+            assert_eq!(s.triangle, NO_SURFACE);
+            continue;
+        }
+        hits += 1;
+        let p = Vec3::from_slice(&s.pos[..3]);
+        let back = cam0.position + Vec3::from_slice(&s.wo_dist[..3]) * -s.wo_dist[3];
+        assert!((p - back).length() < 1e-3 * s.wo_dist[3], "{p} vs {back}");
+        assert_eq!(s.material, materials[s.triangle as usize]);
+    }
+    assert!(hits > first.len() / 2, "{hits} hits");
+
+    // Move sideways and up a little: static geometry moves on screen by its depth.
+    let mut cam1 = cam0;
+    cam1.position += Vec3::new(0.3, 0.1, 0.0);
+    cam1.target += Vec3::new(0.3, 0.1, 0.0);
+    engine.move_camera(cam1);
+    engine.render_frame().unwrap();
+    let second = engine.read_primary_surfaces().unwrap().unwrap();
+    let clip0 = cam0.clip_from_world(size[0] as f32 / size[1] as f32, 0.01);
+    let mut moved = 0;
+    for (i, s) in second.iter().enumerate().filter(|(_, s)| s.pos[3] > 0.5) {
+        let c = clip0 * Vec3::from_slice(&s.pos[..3]).extend(1.0);
+        let prev = glam::Vec2::new(
+            (c.x / c.w * 0.5 + 0.5) * size[0] as f32,
+            (0.5 - c.y / c.w * 0.5) * size[1] as f32,
+        );
+        // This frame's (jittered) sample lies in its pixel: minus the motion, last frame's point.
+        let pixel = glam::Vec2::new((i % size[0] as usize) as f32, (i / size[0] as usize) as f32);
+        let from_motion = pixel + glam::Vec2::splat(0.5) - glam::Vec2::from(s.motion);
+        assert!(
+            (from_motion - prev).abs().max_element() <= 0.5 + 1e-3,
+            "pixel {pixel}: motion {:?} gives {from_motion}, last camera saw {prev}",
+            s.motion
+        );
+        moved += (glam::Vec2::from(s.motion).length() > 0.5) as usize;
+    }
+    assert!(moved > second.len() / 2, "only {moved} surfaces moved");
 }

@@ -9,7 +9,7 @@
 #import gilab::sampling::sample_cosine_hemisphere
 
 // Keeps the traversal from being optimised away: summed hit distances per pixel.
-@group(1) @binding(2) var<storage, read_write> checksum: array<vec4<f32>>;
+@group(2) @binding(0) var<storage, read_write> checksum: array<vec4<f32>>;
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {

@@ -4,6 +4,7 @@
 #define_import_path gilab::restir
 
 #import gilab::frame::frame
+#import gilab::primary::GSurface
 #import gilab::math::luminance
 #import gilab::brdf::{Surface, bsdf_eval}
 #import gilab::lights::{LightSample, eval_light_point, light_shadow_ray}
@@ -55,22 +56,6 @@ struct RestirParams {
 const VISIBILITY_PER_CLASS: u32 = 1u;
 const VISIBILITY_MERGED: u32 = 2u;
 
-// A primary hit (or a miss, valid = 0) as the passes need it.
-struct GSurface {
-    // xyz: position, w: 1 valid / 0 miss.
-    pos: vec4<f32>,
-    // xyz: shading normal, w: GGX alpha.
-    normal_alpha: vec4<f32>,
-    // xyz: geometric normal, w: specular factor.
-    geo_specular: vec4<f32>,
-    // rgb: base colour, w: metallic.
-    base_metal: vec4<f32>,
-    // xyz: direction to the viewer, w: distance to the camera.
-    wo_dist: vec4<f32>,
-    // rgb: emitted radiance towards the camera (or sky radiance for a miss).
-    emission: vec4<f32>,
-}
-
 struct Reservoir {
     // Light pool index, or SKY_SAMPLE for a direction to the sky.
     light: u32,
@@ -86,20 +71,14 @@ struct Reservoir {
     pad: f32,
 }
 
-@group(1) @binding(2) var<uniform> params: RestirParams;
-// Two segments of `pixels` surfaces: this frame's and last frame's (by frame parity).
-@group(1) @binding(3) var<storage, read_write> surfaces: array<GSurface>;
+@group(2) @binding(0) var<uniform> params: RestirParams;
 // Three segments of `pixels` reservoirs: final of even frames, final of odd frames, temporal output.
-@group(1) @binding(4) var<storage, read_write> reservoirs: array<Reservoir>;
+@group(2) @binding(1) var<storage, read_write> reservoirs: array<Reservoir>;
 
 const TEMPORAL_SEGMENT: u32 = 2u;
 
 fn parity() -> u32 {
     return frame.frame_index & 1u;
-}
-
-fn surface_index(segment: u32, pixel: u32) -> u32 {
-    return segment * params.pixels + pixel;
 }
 
 fn reservoir_index(segment: u32, pixel: u32) -> u32 {
@@ -227,9 +206,9 @@ struct GiReservoir {
 }
 
 // Three segments like `reservoirs`.
-@group(1) @binding(7) var<storage, read_write> gi_reservoirs: array<GiReservoir>;
+@group(2) @binding(4) var<storage, read_write> gi_reservoirs: array<GiReservoir>;
 // Per pixel: sky radiance reached by this frame's GI sample ray (not reused: it has no point).
-@group(1) @binding(8) var<storage, read_write> gi_sky: array<vec4<f32>>;
+@group(2) @binding(5) var<storage, read_write> gi_sky: array<vec4<f32>>;
 
 fn empty_gi_reservoir() -> GiReservoir {
     return GiReservoir(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), 0.0, 0.0, 0.0, 0.0);
@@ -304,21 +283,6 @@ fn gi_visible(s: GSurface, r: GiReservoir) -> bool {
     return unoccluded(spawn_ray_to(s.pos.xyz, s.geo_specular.xyz, r.point.xyz, r.normal.xyz));
 }
 
-// Previous-frame pixel of a surface point, or -1 when it was off screen.
-fn reproject(p: vec3<f32>) -> i32 {
-    let clip = frame.prev_clip_from_world * vec4<f32>(p, 1.0);
-    if clip.w <= 0.0 {
-        return -1;
-    }
-    let ndc = clip.xy / clip.w;
-    let fx = (ndc.x * 0.5 + 0.5) * f32(frame.size.x);
-    let fy = (0.5 - ndc.y * 0.5) * f32(frame.size.y);
-    if fx < 0.0 || fy < 0.0 || fx >= f32(frame.size.x) || fy >= f32(frame.size.y) {
-        return -1;
-    }
-    return i32(u32(fy) * frame.size.x + u32(fx));
-}
-
 // ReGIR ("Making Connections"; Boksansky et al. 2021): a camera-centred grid whose cells hold
 // reservoirs of lights pre-selected for the cell (by power over squared distance), rebuilt
 // every frame. Pixels draw their initial candidates from their cell.
@@ -330,10 +294,10 @@ struct RegirSlot {
     big_w: f32,
 }
 
-@group(1) @binding(9) var<storage, read_write> regir_slots: array<RegirSlot>;
+@group(2) @binding(6) var<storage, read_write> regir_slots: array<RegirSlot>;
 // Per pixel, for the debug views: x = DI reservoir M, y = its contribution weight W,
 // z = selected light index + 1 (0 = none), w = ReGIR cell index + 1 (0 = none).
-@group(1) @binding(10) var<storage, read_write> debug_out: array<vec4<f32>>;
+@group(2) @binding(7) var<storage, read_write> debug_out: array<vec4<f32>>;
 
 // Lower corner of the grid: centred on the camera, snapped to whole cells so cells stay put.
 fn regir_origin() -> vec3<f32> {

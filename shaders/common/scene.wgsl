@@ -25,6 +25,8 @@ struct TriAttr {
     normal_a: vec4<f32>,
     // xyz: vertex normal 1, w: material index (bitcast).
     normal_b: vec4<f32>,
+    // xyz: vertex normal 2, w: the triangle's index in the scene (bitcast; the arrays here are in
+    // BVH order), the object id primary surfaces report.
     normal_c: vec4<f32>,
     uv_ab: vec4<f32>,
     uv_c: vec4<f32>,
@@ -80,6 +82,11 @@ struct LightPool {
 @group(0) @binding(3) var<storage, read> materials: array<Material>;
 @group(0) @binding(4) var<storage, read> texels: array<u32>;
 @group(0) @binding(5) var<storage, read> light_pool: LightPool;
+
+// The triangle's index in the scene (before BVH ordering).
+fn scene_triangle(tri: u32) -> u32 {
+    return bitcast<u32>(tri_attr[tri].normal_c.w);
+}
 
 fn tri_material(tri: u32) -> u32 {
     return bitcast<u32>(tri_attr[tri].normal_b.w);

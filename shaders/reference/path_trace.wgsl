@@ -10,12 +10,12 @@
 struct DispatchSample {
     index: u32,
 }
-@group(1) @binding(4) var<uniform> dispatch_sample: DispatchSample;
+@group(2) @binding(2) var<uniform> dispatch_sample: DispatchSample;
 
 // Per pixel: xyz = running mean radiance, w = sample count.
-@group(1) @binding(2) var<storage, read_write> accum_mean: array<vec4<f32>>;
+@group(2) @binding(0) var<storage, read_write> accum_mean: array<vec4<f32>>;
 // Per pixel: xyz = Welford M2 (sum of squared deviations) per channel.
-@group(1) @binding(3) var<storage, read_write> accum_m2: array<vec4<f32>>;
+@group(2) @binding(1) var<storage, read_write> accum_m2: array<vec4<f32>>;
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {

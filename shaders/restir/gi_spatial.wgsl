@@ -4,7 +4,8 @@
 #import gilab::rng::{rng_init, rand, rand_pair, STREAM_GI_SPATIAL}
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts}
-#import gilab::restir::{params, surfaces, gi_reservoirs, surface_index, reservoir_index, parity, empty_gi_reservoir, spatial_neighbour, gi_target, gi_update, gi_jacobian_ok, similar, TEMPORAL_SEGMENT}
+#import gilab::primary::{current_surface}
+#import gilab::restir::{params, gi_reservoirs, reservoir_index, parity, empty_gi_reservoir, spatial_neighbour, gi_target, gi_update, gi_jacobian_ok, similar, TEMPORAL_SEGMENT}
 
 const MAX_NEIGHBOURS: u32 = 8u;
 
@@ -14,7 +15,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     if gid.x < frame.size.x && gid.y < frame.size.y {
         let idx = gid.y * frame.size.x + gid.x;
         var rng = rng_init(gid.xy, frame.sample_offset, STREAM_GI_SPATIAL, frame.seed);
-        let s = surfaces[surface_index(parity(), idx)];
+        let s = current_surface(idx);
         let r0 = gi_reservoirs[reservoir_index(TEMPORAL_SEGMENT, idx)];
         var out = empty_gi_reservoir();
         gi_update(&out, r0, r0.target_pdf * r0.big_w * r0.m, r0.m, rand(&rng));
@@ -28,7 +29,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     continue;
                 }
                 let nidx = u32(n);
-                let ns = surfaces[surface_index(parity(), nidx)];
+                let ns = current_surface(nidx);
                 if !similar(s, ns) {
                     continue;
                 }
@@ -50,7 +51,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 z = r0.m;
                 for (var j = 0u; j < used_count; j++) {
                     let nidx = used[j];
-                    let ns = surfaces[surface_index(parity(), nidx)];
+                    let ns = current_surface(nidx);
                     if gi_target(ns, out) > 0.0 && gi_jacobian_ok(s, ns, out) {
                         z += gi_reservoirs[reservoir_index(TEMPORAL_SEGMENT, nidx)].m;
                     }

@@ -9,7 +9,8 @@
 #import gilab::sampling::sample_cosine_hemisphere
 #import gilab::brdf::bsdf_eval
 #import gilab::path::trace_path
-#import gilab::restir::{params, surfaces, gi_reservoirs, gi_sky, GiReservoir, surface_index, reservoir_index, parity, empty_gi_reservoir, gi_contribution, gi_target, gi_update, gi_jacobian_ok, surface_material, similar, reproject, TEMPORAL_SEGMENT}
+#import gilab::primary::{reproject, current_surface, previous_surface}
+#import gilab::restir::{params, gi_reservoirs, gi_sky, GiReservoir, reservoir_index, parity, empty_gi_reservoir, gi_contribution, gi_target, gi_update, gi_jacobian_ok, surface_material, similar, TEMPORAL_SEGMENT}
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
@@ -17,7 +18,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     if gid.x < frame.size.x && gid.y < frame.size.y {
         let idx = gid.y * frame.size.x + gid.x;
         var rng = rng_init(gid.xy, frame.sample_offset, STREAM_GI_SAMPLE, frame.seed);
-        let s = surfaces[surface_index(parity(), idx)];
+        let s = current_surface(idx);
         var r = empty_gi_reservoir();
         var sky = vec3<f32>(0.0);
         if s.pos.w > 0.5 && params.gi == 1u {
@@ -52,7 +53,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 let prev = reproject(s.pos.xyz);
                 if prev >= 0 {
                     let pidx = u32(prev);
-                    let ps = surfaces[surface_index(1u - parity(), pidx)];
+                    let ps = previous_surface(pidx);
                     if similar(s, ps) {
                         let pr = gi_reservoirs[reservoir_index(1u - parity(), pidx)];
                         // A sample whose Jacobian is out of bounds is not passed on (weight 0),

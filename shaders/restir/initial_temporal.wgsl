@@ -11,7 +11,8 @@
 #import gilab::lights::{select_light, select_light_in_class, class_pdf_scale}
 #import gilab::sampling::{sample_triangle, sample_cosine_hemisphere}
 #import gilab::brdf::{bsdf_eval, bsdf_sample}
-#import gilab::restir::{params, surfaces, reservoirs, GSurface, Reservoir, surface_index, reservoir_index, parity, empty_reservoir, reproject, regir_cell, regir_slots, contribution, target_at, visible, update, similar, surface_material, oct_encode, SKY_SAMPLE, VISIBILITY_PER_CLASS, VISIBILITY_MERGED, TEMPORAL_SEGMENT}
+#import gilab::primary::{GSurface, reproject, current_surface, previous_surface}
+#import gilab::restir::{params, reservoirs, Reservoir, reservoir_index, parity, empty_reservoir, regir_cell, regir_slots, contribution, target_at, visible, update, similar, surface_material, oct_encode, SKY_SAMPLE, VISIBILITY_PER_CLASS, VISIBILITY_MERGED, TEMPORAL_SEGMENT}
 
 // W = w_sum / (M p-hat(y)) of a reservoir filled by RIS.
 fn finish_ris(s: GSurface, r_in: Reservoir) -> Reservoir {
@@ -166,7 +167,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     if gid.x < frame.size.x && gid.y < frame.size.y {
         let idx = gid.y * frame.size.x + gid.x;
         var rng = rng_init(gid.xy, frame.sample_offset, STREAM_DI_INITIAL, frame.seed);
-        let s = surfaces[surface_index(parity(), idx)];
+        let s = current_surface(idx);
         var r = empty_reservoir();
         if s.pos.w > 0.5 {
             // Zeroing occluded candidates narrows what a reservoir can hold below the unshadowed
@@ -177,7 +178,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 let prev = reproject(s.pos.xyz);
                 if prev >= 0 {
                     let pidx = u32(prev);
-                    let ps = surfaces[surface_index(1u - parity(), pidx)];
+                    let ps = previous_surface(pidx);
                     if similar(s, ps) {
                         let pr = reservoirs[reservoir_index(1u - parity(), pidx)];
                         let mc = max(r.m, 1.0);

@@ -4,18 +4,19 @@
 #import gilab::counters::{flush_counts, no_counts, RAY_SHADOW, COUNT_INVALID_SAMPLES}
 #import gilab::math::is_finite_vec
 #import gilab::accumulate::welford_add
-#import gilab::restir::{params, surfaces, reservoirs, gi_reservoirs, gi_sky, surface_index, reservoir_index, parity, contribution, visible, gi_contribution, gi_visible, regir_cell, debug_out, SKY_SAMPLE}
+#import gilab::primary::{current_surface}
+#import gilab::restir::{params, reservoirs, gi_reservoirs, gi_sky, reservoir_index, parity, contribution, visible, gi_contribution, gi_visible, regir_cell, debug_out, SKY_SAMPLE}
 #import gilab::scene::light_pool
 
-@group(1) @binding(5) var<storage, read_write> accum_mean: array<vec4<f32>>;
-@group(1) @binding(6) var<storage, read_write> accum_m2: array<vec4<f32>>;
+@group(2) @binding(2) var<storage, read_write> accum_mean: array<vec4<f32>>;
+@group(2) @binding(3) var<storage, read_write> accum_m2: array<vec4<f32>>;
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
     var counts = no_counts();
     if gid.x < frame.size.x && gid.y < frame.size.y {
         let idx = gid.y * frame.size.x + gid.x;
-        let s = surfaces[surface_index(parity(), idx)];
+        let s = current_surface(idx);
         let ri = reservoir_index(parity(), idx);
         var r = reservoirs[ri];
         var l = s.emission.xyz;

@@ -4,7 +4,8 @@
 #import gilab::rng::{rng_init, rand, rand_pair, STREAM_DI_SPATIAL}
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts, RAY_REUSE}
-#import gilab::restir::{params, surfaces, reservoirs, GSurface, Reservoir, surface_index, reservoir_index, parity, empty_reservoir, spatial_neighbour, contribution, target_at, visible, update, similar, TEMPORAL_SEGMENT}
+#import gilab::primary::{GSurface, current_surface}
+#import gilab::restir::{params, reservoirs, Reservoir, reservoir_index, parity, empty_reservoir, spatial_neighbour, contribution, target_at, visible, update, similar, TEMPORAL_SEGMENT}
 
 const MAX_NEIGHBOURS: u32 = 8u;
 
@@ -14,7 +15,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     if gid.x < frame.size.x && gid.y < frame.size.y {
         let idx = gid.y * frame.size.x + gid.x;
         var rng = rng_init(gid.xy, frame.sample_offset, STREAM_DI_SPATIAL, frame.seed);
-        let s = surfaces[surface_index(parity(), idx)];
+        let s = current_surface(idx);
         let r0 = reservoirs[reservoir_index(TEMPORAL_SEGMENT, idx)];
         var out = empty_reservoir();
         update(&out, r0, r0.target_pdf * r0.big_w * r0.m, r0.m, rand(&rng));
@@ -28,7 +29,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     continue;
                 }
                 let nidx = u32(n);
-                let ns = surfaces[surface_index(parity(), nidx)];
+                let ns = current_surface(nidx);
                 if !similar(s, ns) {
                     continue;
                 }
@@ -55,7 +56,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 z = r0.m;
                 for (var j = 0u; j < used_count; j++) {
                     let nidx = used[j];
-                    let ns = surfaces[surface_index(parity(), nidx)];
+                    let ns = current_surface(nidx);
                     if target_at(ns, out) > 0.0 {
                         z += reservoirs[reservoir_index(TEMPORAL_SEGMENT, nidx)].m;
                     }

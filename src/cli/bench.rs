@@ -34,48 +34,19 @@ impl Technique for TraceBench {
         }]
     }
     fn build(&mut self, ctx: &RenderContext) -> Result<()> {
-        let mut entries = ctx.frame_layout_entries.to_vec();
-        entries.push(pipelines::storage_entry(2, false));
-        let layout = ctx
-            .gpu
-            .device
-            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some("bench"),
-                entries: &entries,
-            });
-        let pipeline = pipelines::compute_pipeline(
-            ctx.gpu,
-            ctx.shaders,
-            "bench/trace_rays.wgsl",
-            &[&ctx.scene.layout, &layout],
-        )?;
+        let layout = pipelines::layout(ctx.gpu, "bench", &[pipelines::storage_entry(0, false)]);
+        let pipeline = ctx.pipeline("bench/trace_rays.wgsl", &layout)?;
         let checksum = pipelines::storage_buffer(
             ctx.gpu,
             "bench checksum",
             (ctx.extent[0] * ctx.extent[1]) as u64 * 16,
         );
-        self.bind_group = Some(
-            ctx.gpu
-                .device
-                .create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: Some("bench"),
-                    layout: &layout,
-                    entries: &[
-                        wgpu::BindGroupEntry {
-                            binding: 0,
-                            resource: ctx.uniforms.as_entire_binding(),
-                        },
-                        wgpu::BindGroupEntry {
-                            binding: 1,
-                            resource: ctx.counters.as_entire_binding(),
-                        },
-                        wgpu::BindGroupEntry {
-                            binding: 2,
-                            resource: checksum.as_entire_binding(),
-                        },
-                    ],
-                }),
-        );
+        self.bind_group = Some(pipelines::buffers_bind_group(
+            ctx.gpu,
+            "bench",
+            &layout,
+            &[&checksum],
+        ));
         self.pipeline = Some(pipeline);
         self.checksum = Some(checksum);
         Ok(())

@@ -2,8 +2,8 @@
 //! back and accounts rays and GPU time. The CLI, the tests and (later) the viewer all use it.
 
 use super::{
-    gbuffer::GBuffer, pipelines, FrameUniforms, PassInfo, RayCounts, RenderContext, Technique,
-    COUNTER_SLOTS,
+    gbuffer::GBuffer, pipelines, primary, FrameUniforms, PassInfo, RayCounts, RenderContext,
+    Technique, COUNTER_SLOTS,
 };
 use crate::compare::Image;
 use crate::gpu::{readback, shaders::ShaderLibrary, timing::PassTimer, Gpu};
@@ -21,9 +21,8 @@ macro_rules! render_context {
             gpu: &$e.gpu,
             shaders: &$e.shaders,
             scene: &$e.gpu_scene,
-            frame_layout_entries: &$e.frame_layout_entries,
-            uniforms: &$e.uniforms,
-            counters: &$e.counters,
+            frame_layout: &$e.frame_layout,
+            frame_bind_group: &$e.frame_bind_group,
             extent: $e.extent,
         }
     };
@@ -71,7 +70,13 @@ pub struct Engine {
     pub technique: Box<dyn Technique>,
     uniforms: wgpu::Buffer,
     counters: wgpu::Buffer,
-    frame_layout_entries: Vec<wgpu::BindGroupLayoutEntry>,
+    /// Bind group 1 of every pass: frame uniforms, ray counters, primary surfaces.
+    frame_layout: wgpu::BindGroupLayout,
+    frame_bind_group: wgpu::BindGroup,
+    /// The primary-surface pass, when the technique needs it (`Technique::inputs`).
+    primary: Option<wgpu::ComputePipeline>,
+    /// Its output (a 16-byte placeholder when no pass runs).
+    surfaces: wgpu::Buffer,
     gbuffer: Option<GBuffer>,
     timer: PassTimer,
     /// Frames since the last history reset.
@@ -138,10 +143,38 @@ impl Engine {
                     | wgpu::BufferUsages::COPY_SRC
                     | wgpu::BufferUsages::COPY_DST,
             });
-        let frame_layout_entries = vec![
-            pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE),
-            pipelines::storage_entry(1, false),
-        ];
+        let frame_layout = pipelines::layout(
+            &gpu,
+            "frame",
+            &[
+                pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE),
+                pipelines::storage_entry(1, false),
+                pipelines::storage_entry(2, false),
+            ],
+        );
+        let inputs = technique.inputs();
+        // Surfaces only where a technique reads them; a placeholder keeps the layout one shape.
+        let surfaces = if inputs.primary_surfaces {
+            primary::surfaces_buffer(&gpu, settings.extent)
+        } else {
+            pipelines::storage_buffer(&gpu, "no primary surfaces", 16)
+        };
+        let frame_bind_group = pipelines::buffers_bind_group(
+            &gpu,
+            "frame",
+            &frame_layout,
+            &[&uniforms, &counters, &surfaces],
+        );
+        let primary = if inputs.primary_surfaces {
+            Some(primary::pipeline(
+                &gpu,
+                &shaders,
+                &gpu_scene,
+                &frame_layout,
+            )?)
+        } else {
+            None
+        };
         let timer = PassTimer::new(&gpu);
         let mut engine = Engine {
             gpu,
@@ -155,7 +188,10 @@ impl Engine {
             technique,
             uniforms,
             counters,
-            frame_layout_entries,
+            frame_layout,
+            frame_bind_group,
+            primary,
+            surfaces,
             gbuffer: None,
             timer,
             frame_index: 0,
@@ -174,9 +210,32 @@ impl Engine {
         Ok(engine)
     }
 
-    /// Which passes run for this scene (technique passes plus the shared G-buffer).
+    /// Which passes run for this scene: the engine's primary surfaces when the technique needs
+    /// them, then the technique's own.
     pub fn passes(&self) -> Vec<PassInfo> {
-        self.technique.passes(&self.gpu_scene.data.features)
+        let mut v = Vec::new();
+        if self.primary.is_some() {
+            v.push(PassInfo {
+                name: primary::PASS,
+                runs: true,
+                why: "shared primary surfaces: jittered camera rays, as the reference".into(),
+            });
+        }
+        v.extend(self.technique.passes(&self.gpu_scene.data.features));
+        v
+    }
+
+    /// Builds the primary-surface pass again (new shaders or scene); on error the old one stays.
+    fn rebuild_primary(&mut self) -> Result<()> {
+        if self.primary.is_some() {
+            self.primary = Some(primary::pipeline(
+                &self.gpu,
+                &self.shaders,
+                &self.gpu_scene,
+                &self.frame_layout,
+            )?);
+        }
+        Ok(())
     }
 
     /// Clears history and counters (camera cut, scene edit, parameter change).
@@ -206,6 +265,7 @@ impl Engine {
     pub fn change_scene(&mut self, scene: Arc<Scene>, gpu_scene: Arc<GpuScene>) -> Result<()> {
         self.scene = scene;
         self.gpu_scene = gpu_scene;
+        self.rebuild_primary()?;
         self.technique.build(&render_context!(self))?;
         self.gpu.check_errors()?;
         self.technique.on_scene_change(&self.gpu);
@@ -232,6 +292,7 @@ impl Engine {
     /// Rebuilds the technique's pipelines from the current shader sources (hot reload).
     /// On error the previous pipelines keep running and history is kept.
     pub fn rebuild(&mut self) -> Result<()> {
+        self.rebuild_primary()?;
         self.technique.build(&render_context!(self))?;
         self.gpu.check_errors()?;
         self.reset();
@@ -240,9 +301,12 @@ impl Engine {
 
     /// Whether a change to these entry files affects this engine's technique.
     pub fn uses_any_shader(&self, entries: &[String]) -> bool {
+        let primary = self.primary.is_some().then_some(primary::ENTRY);
         self.technique
             .shader_files()
             .iter()
+            .copied()
+            .chain(primary)
             .any(|f| entries.iter().any(|e| e == f))
     }
 
@@ -294,6 +358,16 @@ impl Engine {
                 label: Some("frame"),
             });
         self.timer.begin_frame();
+        if let Some(p) = &self.primary {
+            primary::record(
+                &mut enc,
+                &mut self.timer,
+                p,
+                &self.gpu_scene,
+                &self.frame_bind_group,
+                self.extent,
+            );
+        }
         self.technique
             .render(&render_context!(self), &mut enc, &mut self.timer);
         self.timer.resolve(&mut enc);
@@ -391,6 +465,18 @@ impl Engine {
             })
             .collect();
         Ok((image, Some(Image::from_rgba(w, h, &var))))
+    }
+
+    /// The primary surfaces of the last rendered frame, when the technique uses them.
+    pub fn read_primary_surfaces(&self) -> Result<Option<Vec<primary::PrimarySurface>>> {
+        if self.primary.is_none() || self.frame_index == 0 {
+            return Ok(None);
+        }
+        let pixels = (self.extent[0] * self.extent[1]) as usize;
+        let all: Vec<primary::PrimarySurface> =
+            readback::read_buffer(&self.gpu, &self.surfaces, 2 * pixels)?;
+        let segment = ((self.frame_index - 1) & 1) as usize;
+        Ok(Some(all[segment * pixels..(segment + 1) * pixels].to_vec()))
     }
 
     /// The technique's debug buffer (one vec4 per pixel), if it has one.

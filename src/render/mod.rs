@@ -5,6 +5,7 @@ pub mod engine;
 pub mod gbuffer;
 pub mod params;
 pub mod pipelines;
+pub mod primary;
 
 use crate::gpu::{shaders::ShaderLibrary, timing::PassTimer, Gpu};
 use crate::scene::{features::SceneFeatures, gpu_scene::GpuScene};
@@ -91,15 +92,31 @@ pub struct PassInfo {
     pub why: String,
 }
 
-/// Everything a technique needs to build and record its work.
+/// Everything a technique needs to build and record its work. Bind groups: 0 the scene,
+/// 1 the frame (uniforms, ray counters, primary surfaces; owned by the engine), 2 the technique's.
 pub struct RenderContext<'a> {
     pub gpu: &'a Gpu,
     pub shaders: &'a ShaderLibrary,
     pub scene: &'a GpuScene,
-    pub frame_layout_entries: &'a [wgpu::BindGroupLayoutEntry],
-    pub uniforms: &'a wgpu::Buffer,
-    pub counters: &'a wgpu::Buffer,
+    pub frame_layout: &'a wgpu::BindGroupLayout,
+    pub frame_bind_group: &'a wgpu::BindGroup,
     pub extent: [u32; 2],
+}
+
+impl RenderContext<'_> {
+    /// A compute pipeline of `entry` with the scene, frame and `technique` bind group layouts.
+    pub fn pipeline(
+        &self,
+        entry: &str,
+        technique: &wgpu::BindGroupLayout,
+    ) -> Result<wgpu::ComputePipeline> {
+        pipelines::compute_pipeline(
+            self.gpu,
+            self.shaders,
+            entry,
+            &[&self.scene.layout, self.frame_layout, technique],
+        )
+    }
 }
 
 /// One GI technique: long-lived pipelines, per-frame recording, linear HDR out.
@@ -108,6 +125,10 @@ pub trait Technique {
     fn id(&self) -> &'static str;
     /// Which passes run for this scene and why the others do not.
     fn passes(&self, features: &SceneFeatures) -> Vec<PassInfo>;
+    /// What the engine must provide besides the scene and the frame uniforms.
+    fn inputs(&self) -> primary::FrameInputs {
+        primary::FrameInputs::default()
+    }
     /// (Re)creates pipelines and buffers; on error the previous pipelines stay usable.
     fn build(&mut self, ctx: &RenderContext) -> Result<()>;
     /// Forget accumulated history (camera cut, scene edit, parameter change).

@@ -60,6 +60,41 @@ pub fn compute_pipeline(
     })
 }
 
+/// A bind group of buffers bound whole, at bindings 0, 1, 2, … in order.
+pub fn buffers_bind_group(
+    gpu: &Gpu,
+    label: &str,
+    layout: &wgpu::BindGroupLayout,
+    buffers: &[&wgpu::Buffer],
+) -> wgpu::BindGroup {
+    let entries: Vec<wgpu::BindGroupEntry> = buffers
+        .iter()
+        .enumerate()
+        .map(|(i, b)| wgpu::BindGroupEntry {
+            binding: i as u32,
+            resource: b.as_entire_binding(),
+        })
+        .collect();
+    gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some(label),
+        layout,
+        entries: &entries,
+    })
+}
+
+/// A bind group layout of `entries`.
+pub fn layout(
+    gpu: &Gpu,
+    label: &str,
+    entries: &[wgpu::BindGroupLayoutEntry],
+) -> wgpu::BindGroupLayout {
+    gpu.device
+        .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some(label),
+            entries,
+        })
+}
+
 pub fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
         binding,
@@ -97,8 +132,8 @@ pub fn storage_buffer(gpu: &Gpu, label: &str, size: u64) -> wgpu::Buffer {
     })
 }
 
-/// Records one timed compute pass over the image: the scene at group 0, the technique's
-/// bind group at group 1, one 8x8 workgroup per tile.
+/// Records one timed compute pass over the image: the scene at group 0, the frame at group 1,
+/// the technique's bind group at group 2, one 8x8 workgroup per tile.
 pub fn image_pass(
     ctx: &super::RenderContext,
     enc: &mut wgpu::CommandEncoder,
@@ -113,6 +148,7 @@ pub fn image_pass(
     });
     pass.set_pipeline(pipeline);
     pass.set_bind_group(0, &ctx.scene.bind_group, &[]);
-    pass.set_bind_group(1, bind_group, &[]);
+    pass.set_bind_group(1, ctx.frame_bind_group, &[]);
+    pass.set_bind_group(2, bind_group, &[]);
     pass.dispatch_workgroups(ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1);
 }

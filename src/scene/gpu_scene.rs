@@ -226,7 +226,7 @@ impl SceneData {
             tri_attr.push(GpuTriAttr {
                 n0: n[0].extend(pmf).to_array(),
                 n1: n[1].extend(f32::from_bits(material)).to_array(),
-                n2: n[2].extend(0.0).to_array(),
+                n2: n[2].extend(f32::from_bits(orig)).to_array(),
                 uv01: [uv[0].x, uv[0].y, uv[1].x, uv[1].y],
                 uv2: [uv[2].x, uv[2].y, 0.0, 0.0],
             });

@@ -125,32 +125,26 @@ impl Technique for ReferencePathTracer {
 
     fn build(&mut self, ctx: &RenderContext) -> Result<()> {
         let gpu = ctx.gpu;
-        let mut entries = ctx.frame_layout_entries.to_vec();
-        entries.push(pipelines::storage_entry(2, false));
-        entries.push(pipelines::storage_entry(3, false));
-        entries.push(wgpu::BindGroupLayoutEntry {
-            binding: 4,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Uniform,
-                has_dynamic_offset: true,
-                min_binding_size: wgpu::BufferSize::new(16),
-            },
-            count: None,
-        });
-        let layout = gpu
-            .device
-            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some("reference"),
-                entries: &entries,
-            });
-        // Build everything first so a failure leaves the previous pipeline in place.
-        let pipeline = pipelines::compute_pipeline(
+        let layout = pipelines::layout(
             gpu,
-            ctx.shaders,
-            "reference/path_trace.wgsl",
-            &[&ctx.scene.layout, &layout],
-        )?;
+            "reference",
+            &[
+                pipelines::storage_entry(0, false),
+                pipelines::storage_entry(1, false),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 2,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: true,
+                        min_binding_size: wgpu::BufferSize::new(16),
+                    },
+                    count: None,
+                },
+            ],
+        );
+        // Build everything first so a failure leaves the previous pipeline in place.
+        let pipeline = ctx.pipeline("reference/path_trace.wgsl", &layout)?;
         let pixels = (ctx.extent[0] * ctx.extent[1]) as u64;
         let (mean, m2) = if self.extent == ctx.extent && self.mean.is_some() {
             (
@@ -184,22 +178,14 @@ impl Technique for ReferencePathTracer {
             entries: &[
                 wgpu::BindGroupEntry {
                     binding: 0,
-                    resource: ctx.uniforms.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: ctx.counters.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
                     resource: mean.as_entire_binding(),
                 },
                 wgpu::BindGroupEntry {
-                    binding: 3,
+                    binding: 1,
                     resource: m2.as_entire_binding(),
                 },
                 wgpu::BindGroupEntry {
-                    binding: 4,
+                    binding: 2,
                     resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
                         buffer: &slots,
                         offset: 0,
@@ -248,8 +234,9 @@ impl Technique for ReferencePathTracer {
         });
         pass.set_pipeline(pipeline);
         pass.set_bind_group(0, &ctx.scene.bind_group, &[]);
+        pass.set_bind_group(1, ctx.frame_bind_group, &[]);
         for i in 0..self.samples_per_frame {
-            pass.set_bind_group(1, bg, &[(i as u64 * SLOT_BYTES) as u32]);
+            pass.set_bind_group(2, bg, &[(i as u64 * SLOT_BYTES) as u32]);
             pass.dispatch_workgroups(ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1);
         }
     }

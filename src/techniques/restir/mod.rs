@@ -3,7 +3,9 @@
 //! Direct lighting by reservoir-based spatiotemporal importance resampling, as in "Making
 //! Connections" (GDC; shared/seeds/003) and Bitterli et al. 2020. Per pixel and frame:
 //!
-//! 1. `primary`: a jittered camera ray (the reference's jitter sequence) stores the surface.
+//! 1. `primary` (the engine's shared pass, `render::primary`): a jittered camera ray per pixel
+//!    (the reference's jitter sequence) stores the surface; ReSTIR reads this frame's and last
+//!    frame's through `gilab::primary`.
 //! 2. `initial_temporal`: initial candidates per light class, as in the talk, each class
 //!    resampled by the unshadowed target f · Le · G into its own reservoir:
 //!    - local lights (emissive triangles, point and spot lights): `candidates` drawn by power
@@ -34,6 +36,7 @@
 
 use crate::gpu::{timing::PassTimer, Gpu};
 use crate::render::params::{ParamKind, ParamSpec, Params};
+use crate::render::primary::FrameInputs;
 use crate::render::{pipelines, DebugView, PassInfo, RenderContext, Technique};
 use crate::scene::features::SceneFeatures;
 use anyhow::Result;
@@ -226,8 +229,7 @@ impl CandidateVisibility {
     }
 }
 
-/// Bytes of `GSurface`, `Reservoir` and `GiReservoir` in shaders/common/restir.wgsl.
-pub const SURFACE_BYTES: u64 = 96;
+/// Bytes of `Reservoir`, `GiReservoir` and `RegirSlot` in shaders/common/restir.wgsl.
 pub const RESERVOIR_BYTES: u64 = 32;
 pub const GI_RESERVOIR_BYTES: u64 = 64;
 pub const REGIR_SLOT_BYTES: u64 = 16;
@@ -293,7 +295,6 @@ impl Default for RestirSettings {
 
 struct Pipelines {
     regir_build: wgpu::ComputePipeline,
-    primary: wgpu::ComputePipeline,
     initial_temporal: wgpu::ComputePipeline,
     spatial: wgpu::ComputePipeline,
     gi_temporal: wgpu::ComputePipeline,
@@ -309,7 +310,6 @@ pub struct Restir {
     layout: Option<wgpu::BindGroupLayout>,
     bind_group: Option<wgpu::BindGroup>,
     params_buffer: Option<wgpu::Buffer>,
-    surfaces: Option<wgpu::Buffer>,
     reservoirs: Option<wgpu::Buffer>,
     gi_reservoirs: Option<wgpu::Buffer>,
     gi_sky: Option<wgpu::Buffer>,
@@ -334,7 +334,6 @@ impl Default for Restir {
             layout: None,
             bind_group: None,
             params_buffer: None,
-            surfaces: None,
             reservoirs: None,
             gi_reservoirs: None,
             gi_sky: None,
@@ -368,9 +367,8 @@ impl LightClasses {
     }
 }
 
-const PASSES: [&str; 7] = [
+const PASSES: [&str; 6] = [
     "regir_build",
-    "primary",
     "initial_temporal",
     "spatial",
     "gi_temporal",
@@ -519,11 +517,6 @@ impl Restir {
             None => pipelines::storage_buffer(gpu, label, bytes),
         };
         let px = pixels as u64;
-        let surfaces = buffer(
-            &mut self.surfaces,
-            "restir surfaces",
-            2 * px * SURFACE_BYTES,
-        );
         let reservoirs = buffer(
             &mut self.reservoirs,
             "restir reservoirs",
@@ -544,35 +537,23 @@ impl Restir {
         let debug = buffer(&mut self.debug, "restir debug", px * 16);
         let mean = buffer(&mut self.mean, "restir mean", px * 16);
         let m2 = buffer(&mut self.m2, "restir m2", px * 16);
-        let resources = [
-            ctx.uniforms.as_entire_binding(),
-            ctx.counters.as_entire_binding(),
-            params.as_entire_binding(),
-            surfaces.as_entire_binding(),
-            reservoirs.as_entire_binding(),
-            mean.as_entire_binding(),
-            m2.as_entire_binding(),
-            gi_reservoirs.as_entire_binding(),
-            gi_sky.as_entire_binding(),
-            regir_slots.as_entire_binding(),
-            debug.as_entire_binding(),
-        ];
-        let bind_entries: Vec<wgpu::BindGroupEntry> = resources
-            .into_iter()
-            .enumerate()
-            .map(|(i, resource)| wgpu::BindGroupEntry {
-                binding: i as u32,
-                resource,
-            })
-            .collect();
-        let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("restir"),
-            layout: self.layout.as_ref().expect("built"),
-            entries: &bind_entries,
-        });
+        let bind_group = pipelines::buffers_bind_group(
+            gpu,
+            "restir",
+            self.layout.as_ref().expect("built"),
+            &[
+                &params,
+                &reservoirs,
+                &mean,
+                &m2,
+                &gi_reservoirs,
+                &gi_sky,
+                &regir_slots,
+                &debug,
+            ],
+        );
         self.bind_group = Some(bind_group);
         self.params_buffer = Some(params);
-        self.surfaces = Some(surfaces);
         self.reservoirs = Some(reservoirs);
         self.gi_reservoirs = Some(gi_reservoirs);
         self.gi_sky = Some(gi_sky);
@@ -609,6 +590,12 @@ impl Technique for Restir {
         "restir"
     }
 
+    fn inputs(&self) -> FrameInputs {
+        FrameInputs {
+            primary_surfaces: true,
+        }
+    }
+
     fn passes(&self, f: &SceneFeatures) -> Vec<PassInfo> {
         let lights = self
             .candidates_for(&LightClasses::of(f))
@@ -616,11 +603,6 @@ impl Technique for Restir {
             .any(|&n| n > 0);
         let no_lights = || "no emissive triangles, punctual lights or reachable sky".to_string();
         vec![
-            PassInfo {
-                name: "primary",
-                runs: true,
-                why: "jittered camera rays, as the reference".into(),
-            },
             PassInfo {
                 name: "initial_temporal",
                 runs: lights,
@@ -708,23 +690,15 @@ impl Technique for Restir {
 
     fn build(&mut self, ctx: &RenderContext) -> Result<()> {
         let gpu = ctx.gpu;
-        let mut entries = ctx.frame_layout_entries.to_vec();
-        entries.push(pipelines::uniform_entry(2, wgpu::ShaderStages::COMPUTE));
-        for b in 3..=10 {
+        let mut entries = vec![pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE)];
+        for b in 1..=7 {
             entries.push(pipelines::storage_entry(b, false));
         }
-        let layout = gpu
-            .device
-            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some("restir"),
-                entries: &entries,
-            });
-        let layouts = [&ctx.scene.layout, &layout];
+        let layout = pipelines::layout(gpu, "restir", &entries);
         // Everything is built before anything is replaced: a failure keeps the old pipelines.
-        let make = |entry: &str| pipelines::compute_pipeline(gpu, ctx.shaders, entry, &layouts);
+        let make = |entry: &str| ctx.pipeline(entry, &layout);
         let built = Pipelines {
             regir_build: make("restir/regir_build.wgsl")?,
-            primary: make("restir/primary.wgsl")?,
             initial_temporal: make("restir/initial_temporal.wgsl")?,
             spatial: make("restir/spatial.wgsl")?,
             gi_temporal: make("restir/gi_temporal.wgsl")?,
@@ -784,17 +758,17 @@ impl Technique for Restir {
             });
             pass.set_pipeline(&p.regir_build);
             pass.set_bind_group(0, &ctx.scene.bind_group, &[]);
-            pass.set_bind_group(1, bg, &[]);
+            pass.set_bind_group(1, ctx.frame_bind_group, &[]);
+            pass.set_bind_group(2, bg, &[]);
             pass.dispatch_workgroups(slots.div_ceil(64), 1, 1);
         }
         let steps = [
-            (PASSES[1], &p.primary, true),
-            (PASSES[2], &p.initial_temporal, self.has_direct_sources()),
+            (PASSES[1], &p.initial_temporal, self.has_direct_sources()),
             // With spatial_count = 0 this pass only copies the temporal result through.
-            (PASSES[3], &p.spatial, self.has_direct_sources()),
-            (PASSES[4], &p.gi_temporal, self.settings.gi),
-            (PASSES[5], &p.gi_spatial, self.settings.gi),
-            (PASSES[6], &p.shade, true),
+            (PASSES[2], &p.spatial, self.has_direct_sources()),
+            (PASSES[3], &p.gi_temporal, self.settings.gi),
+            (PASSES[4], &p.gi_spatial, self.settings.gi),
+            (PASSES[5], &p.shade, true),
         ];
         for (name, pipeline, runs) in steps {
             if runs {
@@ -842,7 +816,6 @@ impl Technique for Restir {
     fn shader_files(&self) -> &'static [&'static str] {
         &[
             "restir/regir_build.wgsl",
-            "restir/primary.wgsl",
             "restir/initial_temporal.wgsl",
             "restir/spatial.wgsl",
             "restir/gi_temporal.wgsl",

@@ -1,24 +1,26 @@
-// ReSTIR pass 1: trace a jittered camera ray per pixel and store the primary surface for this frame.
+// Engine pass: one jittered camera ray per pixel (the reference's jitter sequence, so pixel
+// footprints match) and the primary surface it hits, for every technique that needs them.
 #import gilab::rng::{rng_init, rand_pair, STREAM_CAMERA}
 #import gilab::frame::{frame, camera_ray_dir}
 #import gilab::counters::{flush_counts, no_counts, RAY_CAMERA}
 #import gilab::bvh::{trace_closest, NO_HIT}
 #import gilab::surface::hit_surface
+#import gilab::scene::scene_triangle
 #import gilab::lights::triangle_emission
-#import gilab::restir::{GSurface, surfaces, surface_index, parity}
+#import gilab::primary::{GSurface, surfaces, surface_slot, previous_pixel_position, NO_SURFACE}
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
     var counts = no_counts();
     if gid.x < frame.size.x && gid.y < frame.size.y {
         let idx = gid.y * frame.size.x + gid.x;
-        // Same jitter sequence as the reference path tracer: pixel footprints match.
         var rng = rng_init(gid.xy, frame.sample_offset, STREAM_CAMERA, frame.seed);
+        let pixel_pos = vec2<f32>(gid.xy) + rand_pair(&rng);
         let origin = frame.camera_pos.xyz;
-        let dir = camera_ray_dir(vec2<f32>(gid.xy) + rand_pair(&rng));
+        let dir = camera_ray_dir(pixel_pos);
         let hit = trace_closest(origin, dir, 0.0, 1e30);
         counts[RAY_CAMERA] = 1u;
-        var g = GSurface(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(-dir, 1e30), vec4<f32>(frame.sky.xyz, 0.0));
+        var g = GSurface(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(-dir, 1e30), vec4<f32>(frame.sky.xyz, 0.0), vec2<f32>(0.0), NO_SURFACE, NO_SURFACE);
         if hit.tri != NO_HIT {
             let s = hit_surface(origin, dir, hit);
             let m = s.material;
@@ -28,8 +30,14 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             g.base_metal = vec4<f32>(m.base_color, m.metallic);
             g.wo_dist = vec4<f32>(-dir, hit.t);
             g.emission = vec4<f32>(triangle_emission(hit.tri, -dir), 0.0);
+            g.triangle = scene_triangle(hit.tri);
+            g.material = s.material_index;
+            let prev = previous_pixel_position(s.position);
+            if prev.x >= 0.0 {
+                g.motion = pixel_pos - prev;
+            }
         }
-        surfaces[surface_index(parity(), idx)] = g;
+        surfaces[surface_slot(frame.frame_index, idx)] = g;
     }
     flush_counts(local_index, counts);
 }

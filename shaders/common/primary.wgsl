@@ -1,0 +1,64 @@
+// Primary surfaces shared by every technique that declares it needs them (`FrameInputs`): the
+// engine's `frame/primary_surfaces.wgsl` pass traces one jittered camera ray per pixel (the
+// reference's jitter sequence) and stores the hit here; last frame's copy stays for reprojection.
+// Layout must match src/render/primary.rs.
+#define_import_path gilab::primary
+
+#import gilab::frame::frame
+
+struct GSurface {
+    // xyz: position, w: 1 valid / 0 miss.
+    pos: vec4<f32>,
+    // xyz: shading normal, w: GGX alpha.
+    normal_alpha: vec4<f32>,
+    // xyz: geometric normal, w: specular factor.
+    geo_specular: vec4<f32>,
+    // rgb: base colour, w: metallic.
+    base_metal: vec4<f32>,
+    // xyz: direction to the viewer, w: distance to the camera (depth along the ray).
+    wo_dist: vec4<f32>,
+    // rgb: emitted radiance towards the camera (or sky radiance for a miss).
+    emission: vec4<f32>,
+    // Screen motion in pixels: this frame's pixel position minus last frame's (0 on a miss or
+    // where the point was off screen last frame).
+    motion: vec2<f32>,
+    // Object id: the hit triangle's index in the scene (NO_SURFACE on a miss), and its material.
+    triangle: u32,
+    material: u32,
+}
+
+const NO_SURFACE: u32 = 0xffffffffu;
+
+// Two segments of width x height surfaces, by frame parity: this frame's and last frame's.
+@group(1) @binding(2) var<storage, read_write> surfaces: array<GSurface>;
+
+fn surface_slot(frame_index: u32, pixel: u32) -> u32 {
+    return (frame_index & 1u) * frame.size.x * frame.size.y + pixel;
+}
+
+fn current_surface(pixel: u32) -> GSurface {
+    return surfaces[surface_slot(frame.frame_index, pixel)];
+}
+
+fn previous_surface(pixel: u32) -> GSurface {
+    return surfaces[surface_slot(frame.frame_index + 1u, pixel)];
+}
+
+// Continuous previous-frame pixel position of a world point; x < 0 when it was behind the camera.
+fn previous_pixel_position(p: vec3<f32>) -> vec2<f32> {
+    let clip = frame.prev_clip_from_world * vec4<f32>(p, 1.0);
+    if clip.w <= 0.0 {
+        return vec2<f32>(-1.0);
+    }
+    let ndc = clip.xy / clip.w;
+    return vec2<f32>((ndc.x * 0.5 + 0.5) * f32(frame.size.x), (0.5 - ndc.y * 0.5) * f32(frame.size.y));
+}
+
+// Previous-frame pixel of a surface point, or -1 when it was off screen.
+fn reproject(p: vec3<f32>) -> i32 {
+    let f = previous_pixel_position(p);
+    if f.x < 0.0 || f.y < 0.0 || f.x >= f32(frame.size.x) || f.y >= f32(frame.size.y) {
+        return -1;
+    }
+    return i32(u32(f.y) * frame.size.x + u32(f.x));
+}
