@@ -341,20 +341,12 @@ impl GpuScene {
         }
         let lights = storage("light pool", &light_bytes);
         let layout = Self::bind_group_layout(gpu);
-        let bufs = [&nodes, &geom, &attr, &mats, &texels, &lights];
-        let entries: Vec<wgpu::BindGroupEntry> = bufs
-            .iter()
-            .enumerate()
-            .map(|(i, b)| wgpu::BindGroupEntry {
-                binding: i as u32,
-                resource: b.as_entire_binding(),
-            })
-            .collect();
-        let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("scene"),
-            layout: &layout,
-            entries: &entries,
-        });
+        let bind_group = crate::render::pipelines::buffers_bind_group(
+            gpu,
+            "scene",
+            &layout,
+            &[&nodes, &geom, &attr, &mats, &texels, &lights],
+        );
         let mut vbytes = bytemuck::cast_slice::<RasterVertex, u8>(&data.vertices).to_vec();
         if vbytes.is_empty() {
             vbytes.resize(std::mem::size_of::<RasterVertex>(), 0);
