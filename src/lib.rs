@@ -7,6 +7,7 @@ pub mod cli;
 pub mod compare;
 pub mod experiment;
 pub mod gpu;
+pub mod jobs;
 pub mod preset;
 pub mod render;
 pub mod scene;

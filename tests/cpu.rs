@@ -596,7 +596,7 @@ fn random_streams_are_distinct_per_pass() {
 #[test]
 fn readme_parameter_tables_match_the_declared_ones() {
     let readme = std::fs::read_to_string("README.md").unwrap();
-    let tables = gilab::render::params_markdown();
+    let tables = gilab::techniques::params_markdown();
     assert!(
         readme.contains(&tables),
         "README.md's technique parameter tables are out of date: paste the output of `gilab params`"
@@ -607,8 +607,8 @@ fn readme_parameter_tables_match_the_declared_ones() {
 /// values and unknown names are refused with the expected range, and a failed set changes nothing.
 #[test]
 fn declared_parameters_validate_and_round_trip() {
-    for (name, _) in gilab::render::TECHNIQUES {
-        let mut t = gilab::render::create_technique(name).unwrap();
+    for name in gilab::techniques::REGISTRY.iter().map(|t| t.id) {
+        let mut t = gilab::techniques::create_technique(name).unwrap();
         let defaults = t.params();
         t.set_params(&defaults).unwrap();
         assert_eq!(t.params(), defaults, "{name}: defaults do not round-trip");
@@ -637,7 +637,7 @@ fn declared_parameters_validate_and_round_trip() {
         );
     }
     // Choices take their name, their index or (where a switch once stood) a boolean.
-    let mut r = gilab::render::create_technique("restir").unwrap();
+    let mut r = gilab::techniques::create_technique("restir").unwrap();
     for (v, want) in [
         (toml::Value::from("merged"), 2),
         (toml::Value::from(0), 0),

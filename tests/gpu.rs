@@ -6,8 +6,9 @@ mod common;
 use common::{gpu, render_reference};
 use gilab::compare::metrics;
 use gilab::gpu::shaders::ShaderLibrary;
-use gilab::render::{create_technique, engine::Engine, engine::EngineSettings};
+use gilab::render::{engine::Engine, engine::EngineSettings};
 use gilab::scene::{builtin, Camera, Material, PunctualKind, PunctualLight, Scene};
+use gilab::techniques::create_technique;
 use glam::Vec3;
 
 /// White furnace: closed sphere, albedo a, emission E: radiance is E / (1 - a) everywhere.
@@ -270,7 +271,7 @@ fn welford_variance_matches_cpu() {
     let size = [8, 8];
     let r = render_reference(builtin::cornell(), size, n, 1, 77, 0);
     // Re-render sample by sample: frame k of the same seed reproduces sample k exactly.
-    let mut technique = gilab::render::create_technique("reference").unwrap();
+    let mut technique = gilab::techniques::create_technique("reference").unwrap();
     technique
         .set_params(&toml::toml! { samples_per_frame = 1 })
         .unwrap();

@@ -7,8 +7,9 @@ mod common;
 
 use gilab::compare::Image;
 use gilab::gpu::shaders::ShaderLibrary;
-use gilab::render::{create_technique, engine::Engine, engine::EngineSettings};
+use gilab::render::{engine::Engine, engine::EngineSettings};
 use gilab::scene::{Camera, Material, Scene};
+use gilab::techniques::create_technique;
 use glam::Vec3;
 
 const LIGHT_HALF_SIZE: f32 = 0.1;

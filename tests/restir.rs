@@ -6,10 +6,9 @@ mod common;
 
 use gilab::compare::{metrics, Image};
 use gilab::gpu::shaders::ShaderLibrary;
-use gilab::render::{
-    create_technique, engine::Engine, engine::EngineSettings, RayCounts, FLAG_NO_PRIMARY_EMISSION,
-};
+use gilab::render::{engine::Engine, engine::EngineSettings, RayCounts, FLAG_NO_PRIMARY_EMISSION};
 use gilab::scene::{builtin, Scene};
+use gilab::techniques::create_technique;
 
 fn engine(technique: &str, params: toml::Table, scene: Scene, size: [u32; 2], seed: u32) -> Engine {
     let mut t = create_technique(technique).unwrap();

@@ -5,7 +5,8 @@
 use super::{ViewerApp, ViewerOptions};
 use crate::compare::tonemap::Operator;
 use crate::preset::{DisplayMode, Layout};
-use crate::render::{engine::TimingSource, params::ParamKind, TECHNIQUES};
+use crate::render::{engine::TimingSource, params::ParamKind};
+use crate::techniques::REGISTRY;
 use egui_plot::{Legend, Line, Plot, PlotPoints};
 use std::path::PathBuf;
 
@@ -40,7 +41,7 @@ impl PanelState {
                 .map(|p| p.display().to_string())
                 .unwrap_or_default(),
             save_path: save,
-            add_technique: TECHNIQUES[0].0.to_string(),
+            add_technique: REGISTRY[0].id.to_string(),
             metric: PlotMetric::RelMse,
             inspected: None,
         }
@@ -185,9 +186,10 @@ fn side_contents(app: &mut ViewerApp, ui: &mut egui::Ui) {
                 egui::ComboBox::from_label(format!("Technique of {}", run.label()))
                     .selected_text(&name)
                     .show_ui(ui, |ui| {
-                        for (id, what) in TECHNIQUES {
-                            ui.selectable_value(&mut name, id.to_string(), *id)
-                                .on_hover_text(*what);
+                        for t in REGISTRY {
+                            let (id, what) = (t.id, t.what);
+                            ui.selectable_value(&mut name, id.to_string(), id)
+                                .on_hover_text(what);
                         }
                     });
                 if name != run.entry.name {
@@ -307,8 +309,8 @@ fn side_contents(app: &mut ViewerApp, ui: &mut egui::Ui) {
         egui::ComboBox::from_id_salt("add-technique")
             .selected_text(&st.add_technique)
             .show_ui(ui, |ui| {
-                for (id, _) in TECHNIQUES {
-                    ui.selectable_value(&mut st.add_technique, id.to_string(), *id);
+                for id in REGISTRY.iter().map(|t| t.id) {
+                    ui.selectable_value(&mut st.add_technique, id.to_string(), id);
                 }
             });
         if ui.button("Add technique").clicked() {

@@ -3,8 +3,8 @@
 //! and `session.toml`: the preset as it is now (camera, parameters, panes), loadable again.
 
 use super::session::Session;
-use crate::cli::render_job;
 use crate::compare::io;
+use crate::jobs;
 use anyhow::{Context, Result};
 use std::path::{Path, PathBuf};
 
@@ -43,7 +43,7 @@ pub fn save_ab(session: &Session, out_dir: &Path) -> Result<PathBuf> {
             .as_ref()
             .map(|f| f.gpu_ms_by_pass.iter().cloned().collect())
             .unwrap_or_default();
-        let meta = render_job::metadata(&run.engine, &preset, &run.entry, radiance, by_pass)?;
+        let meta = jobs::metadata(&run.engine, &preset, &run.entry, radiance, by_pass)?;
         std::fs::write(
             dir.join(format!("{stem}.json")),
             serde_json::to_string_pretty(&meta)?,

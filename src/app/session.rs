@@ -3,12 +3,11 @@
 //! preset loads, parameter edits, camera moves and file changes. Everything that can fail
 //! is built aside first and swapped in only on success, so bad input never loses state.
 
-use crate::cli::render_job::{reference_key_for_camera, reference_setup};
 use crate::compare::{self, heatmap, io, metrics, Image, Metrics};
 use crate::gpu::{shaders::ShaderLibrary, Gpu};
+use crate::jobs::{reference_key_for_camera, reference_setup};
 use crate::preset::{DisplayMode, Layout, LoadedPreset, PaneSettings, TechniqueEntry};
 use crate::render::{
-    create_technique,
     engine::{Engine, EngineSettings, FrameReport},
     RayCounts,
 };
@@ -56,16 +55,12 @@ impl Run {
         camera: Camera,
         preset: &LoadedPreset,
     ) -> Result<Run> {
-        let mut technique = create_technique(&entry.name)?;
-        technique
-            .set_params(&entry.params)
-            .with_context(|| format!("technique '{}'", entry.display_name()))?;
-        let engine = Engine::with_shared_scene(
+        let engine = Engine::for_entry(
             gpu.clone(),
             shaders.clone(),
             staged.scene.clone(),
             staged.gpu_scene.clone(),
-            technique,
+            &entry,
             EngineSettings {
                 extent: preset.preset.render.size,
                 seed: preset.preset.render.seed,
@@ -519,17 +514,18 @@ impl Session {
     }
 
     /// The ray-budget slider: rays per pixel per frame, mapped by the technique to its knobs.
+    /// Errors leave the run as it was.
     pub fn set_ray_budget(&mut self, run: usize, rays_per_pixel: f64) -> Result<()> {
         let r = &mut self.runs[run];
-        r.entry.budget = Some(rays_per_pixel);
         let measured = r.measured_rays_per_pixel();
-        if let Some(params) = r
-            .engine
-            .technique
-            .params_for_ray_budget(rays_per_pixel, measured)
-        {
-            self.set_run_params(run, &params)?;
+        let before = r.engine.technique.params();
+        if let Err(e) = r.engine.apply_ray_budget(rays_per_pixel, measured) {
+            let _ = r.engine.set_params(&before);
+            return Err(e);
         }
+        r.entry.budget = Some(rays_per_pixel);
+        r.entry.params = r.engine.technique.params();
+        r.reset();
         Ok(())
     }
 

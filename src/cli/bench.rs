@@ -6,10 +6,10 @@ use crate::gpu::{shaders::ShaderLibrary, timing::PassTimer, Gpu};
 use crate::preset::LoadedPreset;
 use crate::render::params::Params;
 use crate::render::{
-    create_technique, engine::Engine, engine::EngineSettings, pipelines, PassInfo, RenderContext,
-    Technique,
+    engine::Engine, engine::EngineSettings, pipelines, PassInfo, RenderContext, Technique,
 };
 use crate::scene::{builtin, features::SceneFeatures};
+use crate::techniques::create_technique;
 use anyhow::Result;
 use std::sync::Arc;
 
@@ -185,7 +185,7 @@ fn viewer_overhead(gpu: Arc<Gpu>, extent: [u32; 2], frames: u32) -> Result<()> {
         extent[0], extent[1]
     );
     let preset = LoadedPreset::from_text(&text, None)?;
-    let mut e = super::render_job::engine_for_entry(gpu.clone(), &preset, 0)?;
+    let mut e = crate::jobs::engine_for_entry(gpu.clone(), &preset, 0)?;
     e.render_frame()?;
     let mut headless = 0.0;
     for _ in 0..frames {

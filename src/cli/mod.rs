@@ -3,10 +3,10 @@
 //! takes a preset (optional: the built-in default is the Cornell box) and overrides for it.
 
 pub mod bench;
-pub mod render_job;
 
 use crate::compare::{io, metrics};
 use crate::gpu::{BackendChoice, Gpu};
+use crate::jobs;
 use crate::preset::{LoadedPreset, Overrides};
 use anyhow::Result;
 use clap::{Parser, Subcommand};
@@ -150,7 +150,7 @@ pub fn run(cli: Cli) -> Result<()> {
             overrides,
         }) => {
             let (p, gpu) = preset_and_gpu(preset, &overrides, cli.backend)?;
-            render_job::shot(gpu, &p, &out, verbose)
+            jobs::shot(gpu, &p, &out, verbose)
         }
         Some(Command::Reference {
             preset,
@@ -159,7 +159,7 @@ pub fn run(cli: Cli) -> Result<()> {
             overrides,
         }) => {
             let (p, gpu) = preset_and_gpu(preset, &overrides, cli.backend)?;
-            let path = render_job::reference(gpu, &p, &cache, force)?;
+            let path = jobs::reference(gpu, &p, &cache, force)?;
             println!("reference: {}", path.display());
             Ok(())
         }
@@ -215,7 +215,7 @@ pub fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Some(Command::Params) => {
-            print!("{}", crate::render::params_markdown());
+            print!("{}", crate::techniques::params_markdown());
             Ok(())
         }
         Some(Command::Bench {

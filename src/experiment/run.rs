@@ -3,12 +3,13 @@
 
 use super::report::{self, Analysis};
 use super::spec::{expand_runs, Event, RunSpec, Shard};
-use crate::cli::render_job;
 use crate::compare::{flip, io, metrics, Image};
 use crate::gpu::{shaders::ShaderLibrary, Gpu};
+use crate::jobs;
 use crate::preset::{LoadedPreset, TechniqueEntry};
-use crate::render::{create_technique, engine::Engine, engine::EngineSettings, RAY_KINDS};
+use crate::render::{engine::Engine, engine::EngineSettings, RAY_KINDS};
 use crate::scene::{gpu_scene::GpuScene, Camera, Scene};
+use crate::techniques::create_technique;
 use anyhow::{ensure, Context, Result};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -208,8 +209,8 @@ fn build_states(
 ) -> Result<Vec<SceneState>> {
     let mut scene = p.load_scene()?;
     let mut camera = p.camera(&scene);
-    let base_key = render_job::reference_key_for_camera(p, &camera);
-    let setup = render_job::reference_setup(p);
+    let base_key = jobs::reference_key_for_camera(p, &camera);
+    let setup = jobs::reference_setup(p);
     let mut states = Vec::new();
     for k in 0..=events.len() {
         if k > 0 {
@@ -226,7 +227,7 @@ fn build_states(
             h.write(serde_json::to_string(&events[..k])?.as_bytes());
             format!("{:016x}", h.finish())
         };
-        let (reference, path) = render_job::reference_image(
+        let (reference, path) = jobs::reference_image(
             gpu.clone(),
             p,
             scene.clone(),
@@ -300,7 +301,7 @@ pub fn converge(gpu: Arc<Gpu>, p: &LoadedPreset, opts: &ConvergeOptions) -> Resu
         .iter()
         .filter(|r| opts.shard.is_none_or(|s| s.takes(r.index)))
         .collect();
-    let bar = render_job::progress_bar(
+    let bar = jobs::progress_bar(
         mine.len() as u64 * exp.frames as u64,
         "converge",
         opts.quiet,
@@ -353,31 +354,25 @@ fn run_one(
     opts: &ConvergeOptions,
     bar: &indicatif::ProgressBar,
 ) -> Result<(Vec<Row>, RunSummary)> {
-    let mut technique = create_technique(&spec.technique)?;
-    technique.set_params(&spec.params)?;
+    let entry = TechniqueEntry {
+        name: spec.technique.clone(),
+        label: Some(spec.label.clone()),
+        params: spec.params.clone(),
+        budget: spec.budget,
+    };
     let settings = EngineSettings {
         extent: p.preset.render.size,
         seed: spec.seed,
         camera: states[0].camera,
     };
-    let mut engine = Engine::with_shared_scene(
+    let mut engine = Engine::for_entry(
         gpu.clone(),
         shaders.clone(),
         states[0].scene.clone(),
         states[0].gpu_scene.clone(),
-        technique,
+        &entry,
         settings,
     )?;
-    if let Some(budget) = spec.budget {
-        // Map the budget with the rays one frame measures at the entry's own setting, so
-        // the mapping uses this scene's rays per path rather than a guess; then restart.
-        engine.render_frame()?;
-        let measured = engine.rays_per_pixel_per_frame(&engine.ray_counts()?);
-        if let Some(t) = engine.technique.params_for_ray_budget(budget, measured) {
-            engine.set_params(&t)?;
-        }
-        engine.reset();
-    }
     let pixels = (engine.extent[0] * engine.extent[1]) as f64;
     let (op, ev) = (p.preset.tonemap.operator, p.preset.tonemap.exposure);
     let mut rows = Vec::new();
@@ -470,8 +465,8 @@ fn run_one(
     };
     let mut meta_by_pass = by_pass.clone();
     meta_by_pass.values_mut().for_each(|v| *v /= frames as f64);
-    let meta = render_job::metadata(&engine, p, &entry, &image, meta_by_pass.clone())?;
-    render_job::write_outputs(&dir, &stem, &image, &meta, p)?;
+    let meta = jobs::metadata(&engine, p, &entry, &image, meta_by_pass.clone())?;
+    jobs::write_outputs(&dir, &stem, &image, &meta, p)?;
     let passes = engine.passes();
     Ok((
         rows,

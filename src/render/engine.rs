@@ -289,6 +289,28 @@ impl Engine {
         Ok(())
     }
 
+    /// A ray budget (rays per pixel per frame) mapped by the technique to its own knobs: the one
+    /// mapping behind the viewer's slider, `shot` and `converge`. `measured` is the rays per pixel
+    /// per frame at the current settings; without it one calibration frame measures them, so the
+    /// mapping uses this scene's rays per path rather than a guess. History restarts.
+    pub fn apply_ray_budget(&mut self, rays_per_pixel: f64, measured: Option<f64>) -> Result<()> {
+        let measured = match measured {
+            Some(m) => Some(m),
+            None => {
+                self.render_frame()?;
+                self.rays_per_pixel_per_frame(&self.ray_counts()?)
+            }
+        };
+        if let Some(t) = self
+            .technique
+            .params_for_ray_budget(rays_per_pixel, measured)
+        {
+            self.set_params(&t)?;
+        }
+        self.reset();
+        Ok(())
+    }
+
     /// Rebuilds the technique's pipelines from the current shader sources (hot reload).
     /// On error the previous pipelines keep running and history is kept.
     pub fn rebuild(&mut self) -> Result<()> {

@@ -1,5 +1,56 @@
 //! GI techniques, one folder each (with a matching folder under `shaders/`). They meet only at
-//! the shared inputs (scene, frame uniforms, G-buffer) and at their linear HDR output.
+//! the shared inputs (scene, frame uniforms and counters, primary surfaces) and at their linear
+//! HDR output. The registry below is the one table a new technique is added to.
 
 pub mod reference;
 pub mod restir;
+
+use crate::render::{params, Technique};
+use anyhow::Result;
+
+/// A registered technique: its preset id, a one-line description, and how to make one.
+pub struct TechniqueInfo {
+    pub id: &'static str,
+    pub what: &'static str,
+    pub create: fn() -> Box<dyn Technique>,
+}
+
+pub const REGISTRY: &[TechniqueInfo] = &[
+    TechniqueInfo {
+        id: "reference",
+        what: "progressive unbiased path tracer (ground truth)",
+        create: || Box::new(reference::ReferencePathTracer::default()),
+    },
+    TechniqueInfo {
+        id: "restir",
+        what: "ReSTIR DI + GI: resampled direct light (light classes, ReGIR) and indirect light, with temporal and spatial reuse",
+        create: || Box::new(restir::Restir::default()),
+    },
+];
+
+pub fn create_technique(name: &str) -> Result<Box<dyn Technique>> {
+    match REGISTRY.iter().find(|t| t.id == name) {
+        Some(t) => Ok((t.create)()),
+        None => {
+            let names: Vec<&str> = REGISTRY.iter().map(|t| t.id).collect();
+            anyhow::bail!(
+                "unknown technique '{name}' (available: {})",
+                names.join(", ")
+            )
+        }
+    }
+}
+
+/// Every technique's parameter table in Markdown (`gilab params`; the README's section).
+pub fn params_markdown() -> String {
+    let mut out = String::new();
+    for t in REGISTRY {
+        out += &format!(
+            "### `{}`: {}\n\n{}\n",
+            t.id,
+            t.what,
+            params::markdown_table((t.create)().param_set().specs())
+        );
+    }
+    out
+}

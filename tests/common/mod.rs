@@ -3,8 +3,9 @@
 
 use gilab::compare::Image;
 use gilab::gpu::{shaders::ShaderLibrary, BackendChoice, Gpu};
-use gilab::render::{create_technique, engine::Engine, engine::EngineSettings, RayCounts};
+use gilab::render::{engine::Engine, engine::EngineSettings, RayCounts};
 use gilab::scene::Scene;
+use gilab::techniques::create_technique;
 use std::sync::{Arc, OnceLock};
 
 /// The device every GPU test shares (lavapipe in CI). Tests fail, not skip, without one.

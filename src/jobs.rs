@@ -1,13 +1,13 @@
-//! Headless rendering jobs shared by `shot` and `reference`: render a preset's techniques to
-//! convergence budget, then write PNG + EXR + JSON.
+//! Rendering jobs shared by the CLI (`shot`, `reference`), the viewer and `converge`, below all
+//! three: an engine for a preset's technique entry (with its ray budget mapped the one way),
+//! references and their cache keys, JSON metadata, and PNG + EXR + JSON outputs.
 
 use crate::compare::{io, Image};
 use crate::gpu::{shaders::ShaderLibrary, Gpu};
 use crate::preset::{LoadedPreset, TechniqueEntry};
-use crate::render::{
-    create_technique, engine::Engine, engine::EngineSettings, PassInfo, RayCounts,
-};
-use crate::scene::features::SceneFeatures;
+use crate::render::{engine::Engine, engine::EngineSettings, PassInfo, RayCounts};
+use crate::scene::{features::SceneFeatures, gpu_scene::GpuScene, Scene};
+use crate::techniques::create_technique;
 use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
@@ -44,19 +44,51 @@ pub struct ShotMetadata {
     pub non_finite_pixels: usize,
 }
 
-/// An engine for the preset's technique entry `index`: its scene, camera, size and seed.
+impl Engine {
+    /// An engine for a preset's technique entry on an uploaded scene (shared by the viewer's
+    /// panes and an experiment's runs): the entry's technique, parameters and ray budget, the
+    /// preset's size and seed.
+    pub fn for_entry(
+        gpu: Arc<Gpu>,
+        shaders: ShaderLibrary,
+        scene: Arc<Scene>,
+        gpu_scene: Arc<GpuScene>,
+        entry: &TechniqueEntry,
+        settings: EngineSettings,
+    ) -> Result<Engine> {
+        let mut technique = create_technique(&entry.name)?;
+        technique
+            .set_params(&entry.params)
+            .with_context(|| format!("technique '{}'", entry.display_name()))?;
+        let mut engine =
+            Engine::with_shared_scene(gpu, shaders, scene, gpu_scene, technique, settings)?;
+        // The entry's ray budget, mapped as the viewer's slider and `converge` map it.
+        if let Some(budget) = entry.budget {
+            engine.apply_ray_budget(budget, None)?;
+        }
+        Ok(engine)
+    }
+}
+
+/// An engine for the preset's technique entry `index`: its scene (loaded and uploaded here),
+/// camera, size, seed and ray budget.
 pub fn engine_for_entry(gpu: Arc<Gpu>, p: &LoadedPreset, index: usize) -> Result<Engine> {
-    let entry = &p.preset.techniques[index];
     let scene = p.load_scene()?;
     let camera = p.camera(&scene);
-    let mut technique = create_technique(&entry.name)?;
-    technique.set_params(&entry.params)?;
+    let gpu_scene = Arc::new(GpuScene::upload(&gpu, &scene));
     let settings = EngineSettings {
         extent: p.preset.render.size,
         seed: p.preset.render.seed,
         camera,
     };
-    Engine::new(gpu, ShaderLibrary::discover(), scene, technique, settings)
+    Engine::for_entry(
+        gpu,
+        ShaderLibrary::discover(),
+        Arc::new(scene),
+        gpu_scene,
+        &p.preset.techniques[index],
+        settings,
+    )
 }
 
 /// Renders one technique of a preset for `spp` samples; returns the image and its metadata.
