@@ -649,3 +649,17 @@ fn declared_parameters_validate_and_round_trip() {
         assert_eq!(r.params()["candidate_visibility"].as_integer(), Some(want));
     }
 }
+
+/// `#define_import_path` marks a module wherever it lives; every other file is an entry file.
+#[test]
+fn entry_files_are_the_files_without_an_import_path() {
+    let entries = ShaderLibrary::discover().entry_files().unwrap();
+    assert!(entries.contains(&"frame/primary_surfaces.wgsl".to_string()));
+    assert!(entries.contains(&"restir/shade.wgsl".to_string()));
+    assert!(
+        !entries
+            .iter()
+            .any(|e| e == "restir/shared.wgsl" || e.starts_with("common/")),
+        "modules listed as entry files: {entries:?}"
+    );
+}

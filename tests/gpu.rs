@@ -5,10 +5,7 @@ mod common;
 
 use common::{gpu, render_reference};
 use gilab::compare::metrics;
-use gilab::gpu::shaders::ShaderLibrary;
-use gilab::render::{engine::Engine, engine::EngineSettings};
 use gilab::scene::{builtin, Camera, Material, PunctualKind, PunctualLight, Scene};
-use gilab::techniques::create_technique;
 use glam::Vec3;
 
 /// White furnace: closed sphere, albedo a, emission E: radiance is E / (1 - a) everywhere.
@@ -378,18 +375,13 @@ fn parameter_changes_rebuild_no_pipeline() {
         ),
     ];
     for (name, params) in changes {
-        let mut engine = Engine::new(
-            common::gpu(),
-            ShaderLibrary::discover(),
+        let mut engine = common::engine(
+            name,
+            toml::Table::new(),
             builtin::many_lights(128, 1),
-            create_technique(name).unwrap(),
-            EngineSettings {
-                extent: [16, 16],
-                seed: 1,
-                camera: builtin::many_lights(128, 1).default_camera(),
-            },
-        )
-        .unwrap();
+            [16, 16],
+            1,
+        );
         engine.render_frame().unwrap();
         let before = pipelines_created();
         engine.set_params(&params).unwrap();
@@ -425,18 +417,7 @@ fn primary_surfaces_are_consistent_and_motion_reprojects() {
     let materials = scene.triangle_material.clone();
     let cam0 = scene.default_camera();
     let size = [32u32, 24];
-    let mut engine = Engine::new(
-        common::gpu(),
-        ShaderLibrary::discover(),
-        scene,
-        create_technique("restir").unwrap(),
-        EngineSettings {
-            extent: size,
-            seed: 3,
-            camera: cam0,
-        },
-    )
-    .unwrap();
+    let mut engine = common::engine("restir", toml::Table::new(), scene, size, 3);
     assert_eq!(engine.passes()[0].name, "primary");
     engine.render_frame().unwrap();
     let first = engine

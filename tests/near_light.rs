@@ -6,10 +6,7 @@
 mod common;
 
 use gilab::compare::Image;
-use gilab::gpu::shaders::ShaderLibrary;
-use gilab::render::{engine::Engine, engine::EngineSettings};
 use gilab::scene::{Camera, Material, Scene};
-use gilab::techniques::create_technique;
 use glam::Vec3;
 
 const LIGHT_HALF_SIZE: f32 = 0.1;
@@ -85,25 +82,7 @@ fn analytic_image(h: f32) -> Vec<f64> {
 }
 
 fn render(technique: &str, params: toml::Table, h: f32, frames: u32) -> Image {
-    let mut t = create_technique(technique).unwrap();
-    t.set_params(&params).unwrap();
-    let scene = scene(h);
-    let camera = scene.default_camera();
-    let settings = EngineSettings {
-        extent: [SIZE, SIZE],
-        seed: 5,
-        camera,
-    };
-    let mut e = Engine::new(common::gpu(), ShaderLibrary::discover(), scene, t, settings).unwrap();
-    for _ in 0..frames {
-        e.render_frame().unwrap();
-    }
-    assert_eq!(
-        e.ray_counts().unwrap().invalid_samples,
-        0,
-        "NaN/Inf samples"
-    );
-    e.read_output().unwrap()
+    common::render_technique(technique, params, scene(h), [SIZE, SIZE], frames, 5, 0).0
 }
 
 /// Worst 8×8-block ratio (green channel; the scene is grey) and the image-mean ratio.

@@ -4,44 +4,10 @@
 
 mod common;
 
+use common::{engine, render_technique as render};
 use gilab::compare::{metrics, Image};
-use gilab::gpu::shaders::ShaderLibrary;
-use gilab::render::{engine::Engine, engine::EngineSettings, RayCounts, FLAG_NO_PRIMARY_EMISSION};
+use gilab::render::{RayCounts, FLAG_NO_PRIMARY_EMISSION};
 use gilab::scene::{builtin, Scene};
-use gilab::techniques::create_technique;
-
-fn engine(technique: &str, params: toml::Table, scene: Scene, size: [u32; 2], seed: u32) -> Engine {
-    let mut t = create_technique(technique).unwrap();
-    t.set_params(&params).unwrap();
-    let camera = scene.default_camera();
-    let settings = EngineSettings {
-        extent: size,
-        seed,
-        camera,
-    };
-    Engine::new(common::gpu(), ShaderLibrary::discover(), scene, t, settings).unwrap()
-}
-
-/// Renders `frames` frames of a technique and returns the accumulated image and ray counts.
-fn render(
-    technique: &str,
-    params: toml::Table,
-    scene: Scene,
-    size: [u32; 2],
-    frames: u32,
-    seed: u32,
-    flags: u32,
-) -> (Image, RayCounts) {
-    let mut e = engine(technique, params, scene, size, seed);
-    e.flags = flags;
-    e.reset();
-    for _ in 0..frames {
-        e.render_frame().unwrap();
-    }
-    let rays = e.ray_counts().unwrap();
-    assert_eq!(rays.invalid_samples, 0, "NaN/Inf samples");
-    (e.read_output().unwrap(), rays)
-}
 
 fn restir(
     scene: Scene,

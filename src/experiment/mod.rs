@@ -6,6 +6,7 @@
 
 pub mod plot;
 pub mod report;
+pub mod rows;
 pub mod run;
 pub mod spec;
 

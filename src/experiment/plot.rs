@@ -2,7 +2,7 @@
 //! no system fonts are needed): error against GPU time and against rays (log-log, one line
 //! per run), error against frame with the scripted events marked, and the Pareto front.
 
-use super::run::{Row, Summary};
+use super::rows::{Row, Summary};
 use anyhow::{anyhow, Result};
 use plotters::prelude::*;
 use std::path::Path;

@@ -3,7 +3,7 @@
 //! Everything here is computed from the rows alone, so merged shards give the same report.
 
 use super::plot;
-use super::run::{Row, Summary};
+use super::rows::{Row, Summary};
 use super::Metric;
 use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};

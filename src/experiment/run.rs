@@ -2,6 +2,7 @@
 //! by frame, recording time, rays and error after each frame.
 
 use super::report::{self, Analysis};
+pub use super::rows::{read_output_dir, ReferenceInfo, Row, RunSummary, Summary};
 use super::spec::{expand_runs, Event, RunSpec, Shard};
 use crate::compare::{flip, io, metrics, Image};
 use crate::gpu::{shaders::ShaderLibrary, Gpu};
@@ -11,114 +12,9 @@ use crate::render::{engine::Engine, engine::EngineSettings, RAY_KINDS};
 use crate::scene::{gpu_scene::GpuScene, Camera, Scene};
 use crate::techniques::create_technique;
 use anyhow::{ensure, Context, Result};
-use serde::{Deserialize, Serialize};
+
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-
-/// One row of `convergence.csv`: a run after one more frame. Times and rays are cumulative
-/// since the run started; errors are against the reference of the scene state the frame saw.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
-pub struct Row {
-    pub run: usize,
-    pub label: String,
-    pub technique: String,
-    pub seed: u32,
-    pub budget: Option<f64>,
-    /// Frames rendered so far (1 after the first frame).
-    pub frame: u32,
-    /// Scene state: 0 before the first event, k after the k-th.
-    pub state: usize,
-    pub gpu_ms: f64,
-    pub gpu_ms_cum: f64,
-    pub wall_ms: f64,
-    pub wall_ms_cum: f64,
-    /// `timestamps`, or `wall` where the adapter gave no usable timestamps.
-    pub timing: String,
-    pub rays: u64,
-    pub rays_per_pixel: f64,
-    pub rays_camera: u64,
-    pub rays_shadow: u64,
-    pub rays_indirect: u64,
-    pub rays_probe: u64,
-    pub rays_surfel: u64,
-    pub rays_cache: u64,
-    pub rays_candidate: u64,
-    pub rays_reuse: u64,
-    pub mse: f64,
-    pub rel_mse: f64,
-    pub smape: f64,
-    pub flip: f64,
-    /// GPU ms of this frame per pass: `name=ms;name=ms`.
-    pub passes: String,
-}
-
-impl Row {
-    pub fn error(&self, m: super::Metric) -> f64 {
-        match m {
-            super::Metric::Mse => self.mse,
-            super::Metric::RelMse => self.rel_mse,
-            super::Metric::Smape => self.smape,
-            super::Metric::Flip => self.flip,
-        }
-    }
-}
-
-/// What the JSON summary says about one run.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
-pub struct RunSummary {
-    pub spec: RunSpec,
-    /// Parameters the run rendered with (after the budget was mapped).
-    pub params: toml::Table,
-    /// Measured rays per pixel per frame.
-    pub rays_per_pixel_per_frame: f64,
-    pub frames: u32,
-    pub gpu_ms_total: f64,
-    pub gpu_ms_per_frame: f64,
-    /// Mean GPU ms per frame of each pass.
-    pub gpu_ms_by_pass: std::collections::BTreeMap<String, f64>,
-    pub passes_run: Vec<String>,
-    pub passes_skipped: Vec<String>,
-    pub final_mse: f64,
-    pub final_rel_mse: f64,
-    pub final_smape: f64,
-    pub final_flip: f64,
-    pub non_finite_pixels: usize,
-    /// Last frame, relative to the output folder.
-    pub image: String,
-}
-
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
-pub struct ReferenceInfo {
-    pub state: usize,
-    pub from_frame: u32,
-    pub key: String,
-    pub cache_file: String,
-    pub spp: u32,
-    pub seed: u32,
-}
-
-/// Reproducibility record and results: `summary.json`.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
-pub struct Summary {
-    pub experiment: String,
-    pub file: Option<String>,
-    /// SHA-256 of the experiment as run (file text after command-line overrides).
-    pub preset_sha256: String,
-    pub git_commit: String,
-    pub adapter: crate::gpu::AdapterSummary,
-    pub size: [u32; 2],
-    pub seeds: Vec<u32>,
-    pub tonemap: crate::preset::TonemapSettings,
-    pub settings: super::ExperimentSettings,
-    /// Runs in the whole experiment (a shard holds some of them).
-    pub total_runs: usize,
-    pub shards: Vec<Shard>,
-    pub references: Vec<ReferenceInfo>,
-    pub runs: Vec<RunSummary>,
-    /// Recomputed from the rows whenever outputs are written (merges included), so it is not read back.
-    #[serde(skip_deserializing, default)]
-    pub analysis: Analysis,
-}
 
 pub struct ConvergeOptions {
     pub out: PathBuf,
@@ -496,22 +392,6 @@ fn run_one(
             image: format!("runs/{stem}.exr"),
         },
     ))
-}
-
-/// Reads a shard's (or a whole run's) outputs back: summary and rows.
-pub fn read_output_dir(dir: &Path) -> Result<(Summary, Vec<Row>)> {
-    let text = std::fs::read_to_string(dir.join("summary.json"))
-        .with_context(|| format!("reading {}", dir.join("summary.json").display()))?;
-    let mut summary: Summary = serde_json::from_str(&text)
-        .with_context(|| format!("parsing {}", dir.join("summary.json").display()))?;
-    let mut reader = csv::Reader::from_path(dir.join("convergence.csv"))
-        .with_context(|| format!("reading {}", dir.join("convergence.csv").display()))?;
-    let rows = reader
-        .deserialize()
-        .collect::<std::result::Result<Vec<Row>, _>>()
-        .with_context(|| format!("parsing {}", dir.join("convergence.csv").display()))?;
-    summary.analysis = report::analyse(&summary, &rows);
-    Ok((summary, rows))
 }
 
 /// Merges shard folders into one output: checks they come from the same experiment, joins

@@ -6,8 +6,8 @@
 //!
 //! Shaders are read from disk at run time (so hot reload can rebuild pipelines) with the
 //! copy embedded at build time as fallback, so the binary also runs outside the repository.
-//! Modules live in `shaders/common/` (each starts with `#define_import_path gilab::NAME`);
-//! entry files live in per-technique folders.
+//! Modules start with `#define_import_path gilab::NAME` (shared ones in `shaders/common/`, a
+//! technique's own in its folder); every other file is an entry file.
 
 use include_dir::{include_dir, Dir};
 use naga_oil::compose::{
@@ -86,12 +86,14 @@ impl ShaderLibrary {
         Ok(out)
     }
 
-    /// Entry files: `.wgsl` files outside `common/`.
+    /// Entry files: `.wgsl` files that declare no `#define_import_path` (that directive marks a
+    /// module, wherever it lives: shared ones in `common/`, a technique's own in its folder).
     pub fn entry_files(&self) -> Result<Vec<String>, ShaderError> {
         Ok(self
             .files()?
-            .into_keys()
-            .filter(|k| !k.starts_with("common/"))
+            .into_iter()
+            .filter(|(_, src)| get_preprocessor_data(src).0.is_none())
+            .map(|(k, _)| k)
             .collect())
     }
 

@@ -27,6 +27,47 @@ pub struct Render {
     pub engine: Engine,
 }
 
+/// An engine for a technique with parameters on a scene's default camera.
+pub fn engine(
+    technique: &str,
+    params: toml::Table,
+    scene: Scene,
+    size: [u32; 2],
+    seed: u32,
+) -> Engine {
+    let mut t = create_technique(technique).unwrap();
+    t.set_params(&params).unwrap();
+    let camera = scene.default_camera();
+    let settings = EngineSettings {
+        extent: size,
+        seed,
+        camera,
+    };
+    Engine::new(gpu(), ShaderLibrary::discover(), scene, t, settings).unwrap()
+}
+
+/// Renders `frames` frames of a technique (after a reset, with FrameUniforms `flags`) and
+/// returns the accumulated image and ray counts; fails on NaN/Inf samples.
+pub fn render_technique(
+    technique: &str,
+    params: toml::Table,
+    scene: Scene,
+    size: [u32; 2],
+    frames: u32,
+    seed: u32,
+    flags: u32,
+) -> (Image, RayCounts) {
+    let mut e = engine(technique, params, scene, size, seed);
+    e.flags = flags;
+    e.reset();
+    for _ in 0..frames {
+        e.render_frame().unwrap();
+    }
+    let rays = e.ray_counts().unwrap();
+    assert_eq!(rays.invalid_samples, 0, "NaN/Inf samples");
+    (e.read_output().unwrap(), rays)
+}
+
 /// Renders `scene` with the reference path tracer: `spp` samples per pixel in frames of `spf`.
 pub fn render_reference(
     scene: Scene,
@@ -36,24 +77,10 @@ pub fn render_reference(
     seed: u32,
     max_depth: u32,
 ) -> Render {
-    let mut technique = create_technique("reference").unwrap();
     let mut params = toml::Table::new();
     params.insert("samples_per_frame".into(), (spf as i64).into());
     params.insert("max_depth".into(), (max_depth as i64).into());
-    technique.set_params(&params).unwrap();
-    let camera = scene.default_camera();
-    let mut engine = Engine::new(
-        gpu(),
-        ShaderLibrary::discover(),
-        scene,
-        technique,
-        EngineSettings {
-            extent: size,
-            seed,
-            camera,
-        },
-    )
-    .unwrap();
+    let mut engine = engine("reference", params, scene, size, seed);
     for _ in 0..spp.div_ceil(spf) {
         engine.render_frame().unwrap();
     }

@@ -32,7 +32,7 @@
 //! Samples live in the light's own measure (area for triangles, solid angle for sky directions),
 //! so reuse across pixels needs no Jacobian. With a sky class, GI sample rays that escape add
 //! nothing: direct sky light is ReSTIR DI's.
-//! Shaders: shaders/restir/*.wgsl, shared state in shaders/common/restir.wgsl.
+//! Shaders: shaders/restir/*.wgsl, shared state in shaders/restir/shared.wgsl.
 
 use crate::gpu::{timing::PassTimer, Gpu};
 use crate::render::params::{ParamKind, ParamSpec, Params};
@@ -42,7 +42,7 @@ use crate::scene::features::SceneFeatures;
 use anyhow::Result;
 use wgpu::util::DeviceExt;
 
-/// Matches `RestirParams` in shaders/common/restir.wgsl.
+/// Matches `RestirParams` in shaders/restir/shared.wgsl.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct RestirParamsGpu {
@@ -229,7 +229,7 @@ impl CandidateVisibility {
     }
 }
 
-/// Bytes of `Reservoir`, `GiReservoir` and `RegirSlot` in shaders/common/restir.wgsl.
+/// Bytes of `Reservoir`, `GiReservoir` and `RegirSlot` in shaders/restir/shared.wgsl.
 pub const RESERVOIR_BYTES: u64 = 32;
 pub const GI_RESERVOIR_BYTES: u64 = 64;
 pub const REGIR_SLOT_BYTES: u64 = 16;

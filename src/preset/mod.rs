@@ -3,6 +3,8 @@
 //! CLI overrides (`--scene`, `--technique`, `--size`, `--spp`, `--seed`, `--set key=value`) are
 //! applied to the parsed document before it is checked again.
 
+pub mod experiment;
+
 use crate::compare::tonemap::Operator;
 use crate::scene::{builtin, gltf_load, Camera, Scene};
 use anyhow::{anyhow, bail, Context, Result};
@@ -27,7 +29,7 @@ pub struct Preset {
     pub view: ViewSettings,
     /// A convergence experiment over this preset's techniques (`gilab converge`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub experiment: Option<crate::experiment::ExperimentSettings>,
+    pub experiment: Option<experiment::ExperimentSettings>,
 }
 
 /// The viewer's arrangement of panes.
@@ -289,7 +291,7 @@ pub struct LoadedPreset {
 }
 
 /// The default preset, used when no file is given: the Cornell box.
-pub const DEFAULT_PRESET: &str = include_str!("../presets/cornell.toml");
+pub const DEFAULT_PRESET: &str = include_str!("../../presets/cornell.toml");
 
 /// Formats a TOML error as `file:line:column: message` on one line.
 fn toml_error(path: &str, text: &str, e: &toml::de::Error) -> anyhow::Error {

@@ -1,5 +1,6 @@
-// ReSTIR DI shared state: per-pixel primary surfaces and weighted reservoirs (Bitterli et al.
-// 2020; "Making Connections", GDC), the unshadowed target function and the reservoir updates.
+// ReSTIR's shared state (module gilab::restir): weighted reservoirs (Bitterli et al. 2020;
+// "Making Connections", GDC), the unshadowed target function and the reservoir updates, GI
+// reservoirs and ReGIR cells.
 // Layouts must match src/techniques/restir/mod.rs.
 #define_import_path gilab::restir
 

@@ -1,0 +1,213 @@
+//! The `[experiment]` table of a preset, as the preset file holds it: frames or seconds per run,
+//! seeds, sweeps over a technique entry's parameters or ray budget, scripted events, and how the
+//! report summarises. `crate::experiment` expands it into runs and runs them.
+
+use crate::scene::{Camera, Scene};
+use anyhow::{bail, ensure, Result};
+use glam::Vec3;
+use serde::{Deserialize, Serialize};
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ExperimentSettings {
+    /// Name of the experiment (default: the file stem); names the output folder.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub name: Option<String>,
+    /// Frames per run (an upper bound when `seconds` is given).
+    #[serde(default = "default_frames")]
+    pub frames: u32,
+    /// Stop a run once its summed GPU time reaches this many seconds (0 = frames only).
+    #[serde(default)]
+    pub seconds: f64,
+    /// Seeds each run is repeated with (default: the preset's `render.seed`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub seeds: Vec<u32>,
+    /// Error metric the report's tables use: `mse`, `rel_mse`, `smape` or `flip`.
+    #[serde(default)]
+    pub metric: Metric,
+    /// Label of the run ratios are taken against (default: the first `reference` run).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub baseline: Option<String>,
+    /// Common time budget in GPU ms for the equal-time table (default: the shortest run's
+    /// total GPU time, so every run reaches it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub equal_time_ms: Option<f64>,
+    /// Target error for the time-to-error table (default: the largest of the runs' lowest
+    /// errors, so every run reaches it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub target_error: Option<f64>,
+    /// After an event a run has settled when its error is back under this factor times the
+    /// larger of its error on the frame before the event and its steady level in the new
+    /// state (median of the state's last frames): a scene made harder by the event (a light
+    /// switched on adds noise) is not counted as lag.
+    #[serde(default = "default_settle_factor")]
+    pub settle_factor: f64,
+    /// An absolute error a run must get back under after an event (replaces
+    /// `settle_factor`): right when the event changes how hard the image is, e.g. a light
+    /// switched on, where the error before the event is not a fair target.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub settle_error: Option<f64>,
+    #[serde(default, rename = "sweep", skip_serializing_if = "Vec::is_empty")]
+    pub sweeps: Vec<Sweep>,
+    #[serde(default, rename = "event", skip_serializing_if = "Vec::is_empty")]
+    pub events: Vec<Event>,
+}
+
+fn default_frames() -> u32 {
+    64
+}
+fn default_settle_factor() -> f64 {
+    1.1
+}
+
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum Metric {
+    Mse,
+    #[default]
+    RelMse,
+    Smape,
+    Flip,
+}
+
+impl Metric {
+    pub fn name(self) -> &'static str {
+        match self {
+            Metric::Mse => "mse",
+            Metric::RelMse => "rel_mse",
+            Metric::Smape => "smape",
+            Metric::Flip => "flip",
+        }
+    }
+}
+
+/// Runs one technique entry once per value; several sweeps of one entry are crossed.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Sweep {
+    /// Label (or name) of the `[[techniques]]` entry.
+    pub technique: String,
+    /// A parameter of that technique, or `budget`: rays per pixel per frame, mapped to
+    /// parameters by the technique (the viewer's ray-budget slider).
+    pub param: String,
+    pub values: Vec<toml::Value>,
+}
+
+/// A scripted change at the start of `frame` (before it renders), to measure temporal lag.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Event {
+    pub frame: u32,
+    /// Shown in the report and plots (default: a description of the change).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub label: Option<String>,
+    /// Move the camera here.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<Camera>,
+    /// Edit the material of this name: `emissive` (switching a light on or off),
+    /// `base_color`, `roughness`, `metallic`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub material: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub emissive: Option<[f32; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub base_color: Option<[f32; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub roughness: Option<f32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub metallic: Option<f32>,
+    /// Edit the punctual light of this index: `position`, `intensity` (0 switches it off).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub light: Option<usize>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub position: Option<[f32; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub intensity: Option<[f32; 3]>,
+}
+
+impl Event {
+    pub fn describe(&self) -> String {
+        if let Some(l) = &self.label {
+            return l.clone();
+        }
+        let mut parts = Vec::new();
+        if self.camera.is_some() {
+            parts.push("camera moved".to_string());
+        }
+        if let Some(m) = &self.material {
+            parts.push(format!("material '{m}' edited"));
+        }
+        if let Some(l) = self.light {
+            parts.push(format!("light {l} edited"));
+        }
+        format!("frame {}: {}", self.frame, parts.join(", "))
+    }
+
+    /// Applies the change to a scene and camera; errors name what is wrong.
+    pub fn apply(&self, scene: &mut Scene, camera: &mut Camera) -> Result<()> {
+        let material_fields = self.emissive.is_some()
+            || self.base_color.is_some()
+            || self.roughness.is_some()
+            || self.metallic.is_some();
+        let light_fields = self.position.is_some() || self.intensity.is_some();
+        ensure!(
+            self.camera.is_some() || self.material.is_some() || self.light.is_some(),
+            "event at frame {}: nothing to change (give camera, material or light)",
+            self.frame
+        );
+        ensure!(
+            !material_fields || self.material.is_some(),
+            "event at frame {}: emissive/base_color/roughness/metallic need `material`",
+            self.frame
+        );
+        ensure!(
+            !light_fields || self.light.is_some(),
+            "event at frame {}: position/intensity need `light`",
+            self.frame
+        );
+        if let Some(c) = self.camera {
+            *camera = c;
+        }
+        if let Some(name) = &self.material {
+            let Some(m) = scene.materials.iter_mut().find(|m| &m.name == name) else {
+                let names: Vec<&str> = scene.materials.iter().map(|m| m.name.as_str()).collect();
+                bail!(
+                    "event at frame {}: the scene has no material '{name}' (it has: {})",
+                    self.frame,
+                    names.join(", ")
+                );
+            };
+            let finite = |v: [f32; 3]| v.iter().all(|x| x.is_finite() && *x >= 0.0);
+            if let Some(e) = self.emissive {
+                ensure!(finite(e), "event at frame {}: bad emissive", self.frame);
+                m.emissive = Vec3::from(e);
+            }
+            if let Some(b) = self.base_color {
+                ensure!(finite(b), "event at frame {}: bad base_color", self.frame);
+                m.base_color = Vec3::from(b).extend(m.base_color.w);
+            }
+            if let Some(r) = self.roughness {
+                m.roughness = r.clamp(0.0, 1.0);
+            }
+            if let Some(v) = self.metallic {
+                m.metallic = v.clamp(0.0, 1.0);
+            }
+        }
+        if let Some(i) = self.light {
+            let count = scene.lights.len();
+            let Some(l) = scene.lights.get_mut(i) else {
+                bail!(
+                    "event at frame {}: light {i} does not exist (the scene has {count} punctual lights)",
+                    self.frame
+                );
+            };
+            if let Some(p) = self.position {
+                l.position = Vec3::from(p);
+            }
+            if let Some(v) = self.intensity {
+                l.intensity = Vec3::from(v);
+            }
+        }
+        Ok(())
+    }
+}
