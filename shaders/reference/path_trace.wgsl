@@ -1,21 +1,15 @@
 // Reference path tracer: progressive, unbiased; NEE + MIS (power heuristic) over emissive triangles and punctual lights, Russian roulette, Welford per-pixel mean and variance.
-#import gilab::math::is_finite_vec
 #import gilab::rng::{rng_init, rand_pair, STREAM_CAMERA}
 #import gilab::frame::{frame, camera_ray_dir, FLAG_NO_PRIMARY_EMISSION}
 #import gilab::counters::{flush_counts, no_counts, RAY_CAMERA, RAY_SHADOW, RAY_INDIRECT, COUNT_INVALID_SAMPLES}
 #import gilab::path::trace_path
-#import gilab::accumulate::welford_add
+#import gilab::accumulate::accumulate_sample
 
 // Which sample of the frame this dispatch traces (one path per invocation per dispatch).
 struct DispatchSample {
     index: u32,
 }
-@group(2) @binding(2) var<uniform> dispatch_sample: DispatchSample;
-
-// Per pixel: xyz = running mean radiance, w = sample count.
-@group(2) @binding(0) var<storage, read_write> accum_mean: array<vec4<f32>>;
-// Per pixel: xyz = Welford M2 (sum of squared deviations) per channel.
-@group(2) @binding(1) var<storage, read_write> accum_m2: array<vec4<f32>>;
+@group(2) @binding(0) var<uniform> dispatch_sample: DispatchSample;
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
@@ -33,12 +27,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         counts[RAY_CAMERA] = path.first_rays;
         counts[RAY_SHADOW] = path.shadow_rays;
         counts[RAY_INDIRECT] = path.indirect_rays;
-        let l = path.radiance;
-        if is_finite_vec(l) {
-            let a = welford_add(accum_mean[idx], accum_m2[idx], l);
-            accum_mean[idx] = a.mean;
-            accum_m2[idx] = a.sq_dev;
-        } else {
+        if !accumulate_sample(idx, path.radiance, true) {
             counts[COUNT_INVALID_SAMPLES] = 1u;
         }
     }

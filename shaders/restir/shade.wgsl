@@ -2,14 +2,10 @@
 // and progressive accumulation (Welford mean and M2, as the reference path tracer does).
 #import gilab::frame::{frame, FLAG_NO_PRIMARY_EMISSION}
 #import gilab::counters::{flush_counts, no_counts, RAY_SHADOW, COUNT_INVALID_SAMPLES}
-#import gilab::math::is_finite_vec
-#import gilab::accumulate::welford_add
+#import gilab::accumulate::accumulate_sample
 #import gilab::primary::{current_surface}
 #import gilab::restir::{params, reservoirs, gi_reservoirs, gi_sky, reservoir_index, parity, contribution, visible, gi_contribution, gi_visible, regir_cell, debug_out, SKY_SAMPLE}
 #import gilab::scene::light_pool
-
-@group(2) @binding(2) var<storage, read_write> accum_mean: array<vec4<f32>>;
-@group(2) @binding(3) var<storage, read_write> accum_m2: array<vec4<f32>>;
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
@@ -62,14 +58,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 }
             }
         }
-        if is_finite_vec(l) && params.accumulate == 0u {
-            accum_mean[idx] = vec4<f32>(l, 1.0);
-            accum_m2[idx] = vec4<f32>(0.0);
-        } else if is_finite_vec(l) {
-            let a = welford_add(accum_mean[idx], accum_m2[idx], l);
-            accum_mean[idx] = a.mean;
-            accum_m2[idx] = a.sq_dev;
-        } else {
+        if !accumulate_sample(idx, l, params.accumulate == 1u) {
             counts[COUNT_INVALID_SAMPLES] = 1u;
         }
     }

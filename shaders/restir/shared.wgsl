@@ -207,9 +207,9 @@ struct GiReservoir {
 }
 
 // Three segments like `reservoirs`.
-@group(2) @binding(4) var<storage, read_write> gi_reservoirs: array<GiReservoir>;
+@group(2) @binding(2) var<storage, read_write> gi_reservoirs: array<GiReservoir>;
 // Per pixel: sky radiance reached by this frame's GI sample ray (not reused: it has no point).
-@group(2) @binding(5) var<storage, read_write> gi_sky: array<vec4<f32>>;
+@group(2) @binding(3) var<storage, read_write> gi_sky: array<vec4<f32>>;
 
 fn empty_gi_reservoir() -> GiReservoir {
     return GiReservoir(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), 0.0, 0.0, 0.0, 0.0);
@@ -295,10 +295,10 @@ struct RegirSlot {
     big_w: f32,
 }
 
-@group(2) @binding(6) var<storage, read_write> regir_slots: array<RegirSlot>;
+@group(2) @binding(4) var<storage, read_write> regir_slots: array<RegirSlot>;
 // Per pixel, for the debug views: x = DI reservoir M, y = its contribution weight W,
 // z = selected light index + 1 (0 = none), w = ReGIR cell index + 1 (0 = none).
-@group(2) @binding(7) var<storage, read_write> debug_out: array<vec4<f32>>;
+@group(2) @binding(5) var<storage, read_write> debug_out: array<vec4<f32>>;
 
 // Lower corner of the grid: centred on the camera, snapped to whole cells so cells stay put.
 fn regir_origin() -> vec3<f32> {

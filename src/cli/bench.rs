@@ -69,9 +69,6 @@ impl Technique for TraceBench {
         };
         pipelines::image_pass(ctx, enc, timer, "trace_rays", p, bg);
     }
-    fn output(&self) -> &wgpu::Buffer {
-        self.checksum.as_ref().expect("bench used before build()")
-    }
     fn param_set(&self) -> &Params {
         &self.params
     }

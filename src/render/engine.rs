@@ -77,6 +77,9 @@ pub struct Engine {
     primary: Option<wgpu::ComputePipeline>,
     /// Its output (a 16-byte placeholder when no pass runs).
     surfaces: wgpu::Buffer,
+    /// The technique's accumulated output: per pixel mean (w: samples) and Welford M2.
+    accum_mean: wgpu::Buffer,
+    accum_m2: wgpu::Buffer,
     gbuffer: Option<GBuffer>,
     timer: PassTimer,
     /// Frames since the last history reset.
@@ -150,6 +153,8 @@ impl Engine {
                 pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE),
                 pipelines::storage_entry(1, false),
                 pipelines::storage_entry(2, false),
+                pipelines::storage_entry(3, false),
+                pipelines::storage_entry(4, false),
             ],
         );
         let inputs = technique.inputs();
@@ -159,11 +164,15 @@ impl Engine {
         } else {
             pipelines::storage_buffer(&gpu, "no primary surfaces", 16)
         };
+        // The accumulated output every technique writes (gilab::accumulate): mean and Welford M2.
+        let pixels = settings.extent[0] as u64 * settings.extent[1] as u64;
+        let accum_mean = pipelines::storage_buffer(&gpu, "output mean", pixels * 16);
+        let accum_m2 = pipelines::storage_buffer(&gpu, "output m2", pixels * 16);
         let frame_bind_group = pipelines::buffers_bind_group(
             &gpu,
             "frame",
             &frame_layout,
-            &[&uniforms, &counters, &surfaces],
+            &[&uniforms, &counters, &surfaces, &accum_mean, &accum_m2],
         );
         let primary = if inputs.primary_surfaces {
             Some(primary::pipeline(
@@ -192,6 +201,8 @@ impl Engine {
             frame_bind_group,
             primary,
             surfaces,
+            accum_mean,
+            accum_m2,
             gbuffer: None,
             timer,
             frame_index: 0,
@@ -241,6 +252,7 @@ impl Engine {
     /// Clears history and counters (camera cut, scene edit, parameter change).
     pub fn reset(&mut self) {
         self.technique.reset_history(&self.gpu);
+        self.restart_accumulation();
         self.gpu.queue.write_buffer(
             &self.counters,
             0,
@@ -251,6 +263,14 @@ impl Engine {
         self.total_gpu_ms = 0.0;
         self.total_wall_ms = 0.0;
         self.prev_camera = self.camera;
+    }
+
+    /// Clears the accumulated output: the next frame starts a new average.
+    fn restart_accumulation(&self) {
+        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        enc.clear_buffer(&self.accum_mean, 0, None);
+        enc.clear_buffer(&self.accum_m2, 0, None);
+        self.gpu.queue.submit([enc.finish()]);
     }
 
     pub fn set_camera(&mut self, camera: Camera) {
@@ -269,6 +289,7 @@ impl Engine {
         self.technique.build(&render_context!(self))?;
         self.gpu.check_errors()?;
         self.technique.on_scene_change(&self.gpu);
+        self.restart_accumulation();
         Ok(())
     }
 
@@ -277,6 +298,7 @@ impl Engine {
     pub fn move_camera(&mut self, camera: Camera) {
         self.camera = camera;
         self.technique.on_scene_change(&self.gpu);
+        self.restart_accumulation();
     }
 
     /// New parameter values: uniforms and parameter-sized resources are updated; no pipeline is
@@ -458,11 +480,11 @@ impl Engine {
     pub fn read_output(&self) -> Result<Image> {
         let [w, h] = self.extent;
         let px: Vec<[f32; 4]> =
-            readback::read_buffer(&self.gpu, self.technique.output(), (w * h) as usize)?;
+            readback::read_buffer(&self.gpu, &self.accum_mean, (w * h) as usize)?;
         Ok(Image::from_rgba(w, h, &px))
     }
 
-    /// Per-pixel sample variance (rgb) from the Welford M2, if the technique accumulates.
+    /// Per-pixel sample variance (rgb) from the Welford M2 (0 where one sample stands).
     pub fn read_variance(&self) -> Result<Option<Image>> {
         Ok(self.read_output_and_variance()?.1)
     }
@@ -471,12 +493,9 @@ impl Engine {
     pub fn read_output_and_variance(&self) -> Result<(Image, Option<Image>)> {
         let [w, h] = self.extent;
         let mean: Vec<[f32; 4]> =
-            readback::read_buffer(&self.gpu, self.technique.output(), (w * h) as usize)?;
+            readback::read_buffer(&self.gpu, &self.accum_mean, (w * h) as usize)?;
         let image = Image::from_rgba(w, h, &mean);
-        let Some(m2) = self.technique.variance_m2() else {
-            return Ok((image, None));
-        };
-        let m2: Vec<[f32; 4]> = readback::read_buffer(&self.gpu, m2, (w * h) as usize)?;
+        let m2: Vec<[f32; 4]> = readback::read_buffer(&self.gpu, &self.accum_m2, (w * h) as usize)?;
         let var: Vec<[f32; 4]> = mean
             .iter()
             .zip(&m2)

@@ -93,7 +93,8 @@ pub struct PassInfo {
 }
 
 /// Everything a technique needs to build and record its work. Bind groups: 0 the scene,
-/// 1 the frame (uniforms, ray counters, primary surfaces; owned by the engine), 2 the technique's.
+/// 1 the frame (uniforms, ray counters, primary surfaces, accumulated output; owned by the
+/// engine), 2 the technique's.
 pub struct RenderContext<'a> {
     pub gpu: &'a Gpu,
     pub shaders: &'a ShaderLibrary,
@@ -131,10 +132,11 @@ pub trait Technique {
     }
     /// (Re)creates pipelines and buffers; on error the previous pipelines stay usable.
     fn build(&mut self, ctx: &RenderContext) -> Result<()>;
-    /// Forget accumulated history (camera cut, scene edit, parameter change).
+    /// Forget the technique's own history: reservoirs, caches (camera cut, scene edit, parameter
+    /// change). The engine clears the accumulated output itself.
     fn reset_history(&mut self, gpu: &Gpu);
     /// A scripted change while running (light switched, material edited, camera moved; the
-    /// lag experiments): progressive accumulation must restart, but history a real-time
+    /// lag experiments): the engine restarts the accumulated output, but history a real-time
     /// technique would keep across such a change (reservoirs, caches) stays, so its lag shows.
     /// Default: forget everything.
     fn on_scene_change(&mut self, gpu: &Gpu) {
@@ -152,12 +154,10 @@ pub trait Technique {
         enc: &mut wgpu::CommandEncoder,
         timer: &mut PassTimer,
     );
-    /// Linear HDR radiance, one vec4<f32> per pixel (rgb; w = samples behind the value).
-    fn output(&self) -> &wgpu::Buffer;
-    /// Per-pixel Welford M2 (rgb) when the technique accumulates samples; None otherwise.
-    fn variance_m2(&self) -> Option<&wgpu::Buffer> {
-        None
-    }
+    // Output: a technique writes each pixel's linear HDR sample with
+    // `gilab::accumulate::accumulate_sample` into the engine's buffers (bind group 1), averaged
+    // over frames (Welford mean and M2) or replaced each frame; `Engine::read_output` and
+    // `read_variance` read them.
     /// The technique's parameters, declared in one table (`render::params`).
     fn param_set(&self) -> &params::Params;
     /// The parameters as a preset table.

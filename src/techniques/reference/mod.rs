@@ -23,8 +23,6 @@ pub struct ReferencePathTracer {
     max_depth: u32,
     pipeline: Option<wgpu::ComputePipeline>,
     bind_group: Option<wgpu::BindGroup>,
-    mean: Option<wgpu::Buffer>,
-    m2: Option<wgpu::Buffer>,
     /// One 256-byte slot per sample of a frame, bound with a dynamic offset per dispatch.
     sample_slots: Option<wgpu::Buffer>,
     extent: [u32; 2],
@@ -66,8 +64,6 @@ impl Default for ReferencePathTracer {
             max_depth: 0,
             pipeline: None,
             bind_group: None,
-            mean: None,
-            m2: None,
             sample_slots: None,
             extent: [0, 0],
         }
@@ -128,35 +124,19 @@ impl Technique for ReferencePathTracer {
         let layout = pipelines::layout(
             gpu,
             "reference",
-            &[
-                pipelines::storage_entry(0, false),
-                pipelines::storage_entry(1, false),
-                wgpu::BindGroupLayoutEntry {
-                    binding: 2,
-                    visibility: wgpu::ShaderStages::COMPUTE,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
-                        has_dynamic_offset: true,
-                        min_binding_size: wgpu::BufferSize::new(16),
-                    },
-                    count: None,
+            &[wgpu::BindGroupLayoutEntry {
+                binding: 0,
+                visibility: wgpu::ShaderStages::COMPUTE,
+                ty: wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Uniform,
+                    has_dynamic_offset: true,
+                    min_binding_size: wgpu::BufferSize::new(16),
                 },
-            ],
+                count: None,
+            }],
         );
         // Build everything first so a failure leaves the previous pipeline in place.
         let pipeline = ctx.pipeline("reference/path_trace.wgsl", &layout)?;
-        let pixels = (ctx.extent[0] * ctx.extent[1]) as u64;
-        let (mean, m2) = if self.extent == ctx.extent && self.mean.is_some() {
-            (
-                self.mean.take().expect("checked"),
-                self.m2.take().expect("checked"),
-            )
-        } else {
-            (
-                pipelines::storage_buffer(gpu, "reference mean", pixels * 16),
-                pipelines::storage_buffer(gpu, "reference m2", pixels * 16),
-            )
-        };
         let slots = self.sample_slots.take().unwrap_or_else(|| {
             let mut bytes = vec![0u8; (SLOT_BYTES * MAX_SAMPLES_PER_FRAME as u64) as usize];
             for i in 0..MAX_SAMPLES_PER_FRAME {
@@ -175,41 +155,24 @@ impl Technique for ReferencePathTracer {
         let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("reference"),
             layout: &layout,
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: mean.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: m2.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
-                        buffer: &slots,
-                        offset: 0,
-                        size: wgpu::BufferSize::new(16),
-                    }),
-                },
-            ],
+            entries: &[wgpu::BindGroupEntry {
+                binding: 0,
+                resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                    buffer: &slots,
+                    offset: 0,
+                    size: wgpu::BufferSize::new(16),
+                }),
+            }],
         });
         self.pipeline = Some(pipeline);
         self.bind_group = Some(bind_group);
-        self.mean = Some(mean);
-        self.m2 = Some(m2);
         self.sample_slots = Some(slots);
         self.extent = ctx.extent;
         Ok(())
     }
 
-    fn reset_history(&mut self, gpu: &Gpu) {
-        let mut enc = gpu.device.create_command_encoder(&Default::default());
-        for b in [&self.mean, &self.m2].into_iter().flatten() {
-            enc.clear_buffer(b, 0, None);
-        }
-        gpu.queue.submit([enc.finish()]);
-    }
+    /// No history beyond the average, which the engine keeps and clears.
+    fn reset_history(&mut self, _gpu: &Gpu) {}
 
     fn samples_per_frame(&self) -> u32 {
         self.samples_per_frame
@@ -239,16 +202,6 @@ impl Technique for ReferencePathTracer {
             pass.set_bind_group(2, bg, &[(i as u64 * SLOT_BYTES) as u32]);
             pass.dispatch_workgroups(ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1);
         }
-    }
-
-    fn output(&self) -> &wgpu::Buffer {
-        self.mean
-            .as_ref()
-            .expect("reference technique used before build()")
-    }
-
-    fn variance_m2(&self) -> Option<&wgpu::Buffer> {
-        self.m2.as_ref()
     }
 
     fn param_set(&self) -> &Params {

@@ -315,8 +315,6 @@ pub struct Restir {
     gi_sky: Option<wgpu::Buffer>,
     regir_slots: Option<wgpu::Buffer>,
     debug: Option<wgpu::Buffer>,
-    mean: Option<wgpu::Buffer>,
-    m2: Option<wgpu::Buffer>,
     extent: [u32; 2],
     classes: LightClasses,
     many_lights: bool,
@@ -339,8 +337,6 @@ impl Default for Restir {
             gi_sky: None,
             regir_slots: None,
             debug: None,
-            mean: None,
-            m2: None,
             extent: [0, 0],
             classes: LightClasses::default(),
             many_lights: false,
@@ -508,7 +504,7 @@ impl Restir {
                 contents: bytemuck::bytes_of(&self.gpu_params(pixels)),
                 usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             });
-        let reuse = self.extent == ctx.extent && self.mean.is_some();
+        let reuse = self.extent == ctx.extent && self.reservoirs.is_some();
         let buffer = |slot: &mut Option<wgpu::Buffer>, label: &str, bytes: u64| match slot
             .take()
             .filter(|_| reuse)
@@ -535,8 +531,6 @@ impl Restir {
             _ => pipelines::storage_buffer(gpu, "restir regir slots", regir_bytes),
         };
         let debug = buffer(&mut self.debug, "restir debug", px * 16);
-        let mean = buffer(&mut self.mean, "restir mean", px * 16);
-        let m2 = buffer(&mut self.m2, "restir m2", px * 16);
         let bind_group = pipelines::buffers_bind_group(
             gpu,
             "restir",
@@ -544,8 +538,6 @@ impl Restir {
             &[
                 &params,
                 &reservoirs,
-                &mean,
-                &m2,
                 &gi_reservoirs,
                 &gi_sky,
                 &regir_slots,
@@ -559,8 +551,6 @@ impl Restir {
         self.gi_sky = Some(gi_sky);
         self.regir_slots = Some(regir_slots);
         self.debug = Some(debug);
-        self.mean = Some(mean);
-        self.m2 = Some(m2);
         self.extent = ctx.extent;
     }
 
@@ -691,7 +681,7 @@ impl Technique for Restir {
     fn build(&mut self, ctx: &RenderContext) -> Result<()> {
         let gpu = ctx.gpu;
         let mut entries = vec![pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE)];
-        for b in 1..=7 {
+        for b in 1..=5 {
             entries.push(pipelines::storage_entry(b, false));
         }
         let layout = pipelines::layout(gpu, "restir", &entries);
@@ -718,23 +708,14 @@ impl Technique for Restir {
 
     fn reset_history(&mut self, gpu: &Gpu) {
         let mut enc = gpu.device.create_command_encoder(&Default::default());
-        for b in [&self.mean, &self.m2, &self.reservoirs]
-            .into_iter()
-            .flatten()
-        {
-            enc.clear_buffer(b, 0, None);
+        if let Some(r) = &self.reservoirs {
+            enc.clear_buffer(r, 0, None);
         }
         gpu.queue.submit([enc.finish()]);
     }
 
-    /// Restarts accumulation only: the reservoirs carry over, as they would in a game.
-    fn on_scene_change(&mut self, gpu: &Gpu) {
-        let mut enc = gpu.device.create_command_encoder(&Default::default());
-        for b in [&self.mean, &self.m2].into_iter().flatten() {
-            enc.clear_buffer(b, 0, None);
-        }
-        gpu.queue.submit([enc.finish()]);
-    }
+    /// The reservoirs carry over, as they would in a game (the engine restarts the average).
+    fn on_scene_change(&mut self, _gpu: &Gpu) {}
 
     fn samples_per_frame(&self) -> u32 {
         1
@@ -775,14 +756,6 @@ impl Technique for Restir {
                 pipelines::image_pass(ctx, enc, timer, name, pipeline, bg);
             }
         }
-    }
-
-    fn output(&self) -> &wgpu::Buffer {
-        self.mean.as_ref().expect("restir used before build()")
-    }
-
-    fn variance_m2(&self) -> Option<&wgpu::Buffer> {
-        self.m2.as_ref()
     }
 
     fn debug_views(&self) -> Vec<DebugView> {
