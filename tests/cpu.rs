@@ -102,6 +102,110 @@ fn wgsl_size(entry: &'static str) -> impl Fn(&str) -> usize {
     }
 }
 
+/// (member name, byte offset) of a WGSL struct as naga lays it out.
+fn wgsl_members(entry: &'static str, name: &str) -> Vec<(String, u32)> {
+    let module = ShaderLibrary::discover().compose(entry).unwrap();
+    let ty = module
+        .types
+        .iter()
+        .find(|(_, t)| {
+            t.name
+                .as_deref()
+                .is_some_and(|n| n == name || n.starts_with(&format!("{name}X_naga_oil")))
+        })
+        .unwrap_or_else(|| panic!("type {name} not in {entry}"))
+        .1;
+    let naga::TypeInner::Struct { members, .. } = &ty.inner else {
+        panic!("{name} is not a struct");
+    };
+    members
+        .iter()
+        .map(|m| (m.name.clone().unwrap_or_default(), m.offset))
+        .collect()
+}
+
+/// Every member of a WGSL struct sits at the offset of the Rust field of the same name, in the
+/// same order: swapped fields of one size fail here, where a size comparison passes.
+macro_rules! assert_same_members {
+    ($entry:expr, $wgsl:expr, $rust:ty, [$($field:ident),* $(,)?]) => {{
+        let gpu = wgsl_members($entry, $wgsl);
+        let cpu: Vec<(String, u32)> = vec![$(
+            (stringify!($field).to_string(), std::mem::offset_of!($rust, $field) as u32)
+        ),*];
+        assert_eq!(gpu, cpu, "{} (WGSL) against {} (Rust)", $wgsl, stringify!($rust));
+    }};
+}
+
+#[test]
+fn gpu_struct_members_match_rust_fields() {
+    use gilab::render::{primary::PrimarySurface, FrameUniforms};
+    use gilab::techniques::restir::RestirParamsGpu;
+    assert_same_members!(
+        "reference/path_trace.wgsl",
+        "FrameUniforms",
+        FrameUniforms,
+        [
+            clip_from_world,
+            prev_clip_from_world,
+            camera_pos,
+            camera_right,
+            camera_up,
+            camera_forward,
+            sky,
+            size,
+            frame_index,
+            seed,
+            samples_per_frame,
+            max_depth,
+            sample_offset,
+            flags,
+        ]
+    );
+    assert_same_members!(
+        "frame/primary_surfaces.wgsl",
+        "GSurface",
+        PrimarySurface,
+        [
+            pos,
+            normal_alpha,
+            geo_specular,
+            base_metal,
+            wo_dist,
+            emission,
+            motion,
+            triangle,
+            material
+        ]
+    );
+    assert_same_members!(
+        "restir/shade.wgsl",
+        "RestirParams",
+        RestirParamsGpu,
+        [
+            candidates,
+            candidate_visibility,
+            temporal,
+            max_history,
+            spatial_count,
+            spatial_radius,
+            unbiased,
+            bidirectional,
+            pixels,
+            accumulate,
+            gi,
+            gi_bounces,
+            regir,
+            regir_cell_size,
+            regir_dims,
+            regir_slots,
+            directional_candidates,
+            sky_candidates,
+            single_pool,
+            pad,
+        ]
+    );
+}
+
 /// Struct sizes seen by naga (the GPU) equal the Rust #[repr(C)] sizes (the CPU).
 #[test]
 fn gpu_struct_layouts_match_rust() {
