@@ -5,7 +5,7 @@
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts}
 #import gilab::primary::{current_surface}
-#import gilab::restir::{params, gi_reservoirs, reservoir_index, parity, empty_gi_reservoir, spatial_neighbour, gi_target, gi_update, gi_jacobian_ok, similar, TEMPORAL_SEGMENT}
+#import gilab::restir::{params, gi_reservoirs, reservoir_index, parity, empty_gi_reservoir, similar_neighbour, gi_target, gi_update, gi_jacobian_ok, TEMPORAL_SEGMENT}
 
 const MAX_NEIGHBOURS: u32 = 8u;
 
@@ -24,15 +24,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let k = min(params.spatial_count, MAX_NEIGHBOURS);
         if s.pos.w > 0.5 && params.gi == 1u {
             for (var j = 0u; j < k; j++) {
-                let n = spatial_neighbour(gid.xy, rand_pair(&rng));
-                if n < 0 || u32(n) == idx {
+                let n = similar_neighbour(gid.xy, idx, s, rand_pair(&rng));
+                if n < 0 {
                     continue;
                 }
                 let nidx = u32(n);
                 let ns = current_surface(nidx);
-                if !similar(s, ns) {
-                    continue;
-                }
                 let nr = gi_reservoirs[reservoir_index(TEMPORAL_SEGMENT, nidx)];
                 // Out-of-bounds Jacobian: weight 0, but the neighbour still takes part in Z.
                 var w = 0.0;

@@ -5,7 +5,7 @@
 #define_import_path gilab::restir
 
 #import gilab::frame::frame
-#import gilab::primary::GSurface
+#import gilab::primary::{GSurface, current_surface}
 #import gilab::math::luminance
 #import gilab::brdf::{Surface, bsdf_eval}
 #import gilab::lights::{LightSample, eval_light_point, light_shadow_ray}
@@ -175,6 +175,17 @@ fn spatial_neighbour(pixel: vec2<u32>, u: vec2<f32>) -> i32 {
         return -1;
     }
     return py * i32(frame.size.x) + px;
+}
+
+// A random neighbour in the spatial-reuse disk around pixel `idx` whose surface is similar to
+// `s`, or -1 (off screen, the pixel itself, or a dissimilar surface): what spatial reuse of DI
+// and GI reservoirs draws from.
+fn similar_neighbour(pixel: vec2<u32>, idx: u32, s: GSurface, u: vec2<f32>) -> i32 {
+    let n = spatial_neighbour(pixel, u);
+    if n < 0 || u32(n) == idx || !similar(s, current_surface(u32(n))) {
+        return -1;
+    }
+    return n;
 }
 
 // Similar enough surfaces to share samples: normals within ~25 degrees, depths within 10%.

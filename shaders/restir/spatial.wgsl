@@ -5,7 +5,7 @@
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts, RAY_REUSE}
 #import gilab::primary::{GSurface, current_surface}
-#import gilab::restir::{params, reservoirs, Reservoir, reservoir_index, parity, empty_reservoir, spatial_neighbour, contribution, target_at, visible, update, similar, TEMPORAL_SEGMENT}
+#import gilab::restir::{params, reservoirs, Reservoir, reservoir_index, parity, empty_reservoir, similar_neighbour, contribution, target_at, visible, update, TEMPORAL_SEGMENT}
 
 const MAX_NEIGHBOURS: u32 = 8u;
 
@@ -24,15 +24,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let k = min(params.spatial_count, MAX_NEIGHBOURS);
         if s.pos.w > 0.5 {
             for (var j = 0u; j < k; j++) {
-                let n = spatial_neighbour(gid.xy, rand_pair(&rng));
-                if n < 0 || u32(n) == idx {
+                let n = similar_neighbour(gid.xy, idx, s, rand_pair(&rng));
+                if n < 0 {
                     continue;
                 }
                 let nidx = u32(n);
-                let ns = current_surface(nidx);
-                if !similar(s, ns) {
-                    continue;
-                }
                 let nr = reservoirs[reservoir_index(TEMPORAL_SEGMENT, nidx)];
                 var t = target_at(s, nr);
                 if params.bidirectional == 1u && t > 0.0 && nr.big_w > 0.0 {

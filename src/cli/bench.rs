@@ -55,9 +55,6 @@ impl Technique for TraceBench {
         &["bench/trace_rays.wgsl"]
     }
     fn reset_history(&mut self, _: &Gpu) {}
-    fn samples_per_frame(&self) -> u32 {
-        1
-    }
     fn render(
         &mut self,
         ctx: &RenderContext,

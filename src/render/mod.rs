@@ -143,7 +143,9 @@ pub trait Technique {
         self.reset_history(gpu);
     }
     /// Samples per pixel one frame adds (what the frame uniforms' `samples_per_frame` carries).
-    fn samples_per_frame(&self) -> u32;
+    fn samples_per_frame(&self) -> u32 {
+        1
+    }
     /// Maximum path depth passed in the frame uniforms (0 = unbounded).
     fn max_depth(&self) -> u32 {
         0

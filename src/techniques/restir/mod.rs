@@ -717,10 +717,6 @@ impl Technique for Restir {
     /// The reservoirs carry over, as they would in a game (the engine restarts the average).
     fn on_scene_change(&mut self, _gpu: &Gpu) {}
 
-    fn samples_per_frame(&self) -> u32 {
-        1
-    }
-
     fn render(
         &mut self,
         ctx: &RenderContext,
