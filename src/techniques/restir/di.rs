@@ -1,0 +1,234 @@
+//! ReSTIR DI, a part of [`RestirLighting`]: initial candidates per light class resampled into
+//! reservoirs with temporal reuse (`initial_temporal`), then spatial reuse (`spatial`). Its
+//! final reservoirs (`gilab::restir::reservoirs`, this frame's segment) hold one light sample per
+//! pixel with its contribution weight W; a shading pass turns them into direct light with one
+//! visibility ray (`contribution`, `visible`). Shaders: shaders/restir/{initial_temporal,spatial}.wgsl.
+
+use super::lighting::RestirLighting;
+use super::{CandidateVisibility, RestirSettings};
+use crate::gpu::timing::PassTimer;
+use crate::render::{pipelines, PassInfo, RenderContext};
+use crate::scene::features::SceneFeatures;
+use anyhow::Result;
+
+/// Bytes of `Reservoir` in shaders/restir/shared.wgsl.
+pub const RESERVOIR_BYTES: u64 = 32;
+const INITIAL: &str = "initial_temporal";
+const SPATIAL: &str = "spatial";
+
+/// Which light classes the scene has (rule 3: a class it lacks gets no candidates).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct LightClasses {
+    pub local: usize,
+    pub directional: usize,
+    pub sky: bool,
+}
+
+impl LightClasses {
+    pub fn of(f: &SceneFeatures) -> Self {
+        LightClasses {
+            local: f.emissive_triangle_count + f.point_lights + f.spot_lights,
+            directional: f.directional_lights,
+            sky: f.sky_visible,
+        }
+    }
+}
+
+pub(super) struct DiPipelines {
+    initial_temporal: wgpu::ComputePipeline,
+    spatial: wgpu::ComputePipeline,
+}
+
+#[derive(Default)]
+pub struct Di {
+    pipelines: Option<DiPipelines>,
+    /// Three segments of reservoirs: final of even frames, final of odd frames, temporal output.
+    pub(super) reservoirs: Option<wgpu::Buffer>,
+}
+
+impl Di {
+    pub(super) fn pipelines(
+        ctx: &RenderContext,
+        layout: &wgpu::BindGroupLayout,
+    ) -> Result<DiPipelines> {
+        Ok(DiPipelines {
+            initial_temporal: ctx.pipeline("restir/initial_temporal.wgsl", layout)?,
+            spatial: ctx.pipeline("restir/spatial.wgsl", layout)?,
+        })
+    }
+
+    pub(super) fn set_pipelines(&mut self, p: DiPipelines) {
+        self.pipelines = Some(p);
+    }
+
+    pub(super) fn build_resources(&mut self, gpu: &crate::gpu::Gpu, pixels: u64, keep: bool) {
+        if !keep || self.reservoirs.is_none() {
+            self.reservoirs = Some(pipelines::storage_buffer(
+                gpu,
+                "restir reservoirs",
+                3 * pixels * RESERVOIR_BYTES,
+            ));
+        }
+    }
+
+    pub(super) fn record(
+        &self,
+        ctx: &RenderContext,
+        enc: &mut wgpu::CommandEncoder,
+        timer: &mut PassTimer,
+        bind_group: &wgpu::BindGroup,
+    ) {
+        let Some(p) = &self.pipelines else {
+            return;
+        };
+        pipelines::image_pass(ctx, enc, timer, INITIAL, &p.initial_temporal, bind_group);
+        // With spatial_count = 0 this pass only copies the temporal result through.
+        pipelines::image_pass(ctx, enc, timer, SPATIAL, &p.spatial, bind_group);
+    }
+
+    pub(super) fn reset(&self, enc: &mut wgpu::CommandEncoder) {
+        if let Some(r) = &self.reservoirs {
+            enc.clear_buffer(r, 0, None);
+        }
+    }
+}
+
+impl RestirLighting {
+    /// Candidates per frame of each class (local, directional, sky) as dispatched: 0 for a
+    /// class the scene lacks; in single-pool mode all lights are "local" and the sky has none.
+    pub(super) fn class_candidates(&self) -> [u32; 3] {
+        candidates_for(&self.settings, &self.classes)
+    }
+
+    pub(super) fn has_direct_sources(&self) -> bool {
+        self.class_candidates().iter().any(|&n| n > 0)
+    }
+
+    /// Rays per pixel per frame of everything but GI: camera, final DI visibility, the
+    /// candidate tests (biased mode), the bidirectional test per neighbour.
+    pub fn direct_rays_per_pixel(&self) -> f64 {
+        let s = &self.settings;
+        let mut rays = 2.0;
+        if !s.unbiased {
+            rays += match s.candidate_visibility {
+                CandidateVisibility::Off => 0.0,
+                CandidateVisibility::Merged => 1.0,
+                CandidateVisibility::PerClass => {
+                    self.class_candidates().iter().filter(|&&n| n > 0).count() as f64
+                }
+            };
+        }
+        if s.bidirectional {
+            rays += s.spatial_count as f64;
+        }
+        rays
+    }
+
+    pub(super) fn di_passes(&self, f: &SceneFeatures) -> [PassInfo; 2] {
+        let s = &self.settings;
+        let lights = candidates_for(s, &LightClasses::of(f))
+            .iter()
+            .any(|&n| n > 0);
+        let no_lights = || "no emissive triangles, punctual lights or reachable sky".to_string();
+        [
+            PassInfo {
+                name: INITIAL,
+                runs: lights,
+                why: if lights {
+                    format!(
+                        "{}; temporal reuse {}",
+                        candidate_summary(s, f),
+                        if s.temporal { "on" } else { "off" }
+                    )
+                } else {
+                    no_lights()
+                },
+            },
+            PassInfo {
+                name: SPATIAL,
+                runs: lights,
+                why: if !lights {
+                    no_lights()
+                } else if s.spatial_count == 0 {
+                    "spatial_count = 0: copies the temporal result only".into()
+                } else {
+                    format!(
+                        "{} neighbours within {} px, {}",
+                        s.spatial_count,
+                        s.spatial_radius,
+                        if s.unbiased {
+                            "unbiased (1/Z)"
+                        } else {
+                            "biased (M weights)"
+                        }
+                    )
+                },
+            },
+        ]
+    }
+}
+
+/// Candidates per frame of each class for a scene with these classes.
+pub fn candidates_for(s: &RestirSettings, c: &LightClasses) -> [u32; 3] {
+    if !s.light_classes {
+        let any = c.local + c.directional > 0;
+        return [if any { s.candidates } else { 0 }, 0, 0];
+    }
+    [
+        if c.local > 0 { s.candidates } else { 0 },
+        if c.directional > 0 {
+            s.directional_candidates
+        } else {
+            0
+        },
+        if c.sky { s.sky_candidates } else { 0 },
+    ]
+}
+
+/// What the initial candidates are drawn from, class by class, and what is skipped and why.
+fn candidate_summary(s: &RestirSettings, f: &SceneFeatures) -> String {
+    let c = LightClasses::of(f);
+    let [local, directional, sky] = candidates_for(s, &c);
+    let source = if s.regir && f.many_lights {
+        "ReGIR cell"
+    } else {
+        "by power"
+    };
+    if !s.light_classes {
+        return format!(
+            "one pool (light_classes = false): {local} candidates from {} lights {source}, sky only through GI rays",
+            c.local + c.directional
+        );
+    }
+    let mut parts = Vec::new();
+    parts.push(if local > 0 {
+        format!("local: {local} candidates over {} lights {source}", c.local)
+    } else {
+        "local: none in the scene".into()
+    });
+    parts.push(if directional > 0 {
+        format!(
+            "directional: {directional} candidates over {} lights",
+            c.directional
+        )
+    } else {
+        "directional: none in the scene".into()
+    });
+    parts.push(if sky > 0 {
+        format!("sky: {sky} candidate directions")
+    } else if f.sky_visible {
+        "sky: sky_candidates = 0, through GI rays".into()
+    } else {
+        "sky: black or out of reach".into()
+    });
+    let test = match (s.unbiased, s.candidate_visibility) {
+        (true, _) => "no candidate test (unbiased)",
+        (false, CandidateVisibility::Off) => "no candidate test",
+        (false, CandidateVisibility::PerClass) => "each class's pick tested",
+        (false, CandidateVisibility::Merged) => "merged pick tested",
+    };
+    format!(
+        "RIS per light class ({}), merged before visibility, {test}",
+        parts.join("; ")
+    )
+}

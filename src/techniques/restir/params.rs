@@ -1,0 +1,250 @@
+//! ReSTIR's parameters: the declared table (docs, ranges, defaults), the typed settings made
+//! from it, and the uniform the passes read.
+
+use crate::render::params::{ParamKind, ParamSpec, Params};
+
+/// Spatial neighbours per pixel at most (`MAX_NEIGHBOURS` in the spatial passes).
+pub const MAX_SPATIAL: u32 = 8;
+
+/// Matches `RestirParams` in shaders/restir/shared.wgsl.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct RestirParamsGpu {
+    pub candidates: u32,
+    pub candidate_visibility: u32,
+    pub temporal: u32,
+    pub max_history: f32,
+    pub spatial_count: u32,
+    pub spatial_radius: f32,
+    pub unbiased: u32,
+    pub bidirectional: u32,
+    pub pixels: u32,
+    pub accumulate: u32,
+    pub gi: u32,
+    pub gi_bounces: u32,
+    pub regir: u32,
+    pub regir_cell_size: f32,
+    pub regir_dims: u32,
+    pub regir_slots: u32,
+    pub directional_candidates: u32,
+    pub sky_candidates: u32,
+    pub single_pool: u32,
+    pub pad: u32,
+}
+
+/// ReSTIR's parameters: docs, ranges and defaults in one place (the talk's defaults: 8 initial
+/// candidates, max history 8, a few spatial neighbours).
+pub const PARAMS: &[ParamSpec] = &[
+    ParamSpec {
+        name: "candidates",
+        what: "initial RIS candidates per pixel per frame from the local lights (emissive triangles, point, spot), by power or from the ReGIR cell",
+        higher: "better initial samples (many lights), more shading work, no extra rays",
+        lower: "cheaper, noisier before reuse; 0 leaves local lights out of direct light",
+        kind: ParamKind::Int { min: 0, max: 256 },
+        default: 8.0,
+    },
+    ParamSpec {
+        name: "directional_candidates",
+        what: "initial RIS candidates per pixel per frame from the directional lights, by power (unused without directional lights)",
+        higher: "better choice among several suns, more shading work, no extra rays",
+        lower: "cheaper; 0 leaves directional lights out of direct light (biased dark)",
+        kind: ParamKind::Int { min: 0, max: 64 },
+        default: 1.0,
+    },
+    ParamSpec {
+        name: "sky_candidates",
+        what: "initial RIS candidates per pixel per frame from the sky: directions from an equal mix of BSDF and cosine sampling, merged with the other classes (unused when the sky is black or out of reach)",
+        higher: "sky light resampled and reused like the other lights; one DI sample then carries sun, lamps and sky (colour noise)",
+        lower: "0 (default): direct sky light comes from the GI sample ray instead (measured lower error on courtyard)",
+        kind: ParamKind::Int { min: 0, max: 64 },
+        default: 0.0,
+    },
+    ParamSpec {
+        name: "light_classes",
+        what: "on: candidates per light class (local, directional, sky), merged before visibility, as in the talk; off: one power-proportional pool over every light, sky through GI rays only",
+        higher: "every class gets its candidates: a strong sun cannot starve local lights",
+        lower: "the single-pool baseline, for A/B comparisons",
+        kind: ParamKind::Bool,
+        default: 1.0,
+    },
+    ParamSpec {
+        name: "candidate_visibility",
+        what: "biased mode: visibility rays before reuse: off, each light class's pick before the merge (the talk's fix), or only the merged pick",
+        higher: "per_class: occluded lights are not spread to neighbours and a shadowed sun cannot crowd out visible local lights (+1 ray per class)",
+        lower: "off: fewer rays, shadows spread through reuse until the final test; merged: one ray, the talk's artifact under a shadowed sun",
+        kind: ParamKind::Choice(&["off", "per_class", "merged"]),
+        default: 1.0,
+    },
+    ParamSpec {
+        name: "temporal",
+        what: "merge last frame's reservoir at the reprojected pixel",
+        higher: "on: more effective samples per pixel, some temporal lag",
+        lower: "off: no history, no lag, noisier",
+        kind: ParamKind::Bool,
+        default: 1.0,
+    },
+    ParamSpec {
+        name: "max_history",
+        what: "last frame's reservoir counts at most this many times the current candidates",
+        higher: "more stable, slower to follow changes (lag)",
+        lower: "reacts faster to changes, noisier (the talk's default is 8)",
+        kind: ParamKind::Float { min: 0.0, max: 64.0 },
+        default: 8.0,
+    },
+    ParamSpec {
+        name: "spatial_count",
+        what: "neighbour reservoirs merged per pixel",
+        higher: "less noise; in unbiased mode +1 ray per neighbour",
+        lower: "cheaper; 0 turns spatial reuse off",
+        kind: ParamKind::Int { min: 0, max: MAX_SPATIAL as i64 },
+        default: 3.0,
+    },
+    ParamSpec {
+        name: "spatial_radius",
+        what: "radius in pixels in which neighbours are picked",
+        higher: "more independent neighbours, more blur across geometry edges",
+        lower: "neighbours more similar, more correlated noise",
+        kind: ParamKind::Float { min: 1.0, max: 128.0 },
+        default: 16.0,
+    },
+    ParamSpec {
+        name: "unbiased",
+        what: "1/Z contribution weights over the unshadowed support (no candidate visibility tests)",
+        higher: "on: converges to the reference",
+        lower: "off: M weights and visibility reuse, cheaper, darkens contact shadows (biased)",
+        kind: ParamKind::Bool,
+        default: 1.0,
+    },
+    ParamSpec {
+        name: "bidirectional",
+        what: "reuse a neighbour's light only if it is visible from this pixel (the talk's bidirectional occlusion test)",
+        higher: "on: no runaway reuse under overlapping shadows, +1 ray per neighbour",
+        lower: "off: cheaper",
+        kind: ParamKind::Bool,
+        default: 0.0,
+    },
+    ParamSpec {
+        name: "accumulate",
+        what: "average frames progressively; off shows each frame as a real-time renderer would",
+        higher: "on: a static view converges (what the error plots measure)",
+        lower: "off: the noise of one frame, with temporal reuse only",
+        kind: ParamKind::Bool,
+        default: 1.0,
+    },
+    ParamSpec {
+        name: "gi",
+        what: "ReSTIR GI adds indirect light (one resampled sample path per pixel)",
+        higher: "on: full global illumination, +1 path per pixel",
+        lower: "off: direct light only",
+        kind: ParamKind::Bool,
+        default: 1.0,
+    },
+    ParamSpec {
+        name: "gi_bounces",
+        what: "bounces of a GI sample path after its first hit; 0 = unbounded (Russian roulette)",
+        higher: "more indirect light kept",
+        lower: "cheaper paths that lose multi-bounce light (biased dark); 0 is unbiased",
+        kind: ParamKind::Int { min: 0, max: 64 },
+        default: 0.0,
+    },
+    ParamSpec {
+        name: "regir",
+        what: "draw initial candidates from a camera-centred grid of per-cell pre-selected lights (only when the scene has many lights)",
+        higher: "on: candidates near the shading point, far less noise with many small lights",
+        lower: "off: candidates from the global pool by power only",
+        kind: ParamKind::Bool,
+        default: 1.0,
+    },
+    ParamSpec {
+        name: "regir_cell_size",
+        what: "ReGIR cell edge in world units (0 = scene diagonal / 24)",
+        higher: "fewer, coarser cells: pre-selection less local",
+        lower: "more local pre-selection; the 16^3 grid covers less of the scene",
+        kind: ParamKind::Float { min: 0.0, max: 1e6 },
+        default: 0.0,
+    },
+    ParamSpec {
+        name: "regir_lights_per_cell",
+        what: "light reservoirs kept per ReGIR cell, rebuilt each frame",
+        higher: "more diverse candidates per cell, more build work",
+        lower: "cheaper build, pixels in a cell share fewer lights (correlated noise)",
+        kind: ParamKind::Int { min: 1, max: 256 },
+        default: 16.0,
+    },
+];
+
+/// Which initial candidates are visibility-tested before reuse (biased mode only).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CandidateVisibility {
+    Off = 0,
+    /// Each light class's pick, before the classes are merged (one ray per class present).
+    PerClass = 1,
+    /// Only the merged pick (one ray): a strong shadowed light can crowd out visible ones.
+    Merged = 2,
+}
+
+impl CandidateVisibility {
+    pub fn from_index(i: u32) -> Self {
+        match i {
+            0 => Self::Off,
+            2 => Self::Merged,
+            _ => Self::PerClass,
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct RestirSettings {
+    /// Candidates from the local lights (all lights when `light_classes` is off).
+    pub candidates: u32,
+    pub directional_candidates: u32,
+    pub sky_candidates: u32,
+    /// Candidates per light class; false: one pool over every light, sky through GI only.
+    pub light_classes: bool,
+    pub candidate_visibility: CandidateVisibility,
+    pub temporal: bool,
+    pub max_history: f32,
+    pub spatial_count: u32,
+    pub spatial_radius: f32,
+    pub unbiased: bool,
+    pub bidirectional: bool,
+    pub accumulate: bool,
+    pub gi: bool,
+    pub gi_bounces: u32,
+    /// Use ReGIR when the scene has many lights.
+    pub regir: bool,
+    /// Cell edge in world units; 0 = automatic (scene diagonal / 24).
+    pub regir_cell_size: f32,
+    pub regir_lights_per_cell: u32,
+}
+
+impl RestirSettings {
+    /// The settings the parameter table holds.
+    pub fn from_params(p: &Params) -> Self {
+        RestirSettings {
+            candidates: p.u32("candidates"),
+            directional_candidates: p.u32("directional_candidates"),
+            sky_candidates: p.u32("sky_candidates"),
+            light_classes: p.bool("light_classes"),
+            candidate_visibility: CandidateVisibility::from_index(p.u32("candidate_visibility")),
+            temporal: p.bool("temporal"),
+            max_history: p.f32("max_history"),
+            spatial_count: p.u32("spatial_count"),
+            spatial_radius: p.f32("spatial_radius"),
+            unbiased: p.bool("unbiased"),
+            bidirectional: p.bool("bidirectional"),
+            accumulate: p.bool("accumulate"),
+            gi: p.bool("gi"),
+            gi_bounces: p.u32("gi_bounces"),
+            regir: p.bool("regir"),
+            regir_cell_size: p.f32("regir_cell_size"),
+            regir_lights_per_cell: p.u32("regir_lights_per_cell"),
+        }
+    }
+}
+
+impl Default for RestirSettings {
+    fn default() -> Self {
+        RestirSettings::from_params(&Params::new("restir", PARAMS))
+    }
+}
