@@ -53,8 +53,9 @@ fn safe_inv_dir(dir: vec3<f32>) -> vec3<f32> {
     return 1.0 / d;
 }
 
-// Closest hit in (t_min, t_max). hit.tri == NO_HIT on a miss.
-fn trace_closest(origin: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32) -> Hit {
+// Walks the BVH for hits in (t_min, t_max): the closest one, or with `any_hit` the first one
+// found (shadow rays need no more). hit.tri == NO_HIT on a miss.
+fn traverse(origin: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32, any_hit: bool) -> Hit {
     var hit = Hit(t_max, NO_HIT, vec2<f32>(0.0));
     let inv_dir = safe_inv_dir(dir);
     let node_count = arrayLength(&bvh_nodes);
@@ -75,40 +76,22 @@ fn trace_closest(origin: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32) -> H
             let r = intersect_tri(origin, dir, first + k);
             if r.x > t_min && r.x < hit.t {
                 hit = Hit(r.x, first + k, r.yz);
+                if any_hit {
+                    return hit;
+                }
             }
         }
         i = node.skip;
-    }
-    if hit.tri == NO_HIT {
-        hit.t = t_max;
     }
     return hit;
 }
 
+// Closest hit in (t_min, t_max). hit.tri == NO_HIT (and hit.t == t_max) on a miss.
+fn trace_closest(origin: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32) -> Hit {
+    return traverse(origin, dir, t_min, t_max, false);
+}
+
 // True if anything blocks the open segment (t_min, t_max): shadow and visibility rays.
 fn trace_any(origin: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32) -> bool {
-    let inv_dir = safe_inv_dir(dir);
-    let node_count = arrayLength(&bvh_nodes);
-    var i = 0u;
-    while i < node_count {
-        let node = bvh_nodes[i];
-        if !hits_aabb(origin, inv_dir, node.bounds_min, node.bounds_max, t_max) {
-            i = node.skip;
-            continue;
-        }
-        let count = node.tris & 0xffu;
-        if count == 0u {
-            i++;
-            continue;
-        }
-        let first = node.tris >> 8u;
-        for (var k = 0u; k < count; k++) {
-            let r = intersect_tri(origin, dir, first + k);
-            if r.x > t_min && r.x < t_max {
-                return true;
-            }
-        }
-        i = node.skip;
-    }
-    return false;
+    return traverse(origin, dir, t_min, t_max, true).tri != NO_HIT;
 }

@@ -5,9 +5,7 @@
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts}
 #import gilab::primary::{current_surface}
-#import gilab::restir::{params, gi_reservoirs, reservoir_index, parity, empty_gi_reservoir, similar_neighbour, gi_target, gi_update, gi_jacobian_ok, TEMPORAL_SEGMENT}
-
-const MAX_NEIGHBOURS: u32 = 8u;
+#import gilab::restir::{params, gi_reservoirs, reservoir_index, parity, empty_gi_reservoir, similar_neighbour, no_neighbours, neighbour_budget, gi_target, gi_update, gi_jacobian_ok, TEMPORAL_SEGMENT}
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
@@ -19,9 +17,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let r0 = gi_reservoirs[reservoir_index(TEMPORAL_SEGMENT, idx)];
         var out = empty_gi_reservoir();
         gi_update(&out, r0, r0.target_pdf * r0.big_w * r0.m, r0.m, rand(&rng));
-        var used = array<u32, 8>(0u, 0u, 0u, 0u, 0u, 0u, 0u, 0u);
-        var used_count = 0u;
-        let k = min(params.spatial_count, MAX_NEIGHBOURS);
+        var used = no_neighbours();
+        let k = neighbour_budget();
         if s.pos.w > 0.5 && params.gi == 1u {
             for (var j = 0u; j < k; j++) {
                 let n = similar_neighbour(gid.xy, idx, s, rand_pair(&rng));
@@ -37,8 +34,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     w = gi_target(s, nr) * nr.big_w * nr.m;
                 }
                 gi_update(&out, nr, w, nr.m, rand(&rng));
-                used[used_count] = nidx;
-                used_count += 1u;
+                used.ids[used.count] = nidx;
+                used.count += 1u;
             }
         }
         out.target_pdf = gi_target(s, out);
@@ -46,8 +43,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             var z = out.m;
             if params.unbiased == 1u {
                 z = r0.m;
-                for (var j = 0u; j < used_count; j++) {
-                    let nidx = used[j];
+                for (var j = 0u; j < used.count; j++) {
+                    let nidx = used.ids[j];
                     let ns = current_surface(nidx);
                     if gi_target(ns, out) > 0.0 && gi_jacobian_ok(s, ns, out) {
                         z += gi_reservoirs[reservoir_index(TEMPORAL_SEGMENT, nidx)].m;

@@ -177,6 +177,24 @@ fn spatial_neighbour(pixel: vec2<u32>, u: vec2<f32>) -> i32 {
     return py * i32(frame.size.x) + px;
 }
 
+// Spatial neighbours per pixel at most (MAX_SPATIAL in src/techniques/restir/params.rs).
+const MAX_NEIGHBOURS: u32 = 8u;
+
+// The neighbours a spatial pass merged, kept for the 1/Z pass over the same set.
+struct Neighbours {
+    ids: array<u32, 8>,
+    count: u32,
+}
+
+fn no_neighbours() -> Neighbours {
+    return Neighbours(array<u32, 8>(0u, 0u, 0u, 0u, 0u, 0u, 0u, 0u), 0u);
+}
+
+// How many neighbours a spatial pass draws this frame.
+fn neighbour_budget() -> u32 {
+    return min(params.spatial_count, MAX_NEIGHBOURS);
+}
+
 // A random neighbour in the spatial-reuse disk around pixel `idx` whose surface is similar to
 // `s`, or -1 (off screen, the pixel itself, or a dissimilar surface): what spatial reuse of DI
 // and GI reservoirs draws from.

@@ -5,9 +5,7 @@
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts, RAY_REUSE}
 #import gilab::primary::{GSurface, current_surface}
-#import gilab::restir::{params, reservoirs, Reservoir, reservoir_index, parity, empty_reservoir, similar_neighbour, contribution, target_at, visible, update, TEMPORAL_SEGMENT}
-
-const MAX_NEIGHBOURS: u32 = 8u;
+#import gilab::restir::{params, reservoirs, Reservoir, reservoir_index, parity, empty_reservoir, similar_neighbour, no_neighbours, neighbour_budget, contribution, target_at, visible, update, TEMPORAL_SEGMENT}
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
@@ -19,9 +17,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let r0 = reservoirs[reservoir_index(TEMPORAL_SEGMENT, idx)];
         var out = empty_reservoir();
         update(&out, r0, r0.target_pdf * r0.big_w * r0.m, r0.m, rand(&rng));
-        var used = array<u32, 8>(0u, 0u, 0u, 0u, 0u, 0u, 0u, 0u);
-        var used_count = 0u;
-        let k = min(params.spatial_count, MAX_NEIGHBOURS);
+        var used = no_neighbours();
+        let k = neighbour_budget();
         if s.pos.w > 0.5 {
             for (var j = 0u; j < k; j++) {
                 let n = similar_neighbour(gid.xy, idx, s, rand_pair(&rng));
@@ -39,8 +36,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     }
                 }
                 update(&out, nr, t * nr.big_w * nr.m, nr.m, rand(&rng));
-                used[used_count] = nidx;
-                used_count += 1u;
+                used.ids[used.count] = nidx;
+                used.count += 1u;
             }
         }
         out.target_pdf = target_at(s, out);
@@ -50,8 +47,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 // 1/Z: the M of every reservoir whose own surface could have produced the sample
                 // (unshadowed support, as in the temporal pass).
                 z = r0.m;
-                for (var j = 0u; j < used_count; j++) {
-                    let nidx = used[j];
+                for (var j = 0u; j < used.count; j++) {
+                    let nidx = used.ids[j];
                     let ns = current_surface(nidx);
                     if target_at(ns, out) > 0.0 {
                         z += reservoirs[reservoir_index(TEMPORAL_SEGMENT, nidx)].m;

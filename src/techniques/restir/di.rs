@@ -4,12 +4,10 @@
 //! pixel with its contribution weight W; a shading pass turns them into direct light with one
 //! visibility ray (`contribution`, `visible`). Shaders: shaders/restir/{initial_temporal,spatial}.wgsl.
 
-use super::lighting::RestirLighting;
+use super::lighting::{PassFiles, PassPair, RestirLighting};
 use super::{CandidateVisibility, RestirSettings};
-use crate::gpu::timing::PassTimer;
-use crate::render::{pipelines, PassInfo, RenderContext};
+use crate::render::{pipelines, PassInfo};
 use crate::scene::features::SceneFeatures;
-use anyhow::Result;
 
 /// Bytes of `Reservoir` in shaders/restir/shared.wgsl.
 pub const RESERVOIR_BYTES: u64 = 32;
@@ -34,33 +32,20 @@ impl LightClasses {
     }
 }
 
-pub(super) struct DiPipelines {
-    initial_temporal: wgpu::ComputePipeline,
-    spatial: wgpu::ComputePipeline,
-}
+/// `initial_temporal`, then `spatial`.
+pub(super) const PASSES: PassFiles = [
+    (INITIAL, "restir/initial_temporal.wgsl"),
+    (SPATIAL, "restir/spatial.wgsl"),
+];
 
 #[derive(Default)]
 pub struct Di {
-    pipelines: Option<DiPipelines>,
+    pub(super) passes: PassPair,
     /// Three segments of reservoirs: final of even frames, final of odd frames, temporal output.
     pub(super) reservoirs: Option<wgpu::Buffer>,
 }
 
 impl Di {
-    pub(super) fn pipelines(
-        ctx: &RenderContext,
-        layout: &wgpu::BindGroupLayout,
-    ) -> Result<DiPipelines> {
-        Ok(DiPipelines {
-            initial_temporal: ctx.pipeline("restir/initial_temporal.wgsl", layout)?,
-            spatial: ctx.pipeline("restir/spatial.wgsl", layout)?,
-        })
-    }
-
-    pub(super) fn set_pipelines(&mut self, p: DiPipelines) {
-        self.pipelines = Some(p);
-    }
-
     pub(super) fn build_resources(&mut self, gpu: &crate::gpu::Gpu, pixels: u64, keep: bool) {
         if !keep || self.reservoirs.is_none() {
             self.reservoirs = Some(pipelines::storage_buffer(
@@ -69,21 +54,6 @@ impl Di {
                 3 * pixels * RESERVOIR_BYTES,
             ));
         }
-    }
-
-    pub(super) fn record(
-        &self,
-        ctx: &RenderContext,
-        enc: &mut wgpu::CommandEncoder,
-        timer: &mut PassTimer,
-        bind_group: &wgpu::BindGroup,
-    ) {
-        let Some(p) = &self.pipelines else {
-            return;
-        };
-        pipelines::image_pass(ctx, enc, timer, INITIAL, &p.initial_temporal, bind_group);
-        // With spatial_count = 0 this pass only copies the temporal result through.
-        pipelines::image_pass(ctx, enc, timer, SPATIAL, &p.spatial, bind_group);
     }
 
     pub(super) fn reset(&self, enc: &mut wgpu::CommandEncoder) {

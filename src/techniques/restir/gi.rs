@@ -4,24 +4,24 @@
 //! the sky each sample ray reached (`gi_sky`) are what a shading pass turns into indirect light
 //! (`gi_contribution`, `gi_visible`). Shaders: shaders/restir/{gi_temporal,gi_spatial}.wgsl.
 
-use super::lighting::RestirLighting;
-use crate::gpu::{timing::PassTimer, Gpu};
-use crate::render::{pipelines, PassInfo, RenderContext};
-use anyhow::Result;
+use super::lighting::{PassFiles, PassPair, RestirLighting};
+use crate::gpu::Gpu;
+use crate::render::{pipelines, PassInfo};
 
 /// Bytes of `GiReservoir` in shaders/restir/shared.wgsl.
 pub const GI_RESERVOIR_BYTES: u64 = 64;
 const TEMPORAL: &str = "gi_temporal";
 const SPATIAL: &str = "gi_spatial";
 
-pub(super) struct GiPipelines {
-    temporal: wgpu::ComputePipeline,
-    spatial: wgpu::ComputePipeline,
-}
+/// `gi_temporal`, then `gi_spatial`.
+pub(super) const PASSES: PassFiles = [
+    (TEMPORAL, "restir/gi_temporal.wgsl"),
+    (SPATIAL, "restir/gi_spatial.wgsl"),
+];
 
 #[derive(Default)]
 pub struct Gi {
-    pipelines: Option<GiPipelines>,
+    pub(super) passes: PassPair,
     /// Three segments like the DI reservoirs.
     pub(super) reservoirs: Option<wgpu::Buffer>,
     /// Per pixel: sky radiance reached by this frame's sample ray (not reused: it has no point).
@@ -29,20 +29,6 @@ pub struct Gi {
 }
 
 impl Gi {
-    pub(super) fn pipelines(
-        ctx: &RenderContext,
-        layout: &wgpu::BindGroupLayout,
-    ) -> Result<GiPipelines> {
-        Ok(GiPipelines {
-            temporal: ctx.pipeline("restir/gi_temporal.wgsl", layout)?,
-            spatial: ctx.pipeline("restir/gi_spatial.wgsl", layout)?,
-        })
-    }
-
-    pub(super) fn set_pipelines(&mut self, p: GiPipelines) {
-        self.pipelines = Some(p);
-    }
-
     pub(super) fn build_resources(&mut self, gpu: &Gpu, pixels: u64, keep: bool) {
         if !keep || self.reservoirs.is_none() {
             self.reservoirs = Some(pipelines::storage_buffer(
@@ -54,20 +40,6 @@ impl Gi {
         if !keep || self.sky.is_none() {
             self.sky = Some(pipelines::storage_buffer(gpu, "restir gi sky", pixels * 16));
         }
-    }
-
-    pub(super) fn record(
-        &self,
-        ctx: &RenderContext,
-        enc: &mut wgpu::CommandEncoder,
-        timer: &mut PassTimer,
-        bind_group: &wgpu::BindGroup,
-    ) {
-        let Some(p) = &self.pipelines else {
-            return;
-        };
-        pipelines::image_pass(ctx, enc, timer, TEMPORAL, &p.temporal, bind_group);
-        pipelines::image_pass(ctx, enc, timer, SPATIAL, &p.spatial, bind_group);
     }
 }
 

@@ -12,6 +12,47 @@ use crate::gpu::{timing::PassTimer, Gpu};
 use crate::render::{pipelines, RenderContext};
 use anyhow::Result;
 
+/// A part's two image passes over the pixels (temporal reuse, then spatial reuse), recorded in
+/// that order with the lighting's bind group.
+#[derive(Default)]
+pub(super) struct PassPair {
+    passes: Option<[(&'static str, wgpu::ComputePipeline); 2]>,
+}
+
+/// Names and entry files of a pair's passes.
+pub(super) type PassFiles = [(&'static str, &'static str); 2];
+
+impl PassPair {
+    /// Builds both pipelines; nothing is replaced until `set`.
+    pub(super) fn build(
+        ctx: &RenderContext,
+        layout: &wgpu::BindGroupLayout,
+        files: PassFiles,
+    ) -> Result<[(&'static str, wgpu::ComputePipeline); 2]> {
+        let [(a, fa), (b, fb)] = files;
+        Ok([
+            (a, ctx.pipeline(fa, layout)?),
+            (b, ctx.pipeline(fb, layout)?),
+        ])
+    }
+
+    pub(super) fn set(&mut self, built: [(&'static str, wgpu::ComputePipeline); 2]) {
+        self.passes = Some(built);
+    }
+
+    pub(super) fn record(
+        &self,
+        ctx: &RenderContext,
+        enc: &mut wgpu::CommandEncoder,
+        timer: &mut PassTimer,
+        bind_group: &wgpu::BindGroup,
+    ) {
+        for (name, pipeline) in self.passes.iter().flatten() {
+            pipelines::image_pass(ctx, enc, timer, name, pipeline, bind_group);
+        }
+    }
+}
+
 pub struct RestirLighting {
     pub settings: RestirSettings,
     pub(super) di: Di,
@@ -69,11 +110,11 @@ impl RestirLighting {
     pub fn build(&mut self, ctx: &RenderContext) -> Result<()> {
         let layout = self.layout(ctx.gpu).clone();
         let regir = Regir::pipeline(ctx, &layout)?;
-        let di = Di::pipelines(ctx, &layout)?;
-        let gi = Gi::pipelines(ctx, &layout)?;
+        let di = PassPair::build(ctx, &layout, super::di::PASSES)?;
+        let gi = PassPair::build(ctx, &layout, super::gi::PASSES)?;
         self.regir.set_pipeline(regir);
-        self.di.set_pipelines(di);
-        self.gi.set_pipelines(gi);
+        self.di.passes.set(di);
+        self.gi.passes.set(gi);
         self.build_resources(ctx);
         Ok(())
     }
@@ -136,11 +177,12 @@ impl RestirLighting {
             self.regir
                 .record(ctx, enc, timer, bg, self.settings.regir_lights_per_cell);
         }
+        // With spatial_count = 0 DI's spatial pass only copies the temporal result through.
         if self.has_direct_sources() {
-            self.di.record(ctx, enc, timer, bg);
+            self.di.passes.record(ctx, enc, timer, bg);
         }
         if self.settings.gi {
-            self.gi.record(ctx, enc, timer, bg);
+            self.gi.passes.record(ctx, enc, timer, bg);
         }
     }
 
