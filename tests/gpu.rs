@@ -465,3 +465,115 @@ fn primary_surfaces_are_consistent_and_motion_reprojects() {
     }
     assert!(moved > second.len() / 2, "only {moved} surfaces moved");
 }
+
+/// A list length decided on the GPU drives an indirect dispatch (`gilab::dispatch`,
+/// `pipelines::list_pass`): every element is visited exactly once, none beyond the list, for
+/// lengths around the workgroup size and for an empty list.
+#[test]
+fn list_pass_visits_each_element_once() {
+    use gilab::gpu::{readback::read_buffer, timing::PassTimer};
+    use gilab::render::pipelines::{self, indirect_args_buffer, list_pass};
+    use wgpu::util::DeviceExt;
+    let gpu = gpu();
+    let lib = gilab::gpu::shaders::ShaderLibrary::discover();
+    let module = pipelines::shader_module(&gpu, &lib, "tests/list_dispatch.wgsl").unwrap();
+    // The pass that writes the arguments and the pass they drive bind different buffers: the
+    // arguments cannot be writable storage in the dispatch that reads them.
+    let make_layout = pipelines::layout(
+        &gpu,
+        "make list",
+        &[
+            pipelines::storage_entry(0, false),
+            pipelines::storage_entry(1, false),
+            pipelines::uniform_entry(2, wgpu::ShaderStages::COMPUTE),
+        ],
+    );
+    let visit_layout = pipelines::layout(
+        &gpu,
+        "visit",
+        &[
+            pipelines::storage_entry(0, false),
+            pipelines::storage_entry(3, false),
+        ],
+    );
+    let make = |entry: &str, layout: &wgpu::BindGroupLayout| {
+        let pipeline_layout = gpu
+            .device
+            .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some(entry),
+                bind_group_layouts: &[Some(layout)],
+                immediate_size: 0,
+            });
+        gpu.device
+            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(entry),
+                layout: Some(&pipeline_layout),
+                module: &module,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                cache: None,
+            })
+    };
+    let (make_list, visit) = (
+        make("make_list", &make_layout),
+        make("visit", &visit_layout),
+    );
+    const CAPACITY: usize = 1100;
+    for length in [0u32, 1, 63, 64, 65, 1000] {
+        let header = pipelines::storage_buffer(&gpu, "header", 16);
+        let args = indirect_args_buffer(&gpu, "args", 1);
+        let visits = pipelines::storage_buffer(&gpu, "visits", CAPACITY as u64 * 4);
+        let wanted = gpu
+            .device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("wanted"),
+                contents: bytemuck::cast_slice(&[length, 0, 0, 0]),
+                usage: wgpu::BufferUsages::UNIFORM,
+            });
+        let make_bg = pipelines::buffers_bind_group(
+            &gpu,
+            "make list",
+            &make_layout,
+            &[&header, &args, &wanted],
+        );
+        let visit_bg = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("visit"),
+            layout: &visit_layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: header.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 3,
+                    resource: visits.as_entire_binding(),
+                },
+            ],
+        });
+        let mut timer = PassTimer::new(&gpu);
+        timer.begin_frame();
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&make_list);
+            pass.set_bind_group(0, &make_bg, &[]);
+            pass.dispatch_workgroups(1, 1, 1);
+        }
+        list_pass(
+            &mut enc,
+            &mut timer,
+            "visit",
+            &visit,
+            &[&visit_bg],
+            &args,
+            0,
+        );
+        gpu.queue.submit([enc.finish()]);
+        gpu.check_errors().unwrap();
+        let counts: Vec<u32> = read_buffer(&gpu, &visits, CAPACITY).unwrap();
+        for (i, &c) in counts.iter().enumerate() {
+            let want = (i < length as usize) as u32;
+            assert_eq!(c, want, "length {length}: element {i} visited {c} times");
+        }
+    }
+}

@@ -5,7 +5,7 @@
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts}
 #import gilab::primary::{current_surface}
-#import gilab::restir::{params, gi_reservoirs, reservoir_index, parity, empty_gi_reservoir, similar_neighbour, no_neighbours, neighbour_budget, gi_target, gi_update, gi_jacobian_ok, TEMPORAL_SEGMENT}
+#import gilab::restir::{params, gi_reservoirs, reservoir_index, parity, gi_reservoir_from, similar_neighbour, no_neighbours, neighbour_budget, gi_target, gi_update, gi_jacobian_ok, TEMPORAL_SEGMENT}
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
@@ -15,8 +15,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         var rng = rng_init(gid.xy, frame.sample_offset, STREAM_GI_SPATIAL, frame.seed);
         let s = current_surface(idx);
         let r0 = gi_reservoirs[reservoir_index(TEMPORAL_SEGMENT, idx)];
-        var out = empty_gi_reservoir();
-        gi_update(&out, r0, r0.target_pdf * r0.big_w * r0.m, r0.m, rand(&rng));
+        var out = gi_reservoir_from(r0, rand(&rng));
         var used = no_neighbours();
         let k = neighbour_budget();
         if s.pos.w > 0.5 && params.gi == 1u {

@@ -153,6 +153,14 @@ fn visible(s: GSurface, l: LightSample) -> bool {
 }
 
 // Weighted reservoir sampling: take `candidate` with weight w with probability w / w_sum.
+// A reservoir that starts from `r` (its sample, weighted as a merged reservoir, and its M): the
+// first candidate of spatial reuse.
+fn reservoir_from(r: Reservoir, u: f32) -> Reservoir {
+    var out = empty_reservoir();
+    update(&out, r, r.target_pdf * r.big_w * r.m, r.m, u);
+    return out;
+}
+
 fn update(r: ptr<function, Reservoir>, candidate: Reservoir, w: f32, m: f32, u: f32) -> bool {
     (*r).w_sum += w;
     (*r).m += m;
@@ -294,6 +302,13 @@ fn gi_jacobian_ok(receiver: GSurface, origin: GSurface, r: GiReservoir) -> bool 
 
 fn gi_target(s: GSurface, r: GiReservoir) -> f32 {
     return luminance(gi_contribution(s, r).value);
+}
+
+// The GI counterpart of `reservoir_from`.
+fn gi_reservoir_from(r: GiReservoir, u: f32) -> GiReservoir {
+    var out = empty_gi_reservoir();
+    gi_update(&out, r, r.target_pdf * r.big_w * r.m, r.m, u);
+    return out;
 }
 
 fn gi_update(r: ptr<function, GiReservoir>, candidate: GiReservoir, w: f32, m: f32, u: f32) -> bool {

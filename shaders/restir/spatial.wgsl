@@ -5,7 +5,7 @@
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts, RAY_REUSE}
 #import gilab::primary::{GSurface, current_surface}
-#import gilab::restir::{params, reservoirs, Reservoir, reservoir_index, parity, empty_reservoir, similar_neighbour, no_neighbours, neighbour_budget, contribution, target_at, visible, update, TEMPORAL_SEGMENT}
+#import gilab::restir::{params, reservoirs, Reservoir, reservoir_index, parity, reservoir_from, similar_neighbour, no_neighbours, neighbour_budget, contribution, target_at, visible, update, TEMPORAL_SEGMENT}
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
@@ -15,8 +15,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         var rng = rng_init(gid.xy, frame.sample_offset, STREAM_DI_SPATIAL, frame.seed);
         let s = current_surface(idx);
         let r0 = reservoirs[reservoir_index(TEMPORAL_SEGMENT, idx)];
-        var out = empty_reservoir();
-        update(&out, r0, r0.target_pdf * r0.big_w * r0.m, r0.m, rand(&rng));
+        var out = reservoir_from(r0, rand(&rng));
         var used = no_neighbours();
         let k = neighbour_budget();
         if s.pos.w > 0.5 {

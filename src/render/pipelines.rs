@@ -1,7 +1,7 @@
 //! Pipeline creation with composed shaders, inside wgpu error scopes: failures come back as
 //! `Err` with the shader's file:line, never as a panic.
 
-use crate::gpu::{shaders::ShaderLibrary, Gpu};
+use crate::gpu::{shaders::ShaderLibrary, timing::PassTimer, Gpu};
 use anyhow::{anyhow, Result};
 use std::borrow::Cow;
 use std::cell::Cell;
@@ -130,6 +130,43 @@ pub fn storage_buffer(gpu: &Gpu, label: &str, size: u64) -> wgpu::Buffer {
             | wgpu::BufferUsages::COPY_DST,
         mapped_at_creation: false,
     })
+}
+
+/// Arguments for `count` indirect dispatches (`gilab::dispatch::DispatchArgs`, 12 bytes each),
+/// written by shaders and read by `list_pass`.
+pub fn indirect_args_buffer(gpu: &Gpu, label: &str, count: u64) -> wgpu::Buffer {
+    gpu.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size: (count * 12).max(16),
+        usage: wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::INDIRECT
+            | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    })
+}
+
+/// Records one timed compute pass over a list whose length the GPU decided (surfels, probes,
+/// tiles): its workgroup counts come from `args` at byte `offset` (`gilab::dispatch`), its bind
+/// groups are bound at 0, 1, … in order. `args` must not be writable storage in this pass (wgpu
+/// forbids both uses in one dispatch): the pass that decides the length writes it.
+pub fn list_pass(
+    enc: &mut wgpu::CommandEncoder,
+    timer: &mut PassTimer,
+    name: &'static str,
+    pipeline: &wgpu::ComputePipeline,
+    bind_groups: &[&wgpu::BindGroup],
+    args: &wgpu::Buffer,
+    offset: u64,
+) {
+    let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+        label: Some(name),
+        timestamp_writes: timer.compute_pass(name),
+    });
+    pass.set_pipeline(pipeline);
+    for (i, bg) in bind_groups.iter().enumerate() {
+        pass.set_bind_group(i as u32, *bg, &[]);
+    }
+    pass.dispatch_workgroups_indirect(args, offset);
 }
 
 /// Records one timed compute pass over the image: the scene at group 0, the frame at group 1,
