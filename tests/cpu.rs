@@ -155,10 +155,9 @@ fn gpu_struct_members_match_rust_fields() {
             size,
             frame_index,
             seed,
-            samples_per_frame,
-            max_depth,
             sample_offset,
             flags,
+            pad,
         ]
     );
     assert_same_members!(

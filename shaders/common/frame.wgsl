@@ -1,4 +1,4 @@
-// Per-frame uniforms shared by every technique: camera, frame index, seed, sky and sample budget.
+// Per-frame uniforms shared by every technique: camera, frame index, seed, sky, samples so far.
 #define_import_path gilab::frame
 
 struct FrameUniforms {
@@ -13,12 +13,10 @@ struct FrameUniforms {
     size: vec2<u32>,
     frame_index: u32,
     seed: u32,
-    samples_per_frame: u32,
-    // 0 = unbounded (Russian roulette only).
-    max_depth: u32,
     // Total samples already accumulated per pixel before this frame.
     sample_offset: u32,
     flags: u32,
+    pad: vec2<u32>,
 }
 
 @group(1) @binding(0) var<uniform> frame: FrameUniforms;

@@ -11,6 +11,12 @@ struct DispatchSample {
 }
 @group(2) @binding(0) var<uniform> dispatch_sample: DispatchSample;
 
+struct ReferenceSettings {
+    // Maximum bounces; 0 = unbounded (Russian roulette only).
+    max_depth: u32,
+}
+@group(2) @binding(1) var<uniform> settings: ReferenceSettings;
+
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
     // One path per invocation: the frame's samples are separate dispatches. Tracing several
@@ -23,7 +29,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let jitter = rand_pair(&rng);
         let dir = camera_ray_dir(vec2<f32>(gid.xy) + jitter);
         let skip = (frame.flags & FLAG_NO_PRIMARY_EMISSION) != 0u;
-        let path = trace_path(frame.camera_pos.xyz, dir, &rng, frame.max_depth, skip);
+        let path = trace_path(frame.camera_pos.xyz, dir, &rng, settings.max_depth, skip);
         counts[RAY_CAMERA] = path.first_rays;
         counts[RAY_SHADOW] = path.shadow_rays;
         counts[RAY_INDIRECT] = path.indirect_rays;

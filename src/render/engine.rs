@@ -381,10 +381,9 @@ impl Engine {
             size: self.extent,
             frame_index: self.frame_index,
             seed: self.seed,
-            samples_per_frame: self.technique.samples_per_frame(),
-            max_depth: self.technique.max_depth(),
             sample_offset: self.samples,
             flags: self.flags,
+            pad: [0; 2],
         }
     }
 

@@ -26,10 +26,9 @@ pub struct FrameUniforms {
     pub size: [u32; 2],
     pub frame_index: u32,
     pub seed: u32,
-    pub samples_per_frame: u32,
-    pub max_depth: u32,
     pub sample_offset: u32,
     pub flags: u32,
+    pub pad: [u32; 2],
 }
 
 /// FrameUniforms flag: leave out emission seen directly by the camera, so an image holds
@@ -142,13 +141,9 @@ pub trait Technique {
     fn on_scene_change(&mut self, gpu: &Gpu) {
         self.reset_history(gpu);
     }
-    /// Samples per pixel one frame adds (what the frame uniforms' `samples_per_frame` carries).
+    /// Samples per pixel one frame adds (the frame uniforms' `sample_offset` counts them).
     fn samples_per_frame(&self) -> u32 {
         1
-    }
-    /// Maximum path depth passed in the frame uniforms (0 = unbounded).
-    fn max_depth(&self) -> u32 {
-        0
     }
     fn render(
         &mut self,

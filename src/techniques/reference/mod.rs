@@ -25,6 +25,8 @@ pub struct ReferencePathTracer {
     bind_group: Option<wgpu::BindGroup>,
     /// One 256-byte slot per sample of a frame, bound with a dynamic offset per dispatch.
     sample_slots: Option<wgpu::Buffer>,
+    /// `ReferenceSettings` of path_trace.wgsl: max_depth.
+    settings_buffer: Option<wgpu::Buffer>,
     extent: [u32; 2],
 }
 
@@ -65,6 +67,7 @@ impl Default for ReferencePathTracer {
             pipeline: None,
             bind_group: None,
             sample_slots: None,
+            settings_buffer: None,
             extent: [0, 0],
         }
     }
@@ -124,16 +127,19 @@ impl Technique for ReferencePathTracer {
         let layout = pipelines::layout(
             gpu,
             "reference",
-            &[wgpu::BindGroupLayoutEntry {
-                binding: 0,
-                visibility: wgpu::ShaderStages::COMPUTE,
-                ty: wgpu::BindingType::Buffer {
-                    ty: wgpu::BufferBindingType::Uniform,
-                    has_dynamic_offset: true,
-                    min_binding_size: wgpu::BufferSize::new(16),
+            &[
+                wgpu::BindGroupLayoutEntry {
+                    binding: 0,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: true,
+                        min_binding_size: wgpu::BufferSize::new(16),
+                    },
+                    count: None,
                 },
-                count: None,
-            }],
+                pipelines::uniform_entry(1, wgpu::ShaderStages::COMPUTE),
+            ],
         );
         // Build everything first so a failure leaves the previous pipeline in place.
         let pipeline = ctx.pipeline("reference/path_trace.wgsl", &layout)?;
@@ -152,22 +158,48 @@ impl Technique for ReferencePathTracer {
                 },
             )
         });
+        let settings = self.settings_buffer.take().unwrap_or_else(|| {
+            gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("reference settings"),
+                size: 16,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        });
         let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("reference"),
             layout: &layout,
-            entries: &[wgpu::BindGroupEntry {
-                binding: 0,
-                resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
-                    buffer: &slots,
-                    offset: 0,
-                    size: wgpu::BufferSize::new(16),
-                }),
-            }],
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                        buffer: &slots,
+                        offset: 0,
+                        size: wgpu::BufferSize::new(16),
+                    }),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: settings.as_entire_binding(),
+                },
+            ],
         });
         self.pipeline = Some(pipeline);
         self.bind_group = Some(bind_group);
         self.sample_slots = Some(slots);
+        self.settings_buffer = Some(settings);
         self.extent = ctx.extent;
+        self.apply_params(ctx)
+    }
+
+    /// `max_depth` travels in the technique's own uniform; `samples_per_frame` is the number of
+    /// dispatches, so neither needs more than a uniform write.
+    fn apply_params(&mut self, ctx: &RenderContext) -> Result<()> {
+        if let Some(b) = &self.settings_buffer {
+            ctx.gpu
+                .queue
+                .write_buffer(b, 0, bytemuck::cast_slice(&[self.max_depth, 0, 0, 0]));
+        }
         Ok(())
     }
 
@@ -176,10 +208,6 @@ impl Technique for ReferencePathTracer {
 
     fn samples_per_frame(&self) -> u32 {
         self.samples_per_frame
-    }
-
-    fn max_depth(&self) -> u32 {
-        self.max_depth
     }
 
     fn render(
