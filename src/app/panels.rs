@@ -273,7 +273,7 @@ fn side_contents(app: &mut ViewerApp, ui: &mut egui::Ui) {
                     measured.map_or("-".into(), |m| format!("{m:.2}"))
                 ));
                 ui.label("passes:");
-                for p in run.engine.technique.passes(&features) {
+                for p in run.engine.passes() {
                     ui.small(format!(
                         "{} {}: {}",
                         if p.runs { "runs" } else { "skips" },
