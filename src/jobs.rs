@@ -91,6 +91,26 @@ pub fn engine_for_entry(gpu: Arc<Gpu>, p: &LoadedPreset, index: usize) -> Result
     )
 }
 
+/// Renders `frames` frames with a progress bar; returns the mean GPU ms per frame of each pass.
+fn render_frames(
+    engine: &mut Engine,
+    frames: u32,
+    label: &str,
+    quiet: bool,
+) -> Result<std::collections::BTreeMap<String, f64>> {
+    let bar = progress_bar(frames as u64, label, quiet);
+    let mut by_pass = std::collections::BTreeMap::new();
+    for _ in 0..frames {
+        let report = engine.render_frame()?;
+        for (name, ms) in report.gpu_ms_by_pass {
+            *by_pass.entry(name).or_insert(0.0) += ms / frames as f64;
+        }
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    Ok(by_pass)
+}
+
 /// Renders one technique of a preset for `spp` samples; returns the image and its metadata.
 pub fn render_technique(
     gpu: Arc<Gpu>,
@@ -103,16 +123,7 @@ pub fn render_technique(
     let mut engine = engine_for_entry(gpu, p, index)?;
     let spf = engine.technique.samples_per_frame().max(1);
     let frames = preset.render.spp.div_ceil(spf).max(1);
-    let bar = progress_bar(frames as u64, &entry.name, quiet);
-    let mut by_pass = std::collections::BTreeMap::new();
-    for _ in 0..frames {
-        let report = engine.render_frame()?;
-        for (name, ms) in report.gpu_ms_by_pass {
-            *by_pass.entry(name).or_insert(0.0) += ms / frames as f64;
-        }
-        bar.inc(1);
-    }
-    bar.finish_and_clear();
+    let by_pass = render_frames(&mut engine, frames, &entry.name, quiet)?;
     let image = engine.read_output()?;
     let meta = metadata(&engine, p, entry, &image, by_pass)?;
     Ok((image, meta))
@@ -337,16 +348,7 @@ pub fn reference_image(
     let mut engine = Engine::new(gpu, ShaderLibrary::discover(), scene, technique, settings)?;
     let spf = engine.technique.samples_per_frame().max(1);
     let frames = setup.spp.div_ceil(spf).max(1);
-    let bar = progress_bar(frames as u64, "reference", quiet);
-    let mut by_pass = std::collections::BTreeMap::new();
-    for _ in 0..frames {
-        let report = engine.render_frame()?;
-        for (name, ms) in report.gpu_ms_by_pass {
-            *by_pass.entry(name).or_insert(0.0) += ms / frames as f64;
-        }
-        bar.inc(1);
-    }
-    bar.finish_and_clear();
+    let by_pass = render_frames(&mut engine, frames, "reference", quiet)?;
     let image = engine.read_output()?;
     let mut p = p.clone();
     p.preset.techniques = vec![entry.clone()];

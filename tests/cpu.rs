@@ -84,28 +84,9 @@ fn copy_dir(from: &Path, to: &Path) {
 }
 
 /// Size naga computes for a struct of a composed module (naga_oil may mangle the name).
-fn wgsl_size(entry: &'static str) -> impl Fn(&str) -> usize {
-    let module = ShaderLibrary::discover().compose(entry).unwrap();
-    let mut layouter = naga::proc::Layouter::default();
-    layouter.update(module.to_ctx()).unwrap();
-    move |name: &str| {
-        let (h, _) = module
-            .types
-            .iter()
-            .find(|(_, t)| {
-                t.name
-                    .as_deref()
-                    .is_some_and(|n| n == name || n.starts_with(&format!("{name}X_naga_oil")))
-            })
-            .unwrap_or_else(|| panic!("type {name} not in {entry}"));
-        layouter[h].size as usize
-    }
-}
-
-/// (member name, byte offset) of a WGSL struct as naga lays it out.
-fn wgsl_members(entry: &'static str, name: &str) -> Vec<(String, u32)> {
-    let module = ShaderLibrary::discover().compose(entry).unwrap();
-    let ty = module
+/// A named type of a composed module (naga_oil may suffix imported names).
+fn wgsl_type(module: &naga::Module, entry: &str, name: &str) -> naga::Handle<naga::Type> {
+    module
         .types
         .iter()
         .find(|(_, t)| {
@@ -114,8 +95,22 @@ fn wgsl_members(entry: &'static str, name: &str) -> Vec<(String, u32)> {
                 .is_some_and(|n| n == name || n.starts_with(&format!("{name}X_naga_oil")))
         })
         .unwrap_or_else(|| panic!("type {name} not in {entry}"))
-        .1;
-    let naga::TypeInner::Struct { members, .. } = &ty.inner else {
+        .0
+}
+
+fn wgsl_size(entry: &'static str) -> impl Fn(&str) -> usize {
+    let module = ShaderLibrary::discover().compose(entry).unwrap();
+    let mut layouter = naga::proc::Layouter::default();
+    layouter.update(module.to_ctx()).unwrap();
+    move |name: &str| layouter[wgsl_type(&module, entry, name)].size as usize
+}
+
+/// (member name, byte offset) of a WGSL struct as naga lays it out.
+fn wgsl_members(entry: &'static str, name: &str) -> Vec<(String, u32)> {
+    let module = ShaderLibrary::discover().compose(entry).unwrap();
+    let naga::TypeInner::Struct { members, .. } =
+        &module.types[wgsl_type(&module, entry, name)].inner
+    else {
         panic!("{name} is not a struct");
     };
     members
