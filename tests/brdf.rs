@@ -8,7 +8,9 @@
 mod common;
 
 use gilab::gpu::readback::read_buffer;
-use gilab::render::pipelines::{shader_module, storage_buffer, storage_entry, uniform_entry};
+use gilab::render::pipelines::{
+    entry_point_pipeline, shader_module, storage_buffer, storage_entry, uniform_entry,
+};
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 use wgpu::util::DeviceExt;
 
@@ -73,24 +75,7 @@ fn run_cases(cases: &[(Material, f32)], seed: u32) -> Vec<CaseResult> {
                 storage_entry(4, false),
             ],
         });
-    let pipeline_layout = gpu
-        .device
-        .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("bsdf histogram"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
-    let pipeline = |entry: &str| {
-        gpu.device
-            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(entry),
-                layout: Some(&pipeline_layout),
-                module: &module,
-                entry_point: Some(entry),
-                compilation_options: Default::default(),
-                cache: None,
-            })
-    };
+    let pipeline = |entry: &str| entry_point_pipeline(&gpu, &module, entry, &[&layout]);
     let sample = pipeline("sample_directions");
     let integrate = pipeline("integrate_bins");
 

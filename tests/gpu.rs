@@ -497,22 +497,7 @@ fn list_pass_visits_each_element_once() {
         ],
     );
     let make = |entry: &str, layout: &wgpu::BindGroupLayout| {
-        let pipeline_layout = gpu
-            .device
-            .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                label: Some(entry),
-                bind_group_layouts: &[Some(layout)],
-                immediate_size: 0,
-            });
-        gpu.device
-            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(entry),
-                layout: Some(&pipeline_layout),
-                module: &module,
-                entry_point: Some(entry),
-                compilation_options: Default::default(),
-                cache: None,
-            })
+        pipelines::entry_point_pipeline(&gpu, &module, entry, &[layout])
     };
     let (make_list, visit) = (
         make("make_list", &make_layout),

@@ -30,6 +30,7 @@ pub fn shader_module(
     })
 }
 
+/// The compute pipeline of `entry`'s `main`, with these bind group layouts (0, 1, …).
 pub fn compute_pipeline(
     gpu: &Gpu,
     shaders: &ShaderLibrary,
@@ -37,27 +38,38 @@ pub fn compute_pipeline(
     layouts: &[&wgpu::BindGroupLayout],
 ) -> Result<wgpu::ComputePipeline> {
     let module = shader_module(gpu, shaders, entry)?;
+    gpu.scoped(&format!("compute pipeline shaders/{entry}"), || {
+        entry_point_pipeline(gpu, &module, "main", layouts)
+    })
+}
+
+/// The compute pipeline of one entry point of a module (files with several, such as the test
+/// harnesses), with these bind group layouts (0, 1, …). Counted by `pipelines_created`.
+pub fn entry_point_pipeline(
+    gpu: &Gpu,
+    module: &wgpu::ShaderModule,
+    entry_point: &str,
+    layouts: &[&wgpu::BindGroupLayout],
+) -> wgpu::ComputePipeline {
     PIPELINES_CREATED.with(|c| c.set(c.get() + 1));
     let bind_group_layouts: Vec<Option<&wgpu::BindGroupLayout>> =
         layouts.iter().map(|l| Some(*l)).collect();
-    gpu.scoped(&format!("compute pipeline shaders/{entry}"), || {
-        let layout = gpu
-            .device
-            .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                label: Some(entry),
-                bind_group_layouts: &bind_group_layouts,
-                immediate_size: 0,
-            });
-        gpu.device
-            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(entry),
-                layout: Some(&layout),
-                module: &module,
-                entry_point: Some("main"),
-                compilation_options: Default::default(),
-                cache: None,
-            })
-    })
+    let layout = gpu
+        .device
+        .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some(entry_point),
+            bind_group_layouts: &bind_group_layouts,
+            immediate_size: 0,
+        });
+    gpu.device
+        .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some(entry_point),
+            layout: Some(&layout),
+            module,
+            entry_point: Some(entry_point),
+            compilation_options: Default::default(),
+            cache: None,
+        })
 }
 
 /// A bind group of buffers bound whole, at bindings 0, 1, 2, … in order.
