@@ -359,7 +359,15 @@ fn gbuffer_view_distance_matches_ray_casting() {
 #[test]
 fn parameter_changes_rebuild_no_pipeline() {
     use gilab::render::pipelines::pipelines_created;
-    let changes: [(&str, toml::Table); 2] = [
+    let changes: [(&str, toml::Table); 3] = [
+        (
+            "surfels",
+            toml::toml! { ray_budget = 2048
+            max_surfels = 4096
+            guiding = false
+            msme = false
+            surfel_size = 0.05 },
+        ),
         (
             "restir",
             toml::toml! { candidates = 16
@@ -398,8 +406,13 @@ fn parameter_changes_rebuild_no_pipeline() {
         engine.rebuild().unwrap();
         let rebuilt = pipelines_created() - before;
         // The technique's pipelines, and the engine's primary-surface pass when it runs.
-        let expected = engine.technique.shader_files().len()
+        let mut expected = engine.technique.shader_files().len()
             + engine.technique.inputs().primary_surfaces as usize;
+        if name == "surfels" {
+            // scan.wgsl holds three entry points; direct_restir.wgsl is compiled only with
+            // `direct = "restir"`.
+            expected += 2 - 1;
+        }
         assert_eq!(
             rebuilt as usize, expected,
             "{name}: a rebuild compiles every pipeline"

@@ -5,6 +5,7 @@
 #define_import_path gilab::primary
 
 #import gilab::frame::frame
+#import gilab::brdf::Surface
 
 struct GSurface {
     // xyz: position, w: 1 valid / 0 miss.
@@ -61,4 +62,9 @@ fn reproject(p: vec3<f32>) -> i32 {
         return -1;
     }
     return i32(u32(f.y) * frame.size.x + u32(f.x));
+}
+
+// The surface's BRDF parameters (alpha already squared).
+fn surface_material(s: GSurface) -> Surface {
+    return Surface(s.base_metal.xyz, s.base_metal.w, s.normal_alpha.w, s.geo_specular.w);
 }

@@ -26,6 +26,11 @@ const STREAM_GI_SAMPLE: u32 = 5u;
 const STREAM_GI_SPATIAL: u32 = 6u;
 const STREAM_BENCH: u32 = 7u;
 const STREAM_TEST: u32 = 8u;
+const STREAM_SURFEL_RECYCLE: u32 = 9u;
+const STREAM_SURFEL_SPAWN: u32 = 10u;
+const STREAM_SURFEL_ALLOCATE: u32 = 11u;
+const STREAM_SURFEL_RAYS: u32 = 12u;
+const STREAM_SURFEL_DIRECT: u32 = 13u;
 
 // The sequence for one pixel (or work item), sample index (frame or sample number) and stream.
 fn rng_init(pixel: vec2<u32>, sample_index: u32, stream: u32, seed: u32) -> Rng {

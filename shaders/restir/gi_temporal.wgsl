@@ -9,8 +9,8 @@
 #import gilab::sampling::sample_cosine_hemisphere
 #import gilab::brdf::bsdf_eval
 #import gilab::path::trace_path
-#import gilab::primary::{reproject, current_surface, previous_surface}
-#import gilab::restir::{params, gi_reservoirs, gi_sky, GiReservoir, reservoir_index, parity, empty_gi_reservoir, gi_contribution, gi_target, gi_update, gi_jacobian_ok, surface_material, similar, TEMPORAL_SEGMENT}
+#import gilab::primary::{reproject, current_surface, previous_surface, surface_material}
+#import gilab::restir::{params, gi_reservoirs, gi_sky, GiReservoir, reservoir_index, parity, empty_gi_reservoir, gi_contribution, gi_target, gi_update, gi_jacobian_ok, similar, TEMPORAL_SEGMENT}
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {

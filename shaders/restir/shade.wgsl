@@ -4,7 +4,7 @@
 #import gilab::counters::{flush_counts, no_counts, RAY_SHADOW, COUNT_INVALID_SAMPLES}
 #import gilab::accumulate::accumulate_sample
 #import gilab::primary::{current_surface}
-#import gilab::restir::{params, reservoirs, gi_reservoirs, gi_sky, reservoir_index, parity, contribution, visible, gi_contribution, gi_visible, regir_cell, debug_out, SKY_SAMPLE}
+#import gilab::restir::{params, reservoirs, gi_reservoirs, gi_sky, reservoir_index, parity, shade_reservoir, gi_contribution, gi_visible, regir_cell, debug_out, SKY_SAMPLE}
 #import gilab::scene::light_pool
 
 @compute @workgroup_size(8, 8, 1)
@@ -14,25 +14,15 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let idx = gid.y * frame.size.x + gid.x;
         let s = current_surface(idx);
         let ri = reservoir_index(parity(), idx);
-        var r = reservoirs[ri];
         var l = s.emission.xyz;
         if (frame.flags & FLAG_NO_PRIMARY_EMISSION) != 0u {
             l = vec3<f32>(0.0);
         }
-        if s.pos.w > 0.5 && r.big_w > 0.0 {
-            let c = contribution(s, r.light, vec2<f32>(r.bary_u, r.bary_v));
-            if any(c.value > vec3<f32>(0.0)) {
-                counts[RAY_SHADOW] += 1u;
-                if visible(s, c.light) {
-                    l += c.value * r.big_w;
-                } else if params.unbiased == 0u {
-                    // Biased visibility reuse: an occluded sample is not passed on to the next frame.
-                    r.big_w = 0.0;
-                    r.w_sum = 0.0;
-                    reservoirs[ri] = r;
-                }
-            }
-        }
+        let direct = shade_reservoir(s, ri);
+        l += direct.radiance;
+        counts[RAY_SHADOW] += direct.shadow_rays;
+        // After shading: biased mode may have emptied it.
+        let r = reservoirs[ri];
         var light_id = 0.0;
         if r.big_w > 0.0 && r.light == SKY_SAMPLE {
             light_id = f32(light_pool.count + 1u);

@@ -5,7 +5,7 @@
 #define_import_path gilab::restir
 
 #import gilab::frame::frame
-#import gilab::primary::{GSurface, current_surface}
+#import gilab::primary::{GSurface, current_surface, surface_material}
 #import gilab::math::luminance
 #import gilab::brdf::{Surface, bsdf_eval}
 #import gilab::lights::{LightSample, eval_light_point, light_shadow_ray}
@@ -90,10 +90,6 @@ fn empty_reservoir() -> Reservoir {
     return Reservoir(0u, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
 }
 
-fn surface_material(s: GSurface) -> Surface {
-    return Surface(s.base_metal.xyz, s.base_metal.w, s.normal_alpha.w, s.geo_specular.w);
-}
-
 // The sky as a light class: a sample is a direction (solid-angle measure, the same at every
 // pixel, so reuse needs no Jacobian), stored octahedral-encoded in the barycentric slots.
 const SKY_SAMPLE: u32 = 0xffffffffu;
@@ -150,6 +146,35 @@ fn target_at(s: GSurface, r: Reservoir) -> f32 {
 // Shadow test from a surface to a light sample (true = visible).
 fn visible(s: GSurface, l: LightSample) -> bool {
     return unoccluded(light_shadow_ray(s.pos.xyz, s.geo_specular.xyz, l));
+}
+
+// A pixel's final DI reservoir (index ri) shaded with one visibility ray: f * Le * G * V * W.
+// In biased mode an occluded sample is not passed on to the next frame (the reservoir is
+// emptied). Used by restir/shade.wgsl and by techniques that take ReSTIR's direct light.
+struct ShadedReservoir {
+    radiance: vec3<f32>,
+    shadow_rays: u32,
+}
+
+fn shade_reservoir(s: GSurface, ri: u32) -> ShadedReservoir {
+    var out = ShadedReservoir(vec3<f32>(0.0), 0u);
+    var r = reservoirs[ri];
+    if s.pos.w < 0.5 || r.big_w <= 0.0 {
+        return out;
+    }
+    let c = contribution(s, r.light, vec2<f32>(r.bary_u, r.bary_v));
+    if !any(c.value > vec3<f32>(0.0)) {
+        return out;
+    }
+    out.shadow_rays = 1u;
+    if visible(s, c.light) {
+        out.radiance = c.value * r.big_w;
+    } else if params.unbiased == 0u {
+        r.big_w = 0.0;
+        r.w_sum = 0.0;
+        reservoirs[ri] = r;
+    }
+    return out;
 }
 
 // Weighted reservoir sampling: take `candidate` with weight w with probability w / w_sum.

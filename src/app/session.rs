@@ -695,7 +695,8 @@ impl Session {
                     .into_iter()
                     .nth(pane.debug)?;
                 let data = run.debug.as_ref()?;
-                Some(data.iter().map(|v| v[view.channel.min(3)]).collect())
+                let pixels = (run.engine.extent[0] * run.engine.extent[1]) as usize;
+                Some(crate::render::debug_channel(data, pixels, view.channel))
             }
         }
     }

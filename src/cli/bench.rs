@@ -26,6 +26,9 @@ impl Technique for TraceBench {
     fn id(&self) -> &'static str {
         "bench-trace"
     }
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
     fn passes(&self, _: &SceneFeatures) -> Vec<PassInfo> {
         vec![PassInfo {
             name: "trace_rays",

@@ -3,7 +3,8 @@
 use super::Gpu;
 use anyhow::Result;
 
-pub const MAX_PASSES: u32 = 16;
+/// Timed passes per frame (the surfel technique records about 20).
+pub const MAX_PASSES: u32 = 64;
 
 pub struct PassTimer {
     query_set: Option<wgpu::QuerySet>,

@@ -313,24 +313,40 @@ impl Engine {
 
     /// A ray budget (rays per pixel per frame) mapped by the technique to its own knobs: the one
     /// mapping behind the viewer's slider, `shot` and `converge`. `measured` is the rays per pixel
-    /// per frame at the current settings; without it one calibration frame measures them, so the
-    /// mapping uses this scene's rays per path rather than a guess. History restarts.
+    /// per frame at the current settings; without it calibration frames measure them (as many
+    /// as the technique asks for), so the mapping uses this scene's rays per path rather than a
+    /// guess. History restarts.
+    /// A technique that needs several calibration frames gets a second round: its cost per ray
+    /// can depend on the budget itself (surfels: what their hits trace).
     pub fn apply_ray_budget(&mut self, rays_per_pixel: f64, measured: Option<f64>) -> Result<()> {
-        let measured = match measured {
+        let frames = self.technique.calibration_frames().max(1);
+        let mut measured = match measured {
             Some(m) => Some(m),
-            None => {
-                self.render_frame()?;
-                self.rays_per_pixel_per_frame(&self.ray_counts()?)
-            }
+            None => self.calibrate(frames)?,
         };
-        if let Some(t) = self
-            .technique
-            .params_for_ray_budget(rays_per_pixel, measured)
-        {
-            self.set_params(&t)?;
+        let rounds = if frames > 1 { 2 } else { 1 };
+        for round in 0..rounds {
+            if let Some(t) = self
+                .technique
+                .params_for_ray_budget(rays_per_pixel, measured)
+            {
+                self.set_params(&t)?;
+            }
+            if round + 1 < rounds {
+                measured = self.calibrate(frames)?;
+            }
         }
         self.reset();
         Ok(())
+    }
+
+    /// Rays per pixel per frame over `frames` frames from a reset.
+    fn calibrate(&mut self, frames: u32) -> Result<Option<f64>> {
+        self.reset();
+        for _ in 0..frames {
+            self.render_frame()?;
+        }
+        Ok(self.rays_per_pixel_per_frame(&self.ray_counts()?))
     }
 
     /// Rebuilds the technique's pipelines from the current shader sources (hot reload).
@@ -519,16 +535,18 @@ impl Engine {
         Ok(Some(all[segment * pixels..(segment + 1) * pixels].to_vec()))
     }
 
-    /// The technique's debug buffer (one vec4 per pixel), if it has one.
+    /// The technique's debug buffer, if it has one: planes of one vec4 per pixel (channels
+    /// 0-3 in the first plane, 4-7 in the second; `render::debug_channel` picks one).
     pub fn read_debug(&self) -> Result<Option<Vec<[f32; 4]>>> {
         let Some(buf) = self.technique.debug_buffer() else {
             return Ok(None);
         };
-        let [w, h] = self.extent;
+        let pixels = (self.extent[0] * self.extent[1]) as u64;
+        let planes = (buf.size() / (16 * pixels)).max(1);
         Ok(Some(readback::read_buffer(
             &self.gpu,
             buf,
-            (w * h) as usize,
+            (planes * pixels) as usize,
         )?))
     }
 

@@ -120,9 +120,11 @@ impl RenderContext<'_> {
 }
 
 /// One GI technique: long-lived pipelines, per-frame recording, linear HDR out.
-pub trait Technique {
+pub trait Technique: std::any::Any {
     /// Preset key, CSV column and file-name stem.
     fn id(&self) -> &'static str;
+    /// The concrete technique, for tests and tools that read its own state (surfel pool).
+    fn as_any(&self) -> &dyn std::any::Any;
     /// Which passes run for this scene and why the others do not.
     fn passes(&self, features: &SceneFeatures) -> Vec<PassInfo>;
     /// What the engine must provide besides the scene and the frame uniforms.
@@ -175,9 +177,15 @@ pub trait Technique {
     fn debug_views(&self) -> Vec<DebugView> {
         Vec::new()
     }
-    /// One vec4<f32> per pixel behind `debug_views` (written every frame).
+    /// The data behind `debug_views` (written every frame): planes of one vec4<f32> per pixel,
+    /// channel c in plane c / 4, component c % 4.
     fn debug_buffer(&self) -> Option<&wgpu::Buffer> {
         None
+    }
+    /// Frames `Engine::apply_ray_budget` renders to measure rays per frame when no measurement
+    /// is given: more where the cost per frame settles only after a warm-up (surfels spawning).
+    fn calibration_frames(&self) -> u32 {
+        1
     }
     /// Maps a ray budget (rays per pixel per frame) to the technique's own knobs, given the
     /// rays per pixel per frame measured at the current settings (None before any frame).
@@ -190,6 +198,16 @@ pub trait Technique {
     ) -> Option<toml::Table> {
         None
     }
+}
+
+/// Channel `channel` of every pixel from debug data read back as planes of `pixels` vec4s.
+pub fn debug_channel(data: &[[f32; 4]], pixels: usize, channel: usize) -> Vec<f32> {
+    let plane = channel / 4;
+    data.iter()
+        .skip(plane * pixels)
+        .take(pixels)
+        .map(|v| v[channel % 4])
+        .collect()
 }
 
 /// A technique's debug view: which channel of its debug buffer, and how to show it.

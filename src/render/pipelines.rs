@@ -191,6 +191,21 @@ pub fn image_pass(
     pipeline: &wgpu::ComputePipeline,
     bind_group: &wgpu::BindGroup,
 ) {
+    let groups = [ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1];
+    technique_pass(ctx, enc, timer, name, pipeline, &[bind_group], groups);
+}
+
+/// Records one timed compute pass of `workgroups`: the scene at group 0, the frame at group 1,
+/// then `bind_groups` at 2, 3, ….
+pub fn technique_pass(
+    ctx: &super::RenderContext,
+    enc: &mut wgpu::CommandEncoder,
+    timer: &mut crate::gpu::timing::PassTimer,
+    name: &'static str,
+    pipeline: &wgpu::ComputePipeline,
+    bind_groups: &[&wgpu::BindGroup],
+    workgroups: [u32; 3],
+) {
     let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
         label: Some(name),
         timestamp_writes: timer.compute_pass(name),
@@ -198,6 +213,9 @@ pub fn image_pass(
     pass.set_pipeline(pipeline);
     pass.set_bind_group(0, &ctx.scene.bind_group, &[]);
     pass.set_bind_group(1, ctx.frame_bind_group, &[]);
-    pass.set_bind_group(2, bind_group, &[]);
-    pass.dispatch_workgroups(ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1);
+    for (i, bg) in bind_groups.iter().enumerate() {
+        pass.set_bind_group(2 + i as u32, *bg, &[]);
+    }
+    let [x, y, z] = workgroups;
+    pass.dispatch_workgroups(x, y, z);
 }

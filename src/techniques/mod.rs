@@ -4,6 +4,7 @@
 
 pub mod reference;
 pub mod restir;
+pub mod surfels;
 
 use crate::render::{params, Technique};
 use anyhow::Result;
@@ -25,6 +26,11 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         id: "restir",
         what: "ReSTIR DI + GI: resampled direct light (light classes, ReGIR) and indirect light, with temporal and spatial reuse",
         create: || Box::new(restir::Restir::default()),
+    },
+    TechniqueInfo {
+        id: "surfels",
+        what: "surfel GI (GIBS): G-buffer-spawned surfels in a non-linear grid integrate irradiance with guided, budgeted rays (multiscale mean estimator, radial Gaussian depth)",
+        create: || Box::new(surfels::Surfels::default()),
     },
 ];
 

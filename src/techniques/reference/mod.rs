@@ -78,6 +78,10 @@ impl Technique for ReferencePathTracer {
         "reference"
     }
 
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+
     fn passes(&self, f: &SceneFeatures) -> Vec<PassInfo> {
         let mut v = vec![PassInfo {
             name: "path_trace",

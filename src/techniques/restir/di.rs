@@ -94,7 +94,7 @@ impl RestirLighting {
         rays
     }
 
-    pub(super) fn di_passes(&self, f: &SceneFeatures) -> [PassInfo; 2] {
+    pub fn di_passes(&self, f: &SceneFeatures) -> [PassInfo; 2] {
         let s = &self.settings;
         let lights = candidates_for(s, &LightClasses::of(f))
             .iter()

@@ -93,6 +93,10 @@ impl Technique for Restir {
         "restir"
     }
 
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+
     fn inputs(&self) -> FrameInputs {
         FrameInputs {
             primary_surfaces: true,

@@ -84,7 +84,7 @@ impl RestirLighting {
         self.settings.regir && self.many_lights && self.class_candidates()[0] > 0
     }
 
-    pub(super) fn regir_pass(&self, f: &SceneFeatures) -> PassInfo {
+    pub fn regir_pass(&self, f: &SceneFeatures) -> PassInfo {
         let s = &self.settings;
         PassInfo {
             name: PASS,

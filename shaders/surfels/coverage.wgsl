@@ -1,0 +1,53 @@
+// Gap detection (one 16x16 workgroup per screen tile): each pixel's surfel coverage from last
+// frame's grid; the tile's least-covered pixel (ties to the lowest index) spawns a surfel when
+// its coverage is below the target times a random number (the seed's randomised threshold).
+// Thread 0 first commits last pass's pushes to the stack counter.
+#import gilab::frame::frame
+#import gilab::rng::{rng_init, rand, STREAM_SURFEL_SPAWN}
+#import gilab::primary::current_surface
+#import gilab::surfels::{params, pool, slot_scan, tile_scan, tile_pixel, gather, NONE}
+
+const TILE: u32 = 16u;
+
+var<workgroup> least: atomic<u32>;
+
+@compute @workgroup_size(16, 16, 1)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
+    if local_index == 0u {
+        atomicStore(&least, NONE);
+    }
+    if gid.x == 0u && gid.y == 0u {
+        let recycled = slot_scan[params.max_surfels];
+        atomicAdd(&pool.free_count, recycled);
+        atomicSub(&pool.live_count, recycled);
+        pool.recycled = recycled;
+    }
+    workgroupBarrier();
+    if gid.x < frame.size.x && gid.y < frame.size.y {
+        let s = current_surface(gid.y * frame.size.x + gid.x);
+        if s.pos.w > 0.5 {
+            var coverage = 0.0;
+            if pool.grid_center.w > 0.0 {
+                coverage = gather(s.pos.xyz, s.normal_alpha.xyz, pool.grid_center.xyz, false).coverage;
+            }
+            let q = u32(clamp(coverage, 0.0, 15.0) * 4096.0);
+            atomicMin(&least, (q << 8u) | local_index);
+        }
+    }
+    workgroupBarrier();
+    if local_index == 0u {
+        let tile = wg.y * params.tiles_x + wg.x;
+        let key = atomicLoad(&least);
+        var pixel = NONE;
+        if key != NONE {
+            let coverage = f32(key >> 8u) / 4096.0;
+            var rng = rng_init(wg.xy, frame.frame_index, STREAM_SURFEL_SPAWN, frame.seed);
+            if coverage < params.coverage_target * rand(&rng) {
+                let l = key & 255u;
+                pixel = (wg.y * TILE + l / TILE) * frame.size.x + wg.x * TILE + l % TILE;
+            }
+        }
+        tile_pixel[tile] = pixel;
+        tile_scan[tile] = select(0u, 1u, pixel != NONE);
+    }
+}

@@ -1,0 +1,406 @@
+// Surfel GI (GIBS, shared/seeds/001): the surfel pool, its non-linear grid, the radial maps
+// (guiding, Gaussian depth), the multiscale mean estimator and the gather that every surfel pass
+// shares. Bind group 2; layout must match src/techniques/surfels/resources.rs.
+#define_import_path gilab::surfels
+
+#import gilab::math::{PI, INV_PI, luminance, to_local, to_world, max_component}
+#import gilab::frame::frame
+#import gilab::brdf::{Surface, bsdf_eval}
+#import gilab::scene::light_pool
+#import gilab::lights::{sample_light, light_shadow_ray}
+#import gilab::ray::unoccluded
+
+struct SurfelParams {
+    max_surfels: u32,
+    // Surfel rays per frame (the global ray budget) and the most the ray buffers hold.
+    ray_budget: u32,
+    ray_capacity: u32,
+    flags: u32,
+    // Spawning stops where a tile's least-covered pixel has at least this much surfel weight.
+    coverage_target: f32,
+    // Surfel radius as a fraction of the image height (constant screen size at any distance).
+    surfel_size: f32,
+    // Half the side of the uniform centre grid (world units); its cells are 2 * this / GRID_N.
+    grid_half_extent: f32,
+    tiles_x: u32,
+    tiles: u32,
+    cells: u32,
+    max_rays_per_surfel: u32,
+    pad: u32,
+}
+
+const FLAG_GUIDING: u32 = 1u;
+const FLAG_RADIAL_DEPTH: u32 = 2u;
+const FLAG_MSME: u32 = 4u;
+const FLAG_SKY: u32 = 8u;
+const FLAG_ACCUMULATE: u32 = 16u;
+const FLAG_LIGHTS: u32 = 32u;
+
+// One surfel's geometry. radius 0 marks a free slot.
+struct Surfel {
+    pos_radius: vec4<f32>,
+    // xyz: normal (the geometric normal of the surface it sits on, facing the camera at spawn);
+    // w: bitcast id of the object it sits on (the scene triangle).
+    normal_id: vec4<f32>,
+    // rgb: diffuse albedo; w: bitcast frame it spawned in.
+    albedo_spawn: vec4<f32>,
+}
+
+// One surfel's irradiance integrator (multiscale mean estimator, or a plain running mean).
+struct SurfelState {
+    // rgb: irradiance (long-term mean); w: rays integrated (the running mean's count).
+    mean: vec4<f32>,
+    // rgb: short-term mean; w: variance-based blend reduction (MSME's vbbr).
+    short_mean: vec4<f32>,
+    // rgb: short-term variance of a frame's estimate; w: inconsistency.
+    variance: vec4<f32>,
+    // x: rays traced this frame; y: guiding samples so far; z: frames with rays; w: unused.
+    info: vec4<u32>,
+}
+
+// The stack counter and per-frame totals. Pops and pushes take their positions from prefix sums
+// over slots and tiles (scan.wgsl) instead of one atomic per thread, so which slot a surfel gets
+// does not depend on thread scheduling: a fixed seed gives the same image. One thread per pass
+// moves the counters, atomically.
+struct Pool {
+    free_count: atomic<u32>,
+    live_count: atomic<u32>,
+    // Sum of this frame's ray requests, in units of 1/REQUEST_SCALE ray.
+    request_total: atomic<u32>,
+    spawned: u32,
+    recycled: u32,
+    pad_a: u32,
+    pad_b: u32,
+    pad_c: u32,
+    // The camera cell the grid was last built around (xyz), w = 1 once built.
+    grid_center: vec4<f32>,
+}
+
+const REQUEST_SCALE: f32 = 64.0;
+const NONE: u32 = 0xffffffffu;
+
+@group(2) @binding(0) var<uniform> params: SurfelParams;
+@group(2) @binding(1) var<storage, read_write> surfels: array<Surfel>;
+@group(2) @binding(2) var<storage, read_write> states: array<SurfelState>;
+@group(2) @binding(3) var<storage, read_write> pool: Pool;
+@group(2) @binding(4) var<storage, read_write> free_stack: array<u32>;
+// Per slot: last frame the surfel lit a visible pixel, pixels it lit last frame, of which crowded.
+@group(2) @binding(5) var<storage, read_write> seen: array<atomic<u32>>;
+// Per slot GUIDE_WORDS words: the 6x6 guiding map, 8 bits per texel, normalised to max 1.
+@group(2) @binding(6) var<storage, read_write> guide: array<u32>;
+// Per slot DEPTH_TEXELS texels: mean and mean square hit distance (radial Gaussian depth).
+@group(2) @binding(7) var<storage, read_write> depth: array<vec2<f32>>;
+// Prefix-sum buffers (exclusive scan in place, total after the last element; scan.wgsl).
+@group(2) @binding(8) var<storage, read_write> slot_scan: array<u32>;
+@group(2) @binding(9) var<storage, read_write> tile_scan: array<u32>;
+@group(2) @binding(10) var<storage, read_write> cell_offsets: array<atomic<u32>>;
+@group(2) @binding(11) var<storage, read_write> ray_offsets: array<u32>;
+// Per tile: the pixel a surfel spawns at (NONE: no spawn).
+@group(2) @binding(12) var<storage, read_write> tile_pixel: array<u32>;
+// Per cell: insertion cursor; then the cells' surfel lists (slots, sorted within a cell).
+@group(2) @binding(13) var<storage, read_write> cell_cursor: array<atomic<u32>>;
+@group(2) @binding(14) var<storage, read_write> cell_surfels: array<u32>;
+// Per ray: the surfel that owns it; its result (two vec4 per ray).
+@group(2) @binding(15) var<storage, read_write> ray_owner: array<u32>;
+@group(2) @binding(16) var<storage, read_write> ray_results: array<vec4<f32>>;
+// Per pixel: direct light (NEE or ReSTIR DI), written before the apply pass.
+@group(2) @binding(17) var<storage, read_write> pixel_direct: array<vec4<f32>>;
+// Per pixel, two planes of vec4 (technique debug views).
+@group(2) @binding(18) var<storage, read_write> debug_out: array<vec4<f32>>;
+
+fn has_flag(f: u32) -> bool {
+    return (params.flags & f) != 0u;
+}
+
+fn is_live(slot: u32) -> bool {
+    return surfels[slot].pos_radius.w > 0.0;
+}
+
+fn surfel_id(s: Surfel) -> u32 {
+    return bitcast<u32>(s.normal_id.w);
+}
+
+fn spawn_frame(s: Surfel) -> u32 {
+    return bitcast<u32>(s.albedo_spawn.w);
+}
+
+// ---------------------------------------------------------------------------------------------
+// The non-linear grid (the seed's acceleration structure): a uniform GRID_N^3 grid around the
+// camera cell, and outside it six trapezoidal grids, one per principal axis direction, whose
+// slices thicken with distance so that cells stay about as wide as they are deep and grow in
+// proportion to distance, as surfels do.
+const GRID_N: u32 = 32u;
+const GRID_SLICES: u32 = 64u;
+const CENTER_CELLS: u32 = 32768u;
+const REGION_CELLS: u32 = 65536u;
+// Slice d_k = h * SLICE_GROWTH^k: each slice as thick as a cell is wide at its distance.
+const SLICE_GROWTH: f32 = 1.0625;
+
+fn center_cell_size() -> f32 {
+    return 2.0 * params.grid_half_extent / f32(GRID_N);
+}
+
+// The grid centre for a camera position: snapped to whole cells, so a moving camera shifts the
+// grid by cells.
+fn grid_center_for(camera: vec3<f32>) -> vec3<f32> {
+    let c = center_cell_size();
+    return (floor(camera / c) + 0.5) * c;
+}
+
+// Cell index of a world point for a grid built around `center`.
+fn cell_of(p: vec3<f32>, center: vec3<f32>) -> u32 {
+    let h = params.grid_half_extent;
+    let d = p - center;
+    let a = abs(d);
+    if max_component(a) < h {
+        let i = clamp(vec3<i32>(floor((d + h) / center_cell_size())), vec3<i32>(0), vec3<i32>(i32(GRID_N) - 1));
+        return (u32(i.z) * GRID_N + u32(i.y)) * GRID_N + u32(i.x);
+    }
+    // Dominant axis and its sign pick the trapezoid; the other two axes, divided by the
+    // distance along it, are its cross-section coordinates in [-1, 1].
+    var axis = 0u;
+    var along = d.x;
+    var uv = d.yz;
+    if a.y >= a.x && a.y >= a.z {
+        axis = 1u;
+        along = d.y;
+        uv = d.xz;
+    } else if a.z >= a.x && a.z >= a.y {
+        axis = 2u;
+        along = d.z;
+        uv = d.xy;
+    }
+    let dist = abs(along);
+    let region = axis * 2u + select(0u, 1u, along < 0.0);
+    let slice = min(u32(max(log(dist / h) / log(SLICE_GROWTH), 0.0)), GRID_SLICES - 1u);
+    let iuv = clamp(vec2<i32>(floor((uv / dist + 1.0) * 0.5 * f32(GRID_N))), vec2<i32>(0), vec2<i32>(i32(GRID_N) - 1));
+    return CENTER_CELLS + region * REGION_CELLS + (slice * GRID_N + u32(iuv.y)) * GRID_N + u32(iuv.x);
+}
+
+// Side of the cell around p (centre grid: fixed; trapezoids: grows with distance).
+fn cell_side_at(p: vec3<f32>, center: vec3<f32>) -> f32 {
+    let dist = max_component(abs(p - center));
+    return max(center_cell_size(), 2.0 * dist / f32(GRID_N));
+}
+
+// Surfel radius at p: a constant fraction of the image height, never more than half the side
+// of the cell it sits in, so its bounding box touches at most two cells per axis (8 in all).
+fn surfel_radius(p: vec3<f32>) -> f32 {
+    let tan_half_fov = length(frame.camera_up.xyz);
+    let dist = max(length(p - frame.camera_pos.xyz), 1e-4);
+    let r = params.surfel_size * 2.0 * tan_half_fov * dist;
+    return min(r, 0.5 * cell_side_at(p, grid_center_for(frame.camera_pos.xyz)));
+}
+
+// The distinct cells the surfel's bounding box overlaps (corner cells; unused entries NONE).
+fn overlapped_cells(p: vec3<f32>, r: f32, center: vec3<f32>) -> array<u32, 8> {
+    var cells = array<u32, 8>(NONE, NONE, NONE, NONE, NONE, NONE, NONE, NONE);
+    for (var k = 0u; k < 8u; k++) {
+        let corner = p + r * vec3<f32>(select(-1.0, 1.0, (k & 1u) != 0u), select(-1.0, 1.0, (k & 2u) != 0u), select(-1.0, 1.0, (k & 4u) != 0u));
+        let c = cell_of(corner, center);
+        var dup = false;
+        for (var j = 0u; j < k; j++) {
+            dup = dup || cells[j] == c;
+        }
+        if !dup {
+            cells[k] = c;
+        }
+    }
+    return cells;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Radial maps over the surfel's hemisphere: hemi-octahedral mapping (Cigolle et al. 2014).
+const GUIDE_RES: u32 = 6u;
+const GUIDE_TEXELS: u32 = 36u;
+const GUIDE_WORDS: u32 = 9u;
+const DEPTH_RES: u32 = 4u;
+const DEPTH_TEXELS: u32 = 16u;
+// Guiding starts once a surfel has this many samples in its map.
+const GUIDE_POPULATED: u32 = 64u;
+// Probability of a guided direction once populated (the rest cosine-sampled).
+const GUIDE_MIX: f32 = 0.5;
+
+// Local direction (z >= 0) to [-1, 1]^2.
+fn hemi_oct_encode(v: vec3<f32>) -> vec2<f32> {
+    let p = v.xy / (abs(v.x) + abs(v.y) + max(v.z, 0.0));
+    return vec2<f32>(p.x + p.y, p.x - p.y);
+}
+
+fn hemi_oct_decode(e: vec2<f32>) -> vec3<f32> {
+    let p = vec2<f32>(e.x + e.y, e.x - e.y) * 0.5;
+    return normalize(vec3<f32>(p, 1.0 - abs(p.x) - abs(p.y)));
+}
+
+// Solid-angle density per unit area of [-1, 1]^2 at e: dA = 2 |q|^3 dw, q on the octahedron.
+fn hemi_oct_jacobian(e: vec2<f32>) -> f32 {
+    let p = vec2<f32>(e.x + e.y, e.x - e.y) * 0.5;
+    let q = vec3<f32>(p, 1.0 - abs(p.x) - abs(p.y));
+    let l = length(q);
+    return 2.0 * l * l * l;
+}
+
+fn texel_of(e: vec2<f32>, res: u32) -> u32 {
+    let t = clamp(vec2<u32>((e * 0.5 + 0.5) * f32(res)), vec2<u32>(0u), vec2<u32>(res - 1u));
+    return t.y * res + t.x;
+}
+
+// Texel of a world direction in the surfel's hemisphere (directions below it clamp to the horizon).
+fn radial_texel(n: vec3<f32>, dir: vec3<f32>, res: u32) -> u32 {
+    var v = to_local(dir, n);
+    v.z = max(v.z, 0.0);
+    return texel_of(hemi_oct_encode(v), res);
+}
+
+fn guide_value(slot: u32, texel: u32) -> f32 {
+    let word = guide[slot * GUIDE_WORDS + texel / 4u];
+    return unpack4x8unorm(word)[texel % 4u];
+}
+
+// ---------------------------------------------------------------------------------------------
+// The gather: the surfels of p's cell, weighted by Mahalanobis distance within their radius,
+// normal agreement and (radial_depth) the Chebyshev test against their depth maps.
+const MAX_GATHER: u32 = 64u;
+// Off-plane distance counts this many times more than in-plane distance (Mahalanobis).
+const PLANE_STRETCH: f32 = 4.0;
+
+struct Gather {
+    // Weighted irradiance of surfels with samples, and their summed weight.
+    irradiance: vec3<f32>,
+    weight: f32,
+    // The same weight without the depth test: occluded surfels still count as "covered, dark".
+    geo_weight: f32,
+    // Weight of every live surfel, sampled or not (spawning's coverage).
+    coverage: f32,
+    // Cell average over surfels facing the same way and visible from p (gap filler).
+    cell_irradiance: vec3<f32>,
+    cell_weight: f32,
+    // The surfel with the largest weight (NONE if none), for the debug views.
+    best: u32,
+    cell: u32,
+}
+
+// Chebyshev upper bound of the probability that nothing in the surfel's hemisphere lies closer
+// than t in direction dir (1 when no closer depth was seen).
+fn depth_visibility(slot: u32, n: vec3<f32>, dir: vec3<f32>, t: f32) -> f32 {
+    let m = depth[slot * DEPTH_TEXELS + radial_texel(n, dir, DEPTH_RES)];
+    if t <= m.x {
+        return 1.0;
+    }
+    let variance = max(m.y - m.x * m.x, 1e-6 * m.x * m.x + 1e-12);
+    let d = t - m.x;
+    // Cubed, as DDGI does, to sharpen the test: a 4x4 map is coarse near the horizon.
+    let p = variance / (variance + d * d);
+    return p * p * p;
+}
+
+// mark_seen: the surfels that weigh in have lit a visible pixel this frame (recycling).
+fn gather(p: vec3<f32>, n: vec3<f32>, center: vec3<f32>, mark_seen: bool) -> Gather {
+    var g = Gather(vec3<f32>(0.0), 0.0, 0.0, 0.0, vec3<f32>(0.0), 0.0, NONE, 0u);
+    let cell = cell_of(p, center);
+    g.cell = cell;
+    let first = atomicLoad(&cell_offsets[cell]);
+    let end = min(atomicLoad(&cell_offsets[cell + 1u]), first + MAX_GATHER);
+    var best_w = 0.0;
+    for (var i = first; i < end; i++) {
+        let slot = cell_surfels[i];
+        let s = surfels[slot];
+        let r = s.pos_radius.w;
+        if r <= 0.0 {
+            continue;
+        }
+        let sn = s.normal_id.xyz;
+        let n_w = dot(n, sn);
+        if n_w <= 0.0 {
+            continue;
+        }
+        let v = p - s.pos_radius.xyz;
+        let t = length(v);
+        var vis = 1.0;
+        if has_flag(FLAG_RADIAL_DEPTH) && t > 1e-6 {
+            vis = depth_visibility(slot, sn, v / t, t);
+        }
+        let st = states[slot];
+        let sampled = st.mean.w > 0.0;
+        // The cell average (gap filling): with radial depth, only surfels whose depth map
+        // reaches p (within their diameter) may vouch for it; beyond, light would leak through
+        // any wall their maps never saw.
+        if sampled && (!has_flag(FLAG_RADIAL_DEPTH) || t < 2.0 * r) {
+            g.cell_irradiance += st.mean.xyz * n_w * vis;
+            g.cell_weight += n_w * vis;
+        }
+        let off_plane = dot(v, sn);
+        let in_plane = v - off_plane * sn;
+        let d2 = (dot(in_plane, in_plane) + PLANE_STRETCH * PLANE_STRETCH * off_plane * off_plane) / (r * r);
+        if d2 >= 1.0 {
+            continue;
+        }
+        let w = (1.0 - d2) * n_w * vis;
+        g.coverage += w;
+        if mark_seen && w > 0.0 {
+            atomicMax(&seen[3u * slot], frame.frame_index);
+        }
+        if sampled {
+            g.irradiance += st.mean.xyz * w;
+            g.weight += w;
+            g.geo_weight += (1.0 - d2) * n_w;
+        }
+        if w > best_w {
+            best_w = w;
+            g.best = slot;
+        }
+    }
+    return g;
+}
+
+// Irradiance at p from a gather: the surfels' weighted mean where they cover p (weight >= 1),
+// topped up with the cell average where they do not (the seed's gap filling). Surfels the depth
+// test rejects still hold the normalisation up (to at most 1): light from behind a wall is
+// scaled by its visibility instead of being renormalised to full strength.
+fn gathered_irradiance(g: Gather) -> vec3<f32> {
+    var e = g.irradiance;
+    var w = max(g.weight, min(g.geo_weight, 1.0));
+    if w < 1.0 && g.cell_weight > 0.0 {
+        e += (1.0 - w) * g.cell_irradiance / g.cell_weight;
+        w = 1.0;
+    }
+    if w <= 0.0 {
+        return vec3<f32>(0.0);
+    }
+    return e / w;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Next-event estimation of one light picked by power (the shared light pool), one shadow ray.
+struct Direct {
+    radiance: vec3<f32>,
+    shadow_rays: u32,
+}
+
+fn direct_light(p: vec3<f32>, n_geo: vec3<f32>, n: vec3<f32>, m: Surface, wo: vec3<f32>, u_select: f32, u: vec2<f32>) -> Direct {
+    var out = Direct(vec3<f32>(0.0), 0u);
+    if light_pool.count == 0u {
+        return out;
+    }
+    let ls = sample_light(p, u_select, u);
+    if !ls.valid || ls.pdf <= 0.0 || dot(ls.wi, n_geo) <= 0.0 {
+        return out;
+    }
+    let e = bsdf_eval(m, n, wo, ls.wi);
+    if !any(e.f > vec3<f32>(0.0)) {
+        return out;
+    }
+    out.shadow_rays = 1u;
+    if unoccluded(light_shadow_ray(p, n_geo, ls)) {
+        out.radiance = e.f * max(dot(n, ls.wi), 0.0) * ls.radiance / ls.pdf;
+    }
+    return out;
+}
+
+// Debug planes: plane 0 = (surfel id, coverage, rays of the surfel, MSME variance), plane 1 =
+// (grid cell, surfel age, 0, 0).
+fn write_debug(pixel: u32, first_plane: vec4<f32>, second_plane: vec4<f32>) {
+    let px = frame.size.x * frame.size.y;
+    debug_out[pixel] = first_plane;
+    debug_out[px + pixel] = second_plane;
+}

@@ -1,0 +1,149 @@
+//! The surfel technique's parameters (one table: docs, ranges, defaults) and their GPU form.
+
+use crate::render::params::{ParamKind, ParamSpec, Params};
+
+/// Most rays one surfel takes in a frame: high enough that the first frames, with few surfels,
+/// still spend the whole budget (the allocation scales requests both ways, as in the seed).
+pub const MAX_RAYS_PER_SURFEL: u32 = 4096;
+
+pub const PARAMS: &[ParamSpec] = &[
+    ParamSpec {
+        name: "max_surfels",
+        what: "size of the surfel pool, allocated up front (the seed's fixed budget)",
+        higher: "room for more surfels (larger views, more distant detail), more memory",
+        lower: "less memory; a full pool recycles out-of-view surfels sooner and leaves gaps",
+        kind: ParamKind::Int {
+            min: 1024,
+            max: 1_000_000,
+        },
+        default: 131072.0,
+    },
+    ParamSpec {
+        name: "ray_budget",
+        what: "surfel rays per frame, shared among surfels in proportion to their requests (the viewer's ray-budget slider sets it)",
+        higher: "faster convergence and reaction, more rays (each also traces a shadow ray at its hit)",
+        lower: "cheaper frames, slower convergence, more lag",
+        kind: ParamKind::Int {
+            min: 0,
+            max: 16_000_000,
+        },
+        default: 65536.0,
+    },
+    ParamSpec {
+        name: "guiding",
+        what: "ray guiding: once a surfel's 6x6 radiance map is populated, half its rays follow the map (mixed pdf, unbiased)",
+        higher: "on: fewer rays wasted where little light comes from (one bright wall)",
+        lower: "off: cosine sampling only",
+        kind: ParamKind::Bool,
+        default: 1.0,
+    },
+    ParamSpec {
+        name: "radial_depth",
+        what: "radial Gaussian depth: per-surfel 4x4 map of mean and mean-square hit distance; gathers weight surfels by the Chebyshev bound",
+        higher: "on: no light through thin walls from surfels on the other side",
+        lower: "off: surfels light everything within their radius (leaks)",
+        kind: ParamKind::Bool,
+        default: 1.0,
+    },
+    ParamSpec {
+        name: "msme",
+        what: "multiscale mean estimator: short-term mean and variance steer the long-term mean's blend",
+        higher: "on: reacts within a few frames to a light change, still converges when nothing changes",
+        lower: "off: plain running mean over every ray (converges, but lags behind any change)",
+        kind: ParamKind::Bool,
+        default: 1.0,
+    },
+    ParamSpec {
+        name: "direct",
+        what: "direct light per pixel: next-event estimation of one light by power, or ReSTIR DI (its passes with GI off)",
+        higher: "restir: far less noise with many lights (ReGIR where the scene has them), more passes",
+        lower: "nee: one shadow ray, no extra passes",
+        kind: ParamKind::Choice(&["nee", "restir"]),
+        default: 0.0,
+    },
+    ParamSpec {
+        name: "coverage_target",
+        what: "surfel weight a tile's least-covered pixel must reach before spawning stops there",
+        higher: "denser surfels: smoother, sharper irradiance, more surfels to feed",
+        lower: "sparser surfels: fewer rays per area covered, blotchier",
+        kind: ParamKind::Float {
+            min: 0.1,
+            max: 8.0,
+        },
+        default: 1.0,
+    },
+    ParamSpec {
+        name: "surfel_size",
+        what: "surfel radius as a fraction of the image height (constant on screen: surfels shrink as the camera approaches)",
+        higher: "fewer, larger surfels: blurrier irradiance, fewer surfels per pixel to gather",
+        lower: "more, smaller surfels: finer detail, more surfels and gathers",
+        kind: ParamKind::Float {
+            min: 0.002,
+            max: 0.2,
+        },
+        default: 0.02,
+    },
+    ParamSpec {
+        name: "accumulate",
+        what: "average frames into the output (off: each frame alone, the real-time view)",
+        higher: "on: a static view converges (the per-pixel direct light averages out)",
+        lower: "off: what a game would show each frame",
+        kind: ParamKind::Bool,
+        default: 1.0,
+    },
+];
+
+/// The parameters, typed.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SurfelSettings {
+    pub max_surfels: u32,
+    pub ray_budget: u32,
+    pub guiding: bool,
+    pub radial_depth: bool,
+    pub msme: bool,
+    pub direct_restir: bool,
+    pub coverage_target: f32,
+    pub surfel_size: f32,
+    pub accumulate: bool,
+}
+
+impl SurfelSettings {
+    pub fn from_params(p: &Params) -> Self {
+        SurfelSettings {
+            max_surfels: p.u32("max_surfels"),
+            ray_budget: p.u32("ray_budget"),
+            guiding: p.bool("guiding"),
+            radial_depth: p.bool("radial_depth"),
+            msme: p.bool("msme"),
+            direct_restir: p.u32("direct") == 1,
+            coverage_target: p.f32("coverage_target"),
+            surfel_size: p.f32("surfel_size"),
+            accumulate: p.bool("accumulate"),
+        }
+    }
+}
+
+/// `SurfelParams` of shaders/surfels/shared.wgsl.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct SurfelParamsGpu {
+    pub max_surfels: u32,
+    pub ray_budget: u32,
+    pub ray_capacity: u32,
+    pub flags: u32,
+    pub coverage_target: f32,
+    pub surfel_size: f32,
+    pub grid_half_extent: f32,
+    pub tiles_x: u32,
+    pub tiles: u32,
+    pub cells: u32,
+    pub max_rays_per_surfel: u32,
+    pub pad: u32,
+}
+
+pub const FLAG_GUIDING: u32 = 1;
+pub const FLAG_RADIAL_DEPTH: u32 = 2;
+pub const FLAG_MSME: u32 = 4;
+pub const FLAG_SKY: u32 = 8;
+pub const FLAG_ACCUMULATE: u32 = 16;
+pub const FLAG_LIGHTS: u32 = 32;

@@ -1,0 +1,469 @@
+//! Surfel GI (GIBS) on lavapipe, small images: furnace, the Cornell box against the reference,
+//! leaks through thin walls (radial Gaussian depth), ray guiding, the multiscale mean
+//! estimator's lag, pool invariants, stability, determinism, the ray budget.
+
+mod common;
+
+use common::{engine, luminance, render_reference};
+use gilab::compare::{metrics, Image};
+use gilab::render::engine::Engine;
+use gilab::scene::{builtin, Camera, PunctualKind, PunctualLight, Scene};
+use gilab::techniques::surfels::{PoolCounts, Surfels};
+use glam::Vec3;
+use std::sync::Arc;
+
+fn surfels(e: &Engine) -> &Surfels {
+    let any: &dyn std::any::Any = e.technique.as_any();
+    any.downcast_ref::<Surfels>().expect("a surfels engine")
+}
+
+fn frames(e: &mut Engine, n: u32) {
+    for _ in 0..n {
+        e.render_frame().unwrap();
+    }
+}
+
+fn energy(img: &Image) -> f64 {
+    luminance(img.mean())
+}
+
+fn pool(e: &Engine) -> PoolCounts {
+    surfels(e).pool_counts(&e.gpu).unwrap().unwrap()
+}
+
+/// White furnace (closed sphere, albedo 0.8, emission 1): every pixel converges to 1 / 0.2 = 5,
+/// which needs the bounces carried through the cache and the paths where surfels do not cover.
+#[test]
+fn surfels_furnace_matches_closed_form() {
+    let mut e = engine(
+        "surfels",
+        toml::toml! { ray_budget = 4096
+        surfel_size = 0.06 },
+        builtin::furnace(0.8, 1.0, 2),
+        [48, 48],
+        1,
+    );
+    // Surfels cover the visible part of the sphere and multi-bounce settles by ~128 frames.
+    frames(&mut e, 160);
+    // Converged: restart the average (surfels kept) and average 32 more frames.
+    let camera = e.camera;
+    e.move_camera(camera);
+    frames(&mut e, 32);
+    let img = e.read_output().unwrap();
+    for (c, v) in img.mean().iter().enumerate() {
+        eprintln!(
+            "surfel furnace channel {c}: {v:.4} vs 5 ({:+.2}%)",
+            (v / 5.0 - 1.0) * 100.0
+        );
+        assert!((v / 5.0 - 1.0).abs() < 0.03, "channel {c}: {v}");
+    }
+    assert_eq!(e.ray_counts().unwrap().invalid_samples, 0);
+}
+
+/// Cornell box at 128²: energy within 5% of a 2,048-spp reference after 256 frames, relMSE bounded.
+#[test]
+fn surfels_converge_near_reference_on_cornell() {
+    let size = [128, 128];
+    let truth = render_reference(builtin::cornell(), size, 2048, 64, 11, 0).image;
+    let mut e = engine("surfels", toml::Table::new(), builtin::cornell(), size, 1);
+    frames(&mut e, 256);
+    let img = e.read_output().unwrap();
+    let rays = e.ray_counts().unwrap();
+    let ratio = energy(&img) / energy(&truth);
+    let m = metrics::compare(&img, &truth).unwrap();
+    eprintln!(
+        "surfels, cornell 128², 256 frames: energy ratio {ratio:.4}, relMSE {:.3e}, {:.2} rays/px/frame ({:?})",
+        m.rel_mse,
+        rays.total() as f64 / (128.0 * 128.0 * 256.0),
+        rays.named()
+    );
+    assert!((ratio - 1.0).abs() < 0.05, "energy ratio {ratio}");
+    assert!(m.rel_mse < 0.02, "relMSE {}", m.rel_mse);
+    assert_eq!(rays.invalid_samples, 0);
+}
+
+/// Luminance inside the thin-wall room (interior light off: the truth is exactly 0) seen from
+/// inside after surfels were spawned outside in the sun: the seed's leak through thin walls.
+fn interior_luminance_after_outside_view(radial_depth: bool) -> f64 {
+    let scene = builtin::thin_wall(0.0);
+    let inside = scene.default_camera();
+    let mut p = toml::Table::new();
+    p.insert("radial_depth".into(), radial_depth.into());
+    p.insert("ray_budget".into(), 8192.into());
+    p.insert("surfel_size".into(), 0.06.into());
+    let mut e = engine("surfels", p, scene, [48, 48], 1);
+    // Outside, facing the sunlit wall and the ground before it.
+    e.set_camera(Camera {
+        position: Vec3::new(0.0, 1.5, -6.0),
+        target: Vec3::new(0.0, 0.5, -2.0),
+        up: Vec3::Y,
+        fov_y: 60.0,
+    });
+    frames(&mut e, 48);
+    // Inside, surfels and their irradiance kept (as a game would).
+    e.move_camera(inside);
+    frames(&mut e, 8);
+    let img = e.read_output().unwrap();
+    assert_eq!(e.ray_counts().unwrap().invalid_samples, 0);
+    energy(&img)
+}
+
+#[test]
+fn radial_depth_stops_light_leaking_through_thin_walls() {
+    let with_depth = interior_luminance_after_outside_view(true);
+    let without = interior_luminance_after_outside_view(false);
+    // The reference inside is exactly 0 (tests/gpu.rs thin_wall_does_not_leak); the sunlit
+    // exterior is ~5 in luminance. Tolerance: 0.2% of that.
+    let tolerance = 0.02;
+    eprintln!(
+        "thin-wall interior luminance after the outside view: radial depth on {with_depth:.5}, off {without:.5} (reference 0, tolerance {tolerance})"
+    );
+    assert!(
+        with_depth <= tolerance,
+        "leak with radial depth: {with_depth}"
+    );
+    assert!(
+        with_depth < 0.5 * without,
+        "radial depth should remove most of the leak: {with_depth} vs {without}"
+    );
+}
+
+/// A dark room lit by a spot light on one white wall: the light surfels see comes from that
+/// wall. Guided rays (same budget) leave less variance per surfel than cosine sampling.
+fn bright_wall_room() -> Scene {
+    let mut s = Scene::new("bright-wall");
+    let dark = s.add_material(gilab::scene::Material::lambert("dark", Vec3::splat(0.05)));
+    let white = s.add_material(gilab::scene::Material::lambert("white", Vec3::splat(0.9)));
+    let v = Vec3::new;
+    let (a, h) = (3.0f32, 3.0f32);
+    s.add_quad(
+        v(-a, 0.0, -a),
+        v(-a, 0.0, a),
+        v(a, 0.0, a),
+        v(a, 0.0, -a),
+        dark,
+    );
+    s.add_quad(v(-a, h, -a), v(a, h, -a), v(a, h, a), v(-a, h, a), dark);
+    s.add_quad(
+        v(-a, 0.0, -a),
+        v(a, 0.0, -a),
+        v(a, h, -a),
+        v(-a, h, -a),
+        dark,
+    );
+    s.add_quad(v(-a, 0.0, a), v(-a, h, a), v(a, h, a), v(a, 0.0, a), dark);
+    s.add_quad(
+        v(-a, 0.0, -a),
+        v(-a, h, -a),
+        v(-a, h, a),
+        v(-a, 0.0, a),
+        white,
+    );
+    s.add_quad(v(a, 0.0, -a), v(a, 0.0, a), v(a, h, a), v(a, h, -a), dark);
+    s.lights.push(PunctualLight {
+        kind: PunctualKind::Spot,
+        position: v(2.5, 1.5, 0.0),
+        direction: v(-1.0, 0.0, 0.0),
+        intensity: Vec3::splat(60.0),
+        inner_cone: 0.5,
+        outer_cone: 0.7,
+    });
+    s.camera = Some(Camera {
+        position: v(2.8, 2.5, 0.0),
+        target: v(0.0, 0.0, 0.0),
+        up: Vec3::Y,
+        fov_y: 70.0,
+    });
+    s
+}
+
+fn mean_relative_variance(guiding: bool) -> (f64, usize) {
+    let mut p = toml::Table::new();
+    p.insert("guiding".into(), guiding.into());
+    p.insert("ray_budget".into(), 8192.into());
+    let mut e = engine("surfels", p, bright_wall_room(), [64, 64], 3);
+    frames(&mut e, 96);
+    let states = surfels(&e).surfel_states(&e.gpu).unwrap();
+    let rel: Vec<f64> = states
+        .iter()
+        .filter(|s| s.rays_total >= 256.0)
+        .map(|s| {
+            let m = luminance(s.irradiance.map(|v| v as f64));
+            luminance(s.variance.map(|v| v as f64)) / (m * m).max(1e-12)
+        })
+        .collect();
+    (rel.iter().sum::<f64>() / rel.len().max(1) as f64, rel.len())
+}
+
+#[test]
+fn guiding_lowers_per_surfel_variance() {
+    let (guided, n_guided) = mean_relative_variance(true);
+    let (cosine, n_cosine) = mean_relative_variance(false);
+    eprintln!(
+        "bright-wall room, same ray budget: mean relative variance per surfel guided {guided:.4} ({n_guided} surfels), cosine {cosine:.4} ({n_cosine} surfels): {:.2}x",
+        cosine / guided
+    );
+    assert!(n_guided > 50 && n_cosine > 50);
+    assert!(guided < cosine, "guided {guided} vs cosine {cosine}");
+}
+
+/// The back-wall lamp switched on after 32 frames: per frame after the switch, the mean
+/// irradiance over live surfels (what lags; the pixels' direct light does not), and the error
+/// of the image averaged over frames 64..96 after the switch against the lamp-on reference.
+fn lag(msme: bool, truth: &Image) -> (Vec<f64>, f64) {
+    let mut p = toml::Table::new();
+    p.insert("msme".into(), msme.into());
+    p.insert("ray_budget".into(), 8192.into());
+    p.insert("surfel_size".into(), 0.06.into());
+    p.insert("max_surfels".into(), 4096.into());
+    let mut e = engine(
+        "surfels",
+        p,
+        builtin::cornell_with_lamp(Some(0.0)),
+        [64, 64],
+        1,
+    );
+    frames(&mut e, 32);
+    let on = builtin::cornell_with_lamp(Some(40.0));
+    let gpu_scene = Arc::new(gilab::scene::gpu_scene::GpuScene::upload(&e.gpu, &on));
+    e.change_scene(Arc::new(on), gpu_scene).unwrap();
+    let camera = e.camera;
+    let mut irradiance = Vec::new();
+    for frame in 0..96 {
+        if frame == 64 {
+            e.move_camera(camera);
+        }
+        e.render_frame().unwrap();
+        let st = surfels(&e).surfel_states(&e.gpu).unwrap();
+        let sum: f64 = st
+            .iter()
+            .map(|s| luminance(s.irradiance.map(|v| v as f64)))
+            .sum();
+        irradiance.push(sum / st.len().max(1) as f64);
+    }
+    assert_eq!(e.ray_counts().unwrap().invalid_samples, 0);
+    let tail = metrics::compare(&e.read_output().unwrap(), truth)
+        .unwrap()
+        .rel_mse;
+    (irradiance, tail)
+}
+
+#[test]
+fn msme_settles_faster_than_running_mean_after_a_light_change() {
+    let truth = render_reference(
+        builtin::cornell_with_lamp(Some(40.0)),
+        [64, 64],
+        512,
+        64,
+        5,
+        0,
+    )
+    .image;
+    let (msme, msme_error) = lag(true, &truth);
+    let (running, running_error) = lag(false, &truth);
+    // Settled: the MSME run's mean irradiance over its last 16 frames.
+    let settled = msme[msme.len() - 16..].iter().sum::<f64>() / 16.0;
+    let settle = |series: &[f64]| {
+        (0..series.len())
+            .find(|&i| {
+                series[i..]
+                    .iter()
+                    .all(|&x| (x / settled - 1.0).abs() < 0.05)
+            })
+            .map(|i| i + 1)
+    };
+    let (m, r) = (settle(&msme), settle(&running));
+    eprintln!(
+        "lamp switched on: frames until the mean surfel irradiance stays within 5% of its settled value: MSME {m:?}, running mean {r:?} (of 96); relMSE of frames 64-96 against the reference: MSME {msme_error:.3e}, running mean {running_error:.3e}"
+    );
+    let m = m.expect("MSME settles within 96 frames");
+    assert!(r.is_none_or(|r| m < r), "MSME {m} vs running mean {r:?}");
+    assert!(
+        msme_error <= running_error * 1.1,
+        "converged error {msme_error} vs {running_error}"
+    );
+}
+
+/// live + free = capacity after any number of frames, camera moves and resets, with a pool
+/// small enough that recycling must run.
+#[test]
+fn pool_invariants_hold_through_moves_and_resets() {
+    let scene = builtin::courtyard(15.0, 1.0, 1.0);
+    let start = scene.default_camera();
+    let mut e = engine(
+        "surfels",
+        toml::toml! { max_surfels = 1024 },
+        scene,
+        [96, 96],
+        1,
+    );
+    let check = |e: &Engine, when: &str| {
+        let p = pool(e);
+        assert_eq!(p.live + p.free, p.capacity, "{when}: {p:?}");
+        assert_eq!(p.live, p.live_slots, "{when}: {p:?}");
+        p
+    };
+    let mut recycled = 0;
+    let mut peak = 0;
+    for step in 0..6 {
+        frames(&mut e, 12);
+        let p = check(&e, &format!("step {step}"));
+        recycled += p.recycled_last_frame;
+        peak = peak.max(p.live);
+        let mut c = start;
+        let angle = step as f32 * 0.9;
+        c.position = start.position + Vec3::new(angle.sin() * 6.0, 0.0, angle.cos() * 3.0 - 3.0);
+        e.move_camera(c);
+        frames(&mut e, 1);
+        recycled += check(&e, "after a move").recycled_last_frame;
+    }
+    e.reset();
+    let p = check(&e, "after reset");
+    assert_eq!(p.live, 0);
+    frames(&mut e, 4);
+    check(&e, "after reset and frames");
+    eprintln!("pool of 1024: peak live {peak}, recycled (sampled frames) {recycled}");
+    assert!(peak > 900, "the pool should fill: peak {peak}");
+    assert!(recycled > 0, "recycling must run on a full pool");
+}
+
+#[test]
+fn surfels_stay_finite_on_hard_cases() {
+    for (name, scene) in [
+        ("hard-cases", builtin::hard_cases(1e6)),
+        ("glossy", builtin::glossy()),
+    ] {
+        let mut e = engine(
+            "surfels",
+            toml::toml! { ray_budget = 4096 },
+            scene,
+            [48, 48],
+            1,
+        );
+        frames(&mut e, 16);
+        let img = e.read_output().unwrap();
+        assert_eq!(img.non_finite_count(), 0, "{name}");
+        assert_eq!(e.ray_counts().unwrap().invalid_samples, 0, "{name}");
+        let states = surfels(&e).surfel_states(&e.gpu).unwrap();
+        assert!(!states.is_empty(), "{name}: surfels spawned");
+        assert!(
+            states
+                .iter()
+                .all(|s| s.irradiance.iter().all(|v| v.is_finite() && *v >= 0.0)),
+            "{name}: surfel irradiance finite and non-negative"
+        );
+    }
+}
+
+#[test]
+fn surfels_are_deterministic_for_a_fixed_seed() {
+    let run = |seed| {
+        let mut e = engine(
+            "surfels",
+            toml::toml! { ray_budget = 4096 },
+            builtin::cornell(),
+            [48, 48],
+            seed,
+        );
+        frames(&mut e, 12);
+        let img = e.read_output().unwrap();
+        (
+            img.rgb.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+            e.ray_counts().unwrap(),
+        )
+    };
+    let a = run(5);
+    let b = run(5);
+    let c = run(6);
+    assert_eq!(a.1, b.1, "ray counts");
+    assert!(a.0 == b.0, "same seed, different images");
+    assert!(a.0 != c.0, "another seed must give another image");
+}
+
+/// The viewer's slider: rays per pixel per frame measured within 10% of the value asked for.
+#[test]
+fn ray_budget_is_honoured() {
+    for wanted in [3.0, 6.0] {
+        let mut e = engine(
+            "surfels",
+            toml::Table::new(),
+            builtin::cornell(),
+            [64, 64],
+            1,
+        );
+        frames(&mut e, 16);
+        let measured = e.rays_per_pixel_per_frame(&e.ray_counts().unwrap());
+        e.apply_ray_budget(wanted, measured).unwrap();
+        frames(&mut e, 16);
+        let got = e
+            .rays_per_pixel_per_frame(&e.ray_counts().unwrap())
+            .unwrap();
+        eprintln!(
+            "ray budget {wanted} rays/px/frame: ray_budget = {}, measured {got:.3}",
+            surfels(&e).settings.ray_budget
+        );
+        assert!(
+            (got / wanted - 1.0).abs() < 0.1,
+            "asked {wanted}, got {got}"
+        );
+    }
+}
+
+/// The debug views: ids, coverage, rays, variance, cells and ages present and sane.
+#[test]
+fn debug_views_show_surfels() {
+    let mut e = engine(
+        "surfels",
+        toml::toml! { surfel_size = 0.06 },
+        builtin::cornell(),
+        [64, 64],
+        1,
+    );
+    frames(&mut e, 16);
+    let names: Vec<&str> = e.technique.debug_views().iter().map(|v| v.name).collect();
+    assert_eq!(names.len(), 6, "{names:?}");
+    let data = e.read_debug().unwrap().unwrap();
+    let px = 64 * 64;
+    let ch = |c| gilab::render::debug_channel(&data, px, c);
+    let ids = ch(0);
+    let covered = ids.iter().filter(|v| **v > 0.0).count();
+    assert!(covered > px / 4, "pixels with a surfel: {covered}");
+    let distinct: std::collections::BTreeSet<u32> = ids.iter().map(|v| *v as u32).collect();
+    assert!(distinct.len() > 8, "distinct surfels: {}", distinct.len());
+    assert!(ch(1).iter().any(|v| *v > 0.5), "coverage");
+    assert!(
+        ch(4).iter().all(|v| *v >= 0.0) && ch(4).iter().any(|v| *v > 0.0),
+        "cells"
+    );
+    assert!(
+        ch(5).iter().all(|v| *v <= 17.0),
+        "ages within the frames rendered"
+    );
+}
+
+/// `direct = "restir"`: ReSTIR DI (with ReGIR on many lights) gives the pixels' direct light;
+/// its passes are listed and run, and the image stays finite.
+#[test]
+fn restir_direct_light_runs_with_surfels() {
+    let mut e = engine(
+        "surfels",
+        toml::toml! { direct = "restir"
+        surfel_size = 0.06
+        ray_budget = 2048 },
+        builtin::many_lights(256, 1),
+        [32, 32],
+        1,
+    );
+    let passes = e.passes();
+    for name in ["initial_temporal", "regir_build", "direct"] {
+        assert!(
+            passes.iter().any(|p| p.name == name && p.runs),
+            "{name} should run: {passes:?}"
+        );
+    }
+    frames(&mut e, 4);
+    let img = e.read_output().unwrap();
+    assert_eq!(img.non_finite_count(), 0);
+    assert_eq!(e.ray_counts().unwrap().invalid_samples, 0);
+    assert!(energy(&img) > 0.0);
+}
