@@ -34,7 +34,6 @@ const FLAG_RADIAL_DEPTH: u32 = 2u;
 const FLAG_MSME: u32 = 4u;
 const FLAG_SKY: u32 = 8u;
 const FLAG_ACCUMULATE: u32 = 16u;
-const FLAG_LIGHTS: u32 = 32u;
 
 // One surfel's geometry. radius 0 marks a free slot.
 struct Surfel {

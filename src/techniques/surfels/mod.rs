@@ -223,7 +223,6 @@ impl Surfels {
             (s.msme, FLAG_MSME),
             (ctx.scene.sky.max_element() > 0.0, FLAG_SKY),
             (s.accumulate, FLAG_ACCUMULATE),
-            (ctx.scene.data.features.light_count() > 0, FLAG_LIGHTS),
         ] {
             if on {
                 flags |= flag;
@@ -551,16 +550,18 @@ impl Technique for Surfels {
             ],
         )?;
         let scan = ScanPipelines::build(gpu, ctx.shaders, &scan_layout)?;
-        if self.restir_direct.is_some() {
-            // Rebuilt on a shader change too.
-            self.restir_direct = None;
+        // ReSTIR's direct-light pass is rebuilt too (shader change); if that fails, the old
+        // one and the old surfel pipelines stay.
+        let old_direct = self.restir_direct.take();
+        if let Err(e) = self.ensure_restir(ctx) {
+            self.restir_direct = old_direct;
+            return Err(e);
         }
         self.pipelines = Some(Pipelines {
             passes,
             ray_owner,
             scan,
         });
-        self.ensure_restir(ctx)?;
         // A rebuild after a scene edit or a shader change keeps the surfels and their history
         // (the scene's flags, such as which lights exist, are refreshed); a new size starts over.
         match &self.res {

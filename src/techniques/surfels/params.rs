@@ -146,4 +146,3 @@ pub const FLAG_RADIAL_DEPTH: u32 = 2;
 pub const FLAG_MSME: u32 = 4;
 pub const FLAG_SKY: u32 = 8;
 pub const FLAG_ACCUMULATE: u32 = 16;
-pub const FLAG_LIGHTS: u32 = 32;
