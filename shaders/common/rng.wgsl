@@ -31,6 +31,10 @@ const STREAM_SURFEL_SPAWN: u32 = 10u;
 const STREAM_SURFEL_ALLOCATE: u32 = 11u;
 const STREAM_SURFEL_RAYS: u32 = 12u;
 const STREAM_SURFEL_DIRECT: u32 = 13u;
+const STREAM_LUMEN_DIRECT: u32 = 14u;
+const STREAM_LUMEN_PROBE: u32 = 15u;
+const STREAM_LUMEN_GATHER: u32 = 16u;
+const STREAM_LUMEN_PIXEL: u32 = 17u;
 
 // The sequence for one pixel (or work item), sample index (frame or sample number) and stream.
 fn rng_init(pixel: vec2<u32>, sample_index: u32, stream: u32, seed: u32) -> Rng {

@@ -4,7 +4,8 @@
 #import gilab::counters::{flush_counts, no_counts, RAY_SHADOW}
 #import gilab::rng::{rng_init, rand, rand_pair, STREAM_SURFEL_DIRECT}
 #import gilab::primary::{current_surface, surface_material}
-#import gilab::surfels::{pixel_direct, direct_light}
+#import gilab::surfels::pixel_direct
+#import gilab::nee::direct_light
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {

@@ -5,10 +5,6 @@
 
 #import gilab::math::{PI, INV_PI, luminance, to_local, to_world, max_component}
 #import gilab::frame::frame
-#import gilab::brdf::{Surface, bsdf_eval}
-#import gilab::scene::light_pool
-#import gilab::lights::{sample_light, light_shadow_ray}
-#import gilab::ray::unoccluded
 
 struct SurfelParams {
     max_surfels: u32,
@@ -367,33 +363,6 @@ fn gathered_irradiance(g: Gather) -> vec3<f32> {
         return vec3<f32>(0.0);
     }
     return e / w;
-}
-
-// ---------------------------------------------------------------------------------------------
-// Next-event estimation of one light picked by power (the shared light pool), one shadow ray.
-struct Direct {
-    radiance: vec3<f32>,
-    shadow_rays: u32,
-}
-
-fn direct_light(p: vec3<f32>, n_geo: vec3<f32>, n: vec3<f32>, m: Surface, wo: vec3<f32>, u_select: f32, u: vec2<f32>) -> Direct {
-    var out = Direct(vec3<f32>(0.0), 0u);
-    if light_pool.count == 0u {
-        return out;
-    }
-    let ls = sample_light(p, u_select, u);
-    if !ls.valid || ls.pdf <= 0.0 || dot(ls.wi, n_geo) <= 0.0 {
-        return out;
-    }
-    let e = bsdf_eval(m, n, wo, ls.wi);
-    if !any(e.f > vec3<f32>(0.0)) {
-        return out;
-    }
-    out.shadow_rays = 1u;
-    if unoccluded(light_shadow_ray(p, n_geo, ls)) {
-        out.radiance = e.f * max(dot(n, ls.wi), 0.0) * ls.radiance / ls.pdf;
-    }
-    return out;
 }
 
 // Debug planes: plane 0 = (surfel id, coverage, rays of the surfel, MSME variance), plane 1 =

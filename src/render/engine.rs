@@ -24,6 +24,7 @@ macro_rules! render_context {
             frame_layout: &$e.frame_layout,
             frame_bind_group: &$e.frame_bind_group,
             extent: $e.extent,
+            camera: &$e.camera,
         }
     };
 }
@@ -401,6 +402,12 @@ impl Engine {
             flags: self.flags,
             pad: [0; 2],
         }
+    }
+
+    /// Runs `f` with the render context and the technique: tests and tools that query a
+    /// technique's own state on the GPU (never inside a frame).
+    pub fn inspect<T>(&self, f: impl FnOnce(&RenderContext, &dyn Technique) -> T) -> T {
+        f(&render_context!(self), self.technique.as_ref())
     }
 
     /// Renders one frame of the technique and waits for it.

@@ -101,6 +101,8 @@ pub struct RenderContext<'a> {
     pub frame_layout: &'a wgpu::BindGroupLayout,
     pub frame_bind_group: &'a wgpu::BindGroup,
     pub extent: [u32; 2],
+    /// The camera this frame renders from (techniques with camera-centred structures).
+    pub camera: &'a crate::scene::Camera,
 }
 
 impl RenderContext<'_> {

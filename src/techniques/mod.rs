@@ -2,6 +2,7 @@
 //! the shared inputs (scene, frame uniforms and counters, primary surfaces) and at their linear
 //! HDR output. The registry below is the one table a new technique is added to.
 
+pub mod lumen;
 pub mod reference;
 pub mod restir;
 pub mod surfels;
@@ -31,6 +32,11 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         id: "surfels",
         what: "surfel GI (GIBS): G-buffer-spawned surfels in a non-linear grid integrate irradiance with guided, budgeted rays (multiscale mean estimator, radial Gaussian depth)",
         create: || Box::new(surfels::Surfels::default()),
+    },
+    TechniqueInfo {
+        id: "lumen",
+        what: "Lumen-style GI: global distance field clipmaps and surface cache cards (direct + multi-bounce indirect through feedback), rays traced through the SDF or the BVH, a per-pixel final gather",
+        create: || Box::new(lumen::Lumen::default()),
     },
 ];
 

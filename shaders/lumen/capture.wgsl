@@ -1,0 +1,89 @@
+// Card capture (the seed's "Card Capture"): each card's object is rasterised with the card's
+// orthographic camera into the card's rectangle of the atlas (viewport = rectangle, the card's
+// box depth range clips), writing albedo, normal, emission and depth. `vs_clear` first marks
+// the whole rectangle invalid (depth 2), so a recapture leaves nothing stale behind.
+#import gilab::scene::{materials, base_color}
+#import gilab::brdf::{make_surface, diffuse_color}
+#import gilab::lumen_card::{Card, card_uv, card_depth, card_dir}
+
+@group(1) @binding(0) var<storage, read> capture_cards: array<Card>;
+
+struct VertexIn {
+    @location(0) position: vec3<f32>,
+    @location(1) normal: vec3<f32>,
+    @location(2) uv: vec2<f32>,
+    @location(3) material: u32,
+}
+
+struct VertexOut {
+    @builtin(position) clip: vec4<f32>,
+    @location(0) normal: vec3<f32>,
+    @location(1) uv: vec2<f32>,
+    @location(2) @interpolate(flat) material: u32,
+    @location(3) @interpolate(flat) card: u32,
+    @location(4) depth: f32,
+}
+
+struct CaptureOut {
+    // rgb: diffuse albedo (specular's share of the energy taken out), a: 1.
+    @location(0) albedo: vec4<f32>,
+    // xyz: shading normal on the card's side, w: 1.
+    @location(1) normal: vec4<f32>,
+    @location(2) emissive: vec4<f32>,
+    // Depth in [0, 1] across the card's box; 2 marks an invalid texel.
+    @location(3) depth: f32,
+}
+
+@vertex
+fn vs_main(v: VertexIn, @builtin(instance_index) card: u32) -> VertexOut {
+    let c = capture_cards[card];
+    let uv = card_uv(c, v.position);
+    let depth = card_depth(c, v.position);
+    var o: VertexOut;
+    o.clip = vec4<f32>(uv.x * 2.0 - 1.0, 1.0 - uv.y * 2.0, depth, 1.0);
+    o.normal = v.normal;
+    o.uv = v.uv;
+    o.material = v.material;
+    o.card = card;
+    o.depth = depth;
+    return o;
+}
+
+@fragment
+fn fs_main(in: VertexOut, @builtin(front_facing) front_facing: bool) -> CaptureOut {
+    let m = materials[in.material];
+    let double_sided = m.emissive.w > 0.5;
+    // The card's projection keeps a surface facing the card counter-clockwise (card_uv).
+    if !front_facing && !double_sided {
+        discard;
+    }
+    let dir = card_dir(capture_cards[in.card]);
+    var n = in.normal;
+    let len = length(n);
+    n = select(dir, n / max(len, 1e-20), len > 1e-6);
+    n = select(-n, n, dot(n, dir) >= 0.0);
+    let base = base_color(m, in.uv);
+    let albedo = diffuse_color(make_surface(base.xyz, m.params.x, m.params.y, m.params.z), 1.0);
+    var o: CaptureOut;
+    o.albedo = vec4<f32>(albedo, 1.0);
+    o.normal = vec4<f32>(n, 1.0);
+    o.emissive = vec4<f32>(m.emissive.xyz, 1.0);
+    o.depth = in.depth;
+    return o;
+}
+
+@vertex
+fn vs_clear(@builtin(vertex_index) i: u32) -> @builtin(position) vec4<f32> {
+    let xy = vec2<f32>(f32((i << 1u) & 2u), f32(i & 2u)) * 2.0 - 1.0;
+    return vec4<f32>(xy, 1.0, 1.0);
+}
+
+@fragment
+fn fs_clear() -> CaptureOut {
+    var o: CaptureOut;
+    o.albedo = vec4<f32>(0.0);
+    o.normal = vec4<f32>(0.0);
+    o.emissive = vec4<f32>(0.0);
+    o.depth = 2.0;
+    return o;
+}

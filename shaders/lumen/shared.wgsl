@@ -1,0 +1,626 @@
+// Lumen-style GI (shared/seeds/000, SIGGRAPH 2022): the global signed distance field (camera
+// centred clipmaps of sparse 8^3 bricks plus a quarter-resolution coarse volume), tracing
+// through it or through the BVH (`tracing`), and the surface cache (cards in an atlas) sampled
+// at a hit. Bind group 2; layout must match src/techniques/lumen/mod.rs.
+#define_import_path gilab::lumen
+
+#import gilab::math::{PI, INV_PI}
+#import gilab::scene::{materials, tri_geom, tri_material, scene_triangle}
+#import gilab::bvh::{trace_closest, NO_HIT}
+#import gilab::scene::bvh_nodes
+#import gilab::ray::{offset_point, unoccluded, INFINITE_DISTANCE}
+#import gilab::lights::{LightSample, light_shadow_ray}
+#import gilab::lumen_card::{Card, card_dir, card_uv, card_depth, card_depth_range, card_texel_size, card_point}
+
+const MAX_LEVELS: u32 = 6u;
+const BRICK: u32 = 8u;
+const BRICK_VOXELS: u32 = 512u;
+// Narrow band: bricks hold distances within +-BAND voxels of their level (the seed's [-4, 4]).
+const BAND: f32 = 4.0;
+const EMPTY: u32 = 0xffffffffu;
+const NO_OBJECT: u32 = 0xffffu;
+// Half a voxel's diagonal: the seed's expand against leaks through thin surfaces.
+const EXPAND_VOXELS: f32 = 0.8660254;
+// Expand grows with the distance travelled (so a ray can leave its own surface), at this slope.
+const EXPAND_SLOPE: f32 = 0.5;
+// Rays start this many voxels (of the finest level holding the origin) off their surface.
+const SURFACE_BIAS_VOXELS: f32 = 1.0;
+const HIT_VOXELS: f32 = 0.05;
+const MIN_STEP_VOXELS: f32 = 0.125;
+const MAX_STEPS: u32 = 256u;
+
+const FLAG_BVH: u32 = 1u;
+const FLAG_SKY: u32 = 2u;
+const FLAG_ACCUMULATE: u32 = 4u;
+const FLAG_DEBUG: u32 = 8u;
+const FLAG_LIGHTS: u32 = 16u;
+
+struct Level {
+    // xyz: world position of the level's minimum corner, w: voxel size.
+    origin: vec4<f32>,
+    // xyz: brick coordinate of the minimum corner (origin / (8 voxels)), w: 1 if built.
+    brick_origin: vec4<i32>,
+    // x: 1 if this frame updates the level (scrolled, edited or first build), y: 1 if every brick
+    // of it is rebuilt.
+    update: vec4<u32>,
+}
+
+struct LumenParams {
+    levels: array<Level, 6>,
+    resolution: u32,
+    levels_built: u32,
+    bricks_per_axis: u32,
+    pool_bricks: u32,
+    atlas_size: u32,
+    card_count: u32,
+    flags: u32,
+    rays_per_pixel: u32,
+    gather_downsample: u32,
+    gather_width: u32,
+    gather_height: u32,
+    dirty_box_count: u32,
+    direct_tile_first: u32,
+    direct_tile_count: u32,
+    direct_tiles_total: u32,
+    probe_tile_first: u32,
+    probe_tile_count: u32,
+    probe_tiles_total: u32,
+    sign_rays: u32,
+    query_count: u32,
+    slice_depth: f32,
+    query_mode: u32,
+    pad_a: u32,
+    pad_b: u32,
+}
+
+// A surface-cache probe on a 4x4 texel tile: a hemisphere of rays from one texel.
+struct Probe {
+    // xyz: position, w: 1 if valid.
+    pos: vec4<f32>,
+    // xyz: normal, w: mean hit distance.
+    normal_dist: vec4<f32>,
+    // rgb: irradiance, w: frame it was traced.
+    irradiance: vec4<f32>,
+}
+
+@group(2) @binding(0) var<uniform> params: LumenParams;
+@group(2) @binding(1) var<storage, read> cards: array<Card>;
+// Per object: (first card, card count).
+@group(2) @binding(2) var<storage, read> object_cards: array<vec2<u32>>;
+// Per scene triangle: its object (connected component).
+@group(2) @binding(3) var<storage, read> tri_object: array<u32>;
+// Per level and brick slot (toroidal): pool index or EMPTY.
+@group(2) @binding(4) var<storage, read_write> brick_table: array<u32>;
+// Per level and brick slot: the brick coordinate it holds (w: 1 once built).
+@group(2) @binding(5) var<storage, read_write> brick_coord: array<vec4<i32>>;
+// Brick pool: 512 voxels per brick; low 16 bits signed distance / band, high 16 bits object.
+@group(2) @binding(6) var<storage, read_write> brick_pool: array<u32>;
+// Per level, quarter resolution: unsigned distance at coarse voxel centres.
+@group(2) @binding(7) var<storage, read_write> coarse: array<f32>;
+// Free pool bricks; sdf_state[0] counts them.
+@group(2) @binding(8) var<storage, read_write> free_stack: array<u32>;
+// [0] free count, [2] failed allocations (this update), [3] pops (this update), [4 + l] bricks
+// of level l to fill.
+@group(2) @binding(9) var<storage, read_write> sdf_state: array<atomic<u32>, 16>;
+@group(2) @binding(10) var<storage, read_write> fill_list: array<u32>;
+// Scene edits: world boxes (min, max) whose bricks are rebuilt.
+@group(2) @binding(11) var<storage, read> dirty_boxes: array<vec4<f32>>;
+// Atlas lighting, one vec4 per texel: direct irradiance (w: samples), indirect irradiance (w: frames).
+@group(2) @binding(12) var<storage, read_write> atlas_direct: array<vec4<f32>>;
+@group(2) @binding(13) var<storage, read_write> atlas_indirect: array<vec4<f32>>;
+@group(2) @binding(14) var<storage, read_write> probes: array<Probe>;
+// Direct-light 8x8 tiles then probe 4x4 tiles: (tile x | tile y << 16, card).
+@group(2) @binding(15) var<storage, read> tile_list: array<vec2<u32>>;
+// Final gather per downsampled pixel: rgb irradiance, w: 1 valid.
+@group(2) @binding(16) var<storage, read_write> gather_out: array<vec4<f32>>;
+@group(2) @binding(17) var<storage, read_write> debug_out: array<vec4<f32>>;
+@group(2) @binding(18) var<storage, read_write> queries: array<vec4<f32>>;
+@group(2) @binding(19) var atlas_albedo: texture_2d<f32>;
+@group(2) @binding(20) var atlas_normal: texture_2d<f32>;
+@group(2) @binding(21) var atlas_emissive: texture_2d<f32>;
+@group(2) @binding(22) var atlas_depth: texture_2d<f32>;
+
+fn has_flag(f: u32) -> bool {
+    return (params.flags & f) != 0u;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Global distance field.
+
+fn level_voxel(l: u32) -> f32 {
+    return params.levels[l].origin.w;
+}
+
+fn level_min(l: u32) -> vec3<f32> {
+    return params.levels[l].origin.xyz;
+}
+
+fn level_max(l: u32) -> vec3<f32> {
+    return params.levels[l].origin.xyz + f32(params.resolution) * level_voxel(l);
+}
+
+fn inside_level(l: u32, p: vec3<f32>, margin: f32) -> bool {
+    return all(p > level_min(l) + margin) && all(p < level_max(l) - margin);
+}
+
+// The finest built level that holds p (levels_built when none does).
+fn finest_level(p: vec3<f32>) -> u32 {
+    for (var l = 0u; l < params.levels_built; l++) {
+        if inside_level(l, p, level_voxel(l)) {
+            return l;
+        }
+    }
+    return params.levels_built;
+}
+
+fn wrap(v: vec3<i32>, n: i32) -> vec3<i32> {
+    return ((v % n) + n) % n;
+}
+
+fn floor_div(v: vec3<i32>, d: i32) -> vec3<i32> {
+    return vec3<i32>(floor(vec3<f32>(v) / f32(d)));
+}
+
+// Index into brick_table / brick_coord of brick `b` (world brick coordinates) of level l.
+fn brick_slot(l: u32, b: vec3<i32>) -> u32 {
+    let n = i32(params.bricks_per_axis);
+    let s = wrap(b, n);
+    return l * params.bricks_per_axis * params.bricks_per_axis * params.bricks_per_axis + u32(s.x + n * (s.y + n * s.z));
+}
+
+// The stored voxel word of world voxel v of level l, or EMPTY where no brick holds it.
+fn voxel_word(l: u32, v: vec3<i32>) -> u32 {
+    let b = floor_div(v, i32(BRICK));
+    let slot = brick_slot(l, b);
+    let held = brick_coord[slot];
+    let entry = brick_table[slot];
+    if entry == EMPTY || held.w == 0 || any(held.xyz != b) {
+        return EMPTY;
+    }
+    let local = vec3<u32>(v - b * i32(BRICK));
+    return brick_pool[entry * BRICK_VOXELS + local.x + BRICK * (local.y + BRICK * local.z)];
+}
+
+fn encode_voxel(dist_in_band: f32, object: u32) -> u32 {
+    let q = u32(round(clamp(dist_in_band, -1.0, 1.0) * 32767.0 + 32768.0));
+    return q | (min(object, NO_OBJECT) << 16u);
+}
+
+fn decode_distance(word: u32) -> f32 {
+    return (f32(word & 0xffffu) - 32768.0) / 32767.0;
+}
+
+fn decode_object(word: u32) -> u32 {
+    return word >> 16u;
+}
+
+// Distance (world units) of world voxel v's centre, `BAND` voxels where no brick is stored.
+fn voxel_distance(l: u32, v: vec3<i32>) -> f32 {
+    let w = voxel_word(l, v);
+    let band = BAND * level_voxel(l);
+    return select(decode_distance(w) * band, band, w == EMPTY);
+}
+
+fn coarse_cells() -> u32 {
+    return params.resolution / 4u;
+}
+
+// Lower bound on the distance to the nearest surface from the coarse volume (its value at the
+// nearest coarse centre minus the distance to that centre), or -1 outside the level.
+fn coarse_bound(l: u32, p: vec3<f32>) -> f32 {
+    let n = coarse_cells();
+    let cell = 4.0 * level_voxel(l);
+    let c = vec3<i32>(floor((p - level_min(l)) / cell));
+    if any(c < vec3<i32>(0)) || any(c >= vec3<i32>(i32(n))) {
+        return -1.0;
+    }
+    let idx = l * n * n * n + u32(c.x) + n * (u32(c.y) + n * u32(c.z));
+    let centre = level_min(l) + (vec3<f32>(c) + 0.5) * cell;
+    return coarse[idx] - length(p - centre);
+}
+
+// Trilinear distance from the bricks of level l.
+fn brick_distance(l: u32, p: vec3<f32>) -> f32 {
+    let f = p / level_voxel(l) - 0.5;
+    let i0 = vec3<i32>(floor(f));
+    let t = f - floor(f);
+    var d = 0.0;
+    for (var k = 0u; k < 8u; k++) {
+        let o = vec3<i32>(i32(k & 1u), i32((k >> 1u) & 1u), i32((k >> 2u) & 1u));
+        let w = select(1.0 - t, t, vec3<bool>(o == vec3<i32>(1)));
+        d += w.x * w.y * w.z * voxel_distance(l, i0 + o);
+    }
+    return d;
+}
+
+// Signed distance at p from level l: the coarse volume far from surfaces (empty-space
+// skipping), the narrow-band bricks near them.
+fn sdf_distance(l: u32, p: vec3<f32>) -> f32 {
+    let bound = coarse_bound(l, p);
+    let band = BAND * level_voxel(l);
+    if bound > band {
+        return bound;
+    }
+    return brick_distance(l, p);
+}
+
+// Object id stored at the voxel nearest p.
+fn sdf_object(l: u32, p: vec3<f32>) -> u32 {
+    let w = voxel_word(l, vec3<i32>(floor(p / level_voxel(l))));
+    return select(decode_object(w), NO_OBJECT, w == EMPTY);
+}
+
+// Gradient by central differences, 6 taps at +-half a voxel (the seed's hit normal).
+fn sdf_normal(l: u32, p: vec3<f32>) -> vec3<f32> {
+    let h = 0.5 * level_voxel(l);
+    let g = vec3<f32>(
+        sdf_distance(l, p + vec3<f32>(h, 0.0, 0.0)) - sdf_distance(l, p - vec3<f32>(h, 0.0, 0.0)),
+        sdf_distance(l, p + vec3<f32>(0.0, h, 0.0)) - sdf_distance(l, p - vec3<f32>(0.0, h, 0.0)),
+        sdf_distance(l, p + vec3<f32>(0.0, 0.0, h)) - sdf_distance(l, p - vec3<f32>(0.0, 0.0, h)),
+    );
+    let len = length(g);
+    return select(vec3<f32>(0.0, 1.0, 0.0), g / len, len > 1e-12);
+}
+
+// Distance at p from the finest level holding it (queries, debug slice); 1e30 outside all.
+fn sdf_sample(p: vec3<f32>) -> f32 {
+    let l = finest_level(p);
+    if l >= params.levels_built {
+        return 1e30;
+    }
+    return sdf_distance(l, p);
+}
+
+fn ray_box_exit(o: vec3<f32>, d: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> f32 {
+    let inv = 1.0 / select(d, vec3<f32>(1e-20), abs(d) < vec3<f32>(1e-20));
+    let t0 = (lo - o) * inv;
+    let t1 = (hi - o) * inv;
+    let tmax = max(t0, t1);
+    return min(tmax.x, min(tmax.y, tmax.z));
+}
+
+struct SdfHit {
+    hit: bool,
+    t: f32,
+    level: u32,
+    steps: u32,
+}
+
+// Sphere tracing through the clipmaps from the finest to the coarsest: each level is marched
+// while the ray is inside it, then the next level continues from where it left. The surface is
+// expanded by up to half a voxel diagonal (thin walls between voxel centres still stop rays),
+// growing from 0 at the origin; `shadow` rays fade the expand out again before t_max so the
+// surface a light sits on does not occlude it. Hitting the iteration cap counts as a hit.
+// `expand_on` false traces the bare field (queries that measure its accuracy).
+fn sdf_trace(o: vec3<f32>, d: vec3<f32>, t_max: f32, shadow: bool, expand_on: bool) -> SdfHit {
+    var t = 0.0;
+    var steps = 0u;
+    for (var l = 0u; l < params.levels_built; l++) {
+        let voxel = level_voxel(l);
+        if !inside_level(l, o + d * t, 0.5 * voxel) {
+            continue;
+        }
+        let t_exit = min(ray_box_exit(o, d, level_min(l) + 0.5 * voxel, level_max(l) - 0.5 * voxel), t_max);
+        while t < t_exit {
+            if steps >= MAX_STEPS {
+                return SdfHit(true, t, l, steps);
+            }
+            steps++;
+            let p = o + d * t;
+            let dist = sdf_distance(l, p);
+            var expand = select(0.0, min(EXPAND_VOXELS * voxel, EXPAND_SLOPE * t), expand_on);
+            if shadow {
+                expand = min(expand, EXPAND_SLOPE * max(t_max - t, 0.0));
+            }
+            if dist - expand < HIT_VOXELS * voxel {
+                return SdfHit(true, t, l, steps);
+            }
+            t += max(dist - expand, MIN_STEP_VOXELS * voxel);
+        }
+        if t >= t_max {
+            break;
+        }
+    }
+    return SdfHit(false, t_max, params.levels_built, steps);
+}
+
+// ---------------------------------------------------------------------------------------------
+// One query for both `tracing` modes: the SDF (software) or the BVH's triangles (hardware).
+
+struct TraceHit {
+    hit: bool,
+    t: f32,
+    position: vec3<f32>,
+    // Facing the ray.
+    normal: vec3<f32>,
+    object: u32,
+    // The ray met the back of a single-sided surface (it started inside geometry): no light.
+    back_face: bool,
+    steps: u32,
+}
+
+// The world size of the surface bias at p: SURFACE_BIAS_VOXELS of the finest level holding it.
+fn sdf_bias(p: vec3<f32>) -> f32 {
+    let l = finest_level(p);
+    return SURFACE_BIAS_VOXELS * level_voxel(min(l, max(params.levels_built, 1u) - 1u));
+}
+
+fn trace_sdf_mode(p: vec3<f32>, n_geo: vec3<f32>, d: vec3<f32>, t_max: f32, shadow: bool) -> TraceHit {
+    let side = select(-n_geo, n_geo, dot(n_geo, d) >= 0.0);
+    let o = p + side * sdf_bias(p);
+    let h = sdf_trace(o, d, t_max, shadow, true);
+    if !h.hit {
+        return TraceHit(false, t_max, vec3<f32>(0.0), vec3<f32>(0.0), NO_OBJECT, false, h.steps);
+    }
+    let pos = o + d * h.t;
+    let g = sdf_normal(h.level, pos);
+    let back = dot(g, d) > 0.0;
+    return TraceHit(true, h.t, pos, select(g, -g, back), sdf_object(h.level, pos), back, h.steps);
+}
+
+fn trace_bvh_mode(p: vec3<f32>, n_geo: vec3<f32>, d: vec3<f32>, t_max: f32) -> TraceHit {
+    let o = offset_point(p, n_geo, d);
+    let h = trace_closest(o, d, 0.0, t_max);
+    if h.tri == NO_HIT {
+        return TraceHit(false, t_max, vec3<f32>(0.0), vec3<f32>(0.0), NO_OBJECT, false, 0u);
+    }
+    let g = hit_geometric_normal(h.tri);
+    let front = dot(g, d) < 0.0;
+    let double_sided = materials[tri_material(h.tri)].emissive.w > 0.5;
+    let object = tri_object[scene_triangle(h.tri)];
+    return TraceHit(true, h.t, o + d * h.t, select(-g, g, front), object, !front && !double_sided, 0u);
+}
+
+fn hit_geometric_normal(tri: u32) -> vec3<f32> {
+    let g = tri_geom[tri];
+    return normalize(cross(g.edge_b.xyz, g.edge_c.xyz));
+}
+
+// Closest hit with the technique's `tracing` mode, from surface point p (geometric normal n_geo).
+fn trace_scene(p: vec3<f32>, n_geo: vec3<f32>, d: vec3<f32>, t_max: f32) -> TraceHit {
+    if has_flag(FLAG_BVH) {
+        return trace_bvh_mode(p, n_geo, d, t_max);
+    }
+    return trace_sdf_mode(p, n_geo, d, t_max, false);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Surface cache sampling (the seed's "Card Sampling").
+
+struct CacheSample {
+    albedo: vec3<f32>,
+    direct: vec3<f32>,
+    indirect: vec3<f32>,
+    emissive: vec3<f32>,
+    // Sum of the weights (0: no card covers the point; the caller loses that energy).
+    weight: f32,
+    // Card with the largest weight, or EMPTY.
+    best_card: u32,
+}
+
+fn atlas_index(t: vec2<u32>) -> u32 {
+    return t.y * params.atlas_size + t.x;
+}
+
+// The cache at point p (normal n) of `object`: project onto the object's cards facing n, four
+// texels each (manual bilinear), weighted by card-normal agreement and by how far the texel's
+// depth is from the point's (occluded texels drop out); invalid texels are skipped.
+fn sample_cache(p: vec3<f32>, n: vec3<f32>, object: u32, tolerance_in: f32) -> CacheSample {
+    var out = CacheSample(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0), 0.0, EMPTY);
+    if object >= arrayLength(&object_cards) {
+        return out;
+    }
+    let range = object_cards[object];
+    var best = 0.0;
+    for (var k = 0u; k < range.y; k++) {
+        let ci = range.x + k;
+        let c = cards[ci];
+        let facing = dot(n, card_dir(c));
+        if facing <= 0.1 {
+            continue;
+        }
+        let tolerance = max(tolerance_in, 2.0 * card_texel_size(c));
+        if any(p < c.box_min.xyz - tolerance) || any(p > c.box_max.xyz + tolerance) {
+            continue;
+        }
+        let uv = clamp(card_uv(c, p), vec2<f32>(0.0), vec2<f32>(1.0));
+        let depth = card_depth(c, p);
+        let range_w = card_depth_range(c);
+        let f = uv * vec2<f32>(c.rect.zw) - 0.5;
+        let i0 = vec2<i32>(floor(f));
+        let t = f - floor(f);
+        var card_weight = 0.0;
+        for (var j = 0u; j < 4u; j++) {
+            let o = vec2<i32>(i32(j & 1u), i32(j >> 1u));
+            let local = clamp(i0 + o, vec2<i32>(0), vec2<i32>(c.rect.zw) - 1);
+            let texel = vec2<u32>(local) + c.rect.xy;
+            let td = textureLoad(atlas_depth, texel, 0).x;
+            if td > 1.5 {
+                continue;
+            }
+            let bw = select(1.0 - t, t, vec2<bool>(o == vec2<i32>(1)));
+            let dw = clamp(1.0 - abs(td - depth) * range_w / tolerance, 0.0, 1.0);
+            let w = bw.x * bw.y * dw * facing;
+            if w <= 0.0 {
+                continue;
+            }
+            let ai = atlas_index(texel);
+            out.albedo += w * textureLoad(atlas_albedo, texel, 0).xyz;
+            out.emissive += w * textureLoad(atlas_emissive, texel, 0).xyz;
+            out.direct += w * atlas_direct[ai].xyz;
+            out.indirect += w * atlas_indirect[ai].xyz;
+            card_weight += w;
+        }
+        out.weight += card_weight;
+        if card_weight > best {
+            best = card_weight;
+            out.best_card = ci;
+        }
+    }
+    if out.weight > 1e-4 {
+        let inv = 1.0 / out.weight;
+        out.albedo *= inv;
+        out.emissive *= inv;
+        out.direct *= inv;
+        out.indirect *= inv;
+    }
+    return out;
+}
+
+// Diffuse radiance leaving a cached surface: albedo x (direct + indirect irradiance) / pi + emission.
+fn cache_radiance(s: CacheSample) -> vec3<f32> {
+    return s.albedo * (s.direct + s.indirect) * INV_PI + s.emissive;
+}
+
+// Radiance a traced ray brings back: the cache's reflected light at a hit (nothing from the back
+// of a surface or where no card covers it), the sky on a miss.
+fn hit_radiance(h: TraceHit, sky: vec3<f32>) -> vec3<f32> {
+    if !h.hit {
+        return select(vec3<f32>(0.0), sky, has_flag(FLAG_SKY));
+    }
+    if h.back_face {
+        return vec3<f32>(0.0);
+    }
+    let tol = select(1.5 * sdf_bias(h.position), 1e-3 * max(h.t, 1.0), has_flag(FLAG_BVH));
+    // Reflected light only: emitters are in the light pool, so light leaving them directly is
+    // already counted by next-event estimation where the ray started.
+    let s = sample_cache(h.position, h.normal, h.object, tol);
+    return s.albedo * (s.direct + s.indirect) * INV_PI;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Building the distance field: closest triangle through the BVH (a point query).
+
+// Closest point to p on triangle tri (Ericson, Real-Time Collision Detection 5.1.5).
+fn closest_point_on_triangle(p: vec3<f32>, tri: u32) -> vec3<f32> {
+    let g = tri_geom[tri];
+    let a = g.vertex_a.xyz;
+    let ab = g.edge_b.xyz;
+    let ac = g.edge_c.xyz;
+    let ap = p - a;
+    let d1 = dot(ab, ap);
+    let d2 = dot(ac, ap);
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return a;
+    }
+    let bp = ap - ab;
+    let d3 = dot(ab, bp);
+    let d4 = dot(ac, bp);
+    if d3 >= 0.0 && d4 <= d3 {
+        return a + ab;
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        return a + ab * (d1 / (d1 - d3));
+    }
+    let cp = ap - ac;
+    let d5 = dot(ab, cp);
+    let d6 = dot(ac, cp);
+    if d6 >= 0.0 && d5 <= d6 {
+        return a + ac;
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        return a + ac * (d2 / (d2 - d6));
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        let bc = ac - ab;
+        return a + ab + bc * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+    }
+    let denom = 1.0 / (va + vb + vc);
+    return a + ab * (vb * denom) + ac * (vc * denom);
+}
+
+struct Closest {
+    dist: f32,
+    // BVH-order triangle, NO_HIT when nothing lies within the search radius.
+    tri: u32,
+}
+
+// The nearest triangle within `radius` of p: the stackless BVH walk with nodes farther than the
+// best distance so far skipped.
+fn closest_triangle(p: vec3<f32>, radius: f32) -> Closest {
+    var best = Closest(radius, NO_HIT);
+    let node_count = arrayLength(&bvh_nodes);
+    var i = 0u;
+    while i < node_count {
+        let node = bvh_nodes[i];
+        let q = clamp(p, node.bounds_min, node.bounds_max);
+        if length(q - p) >= best.dist {
+            i = node.skip;
+            continue;
+        }
+        let count = node.tris & 0xffu;
+        if count == 0u {
+            i++;
+            continue;
+        }
+        let first = node.tris >> 8u;
+        for (var k = 0u; k < count; k++) {
+            let d = length(closest_point_on_triangle(p, first + k) - p);
+            if d < best.dist {
+                best = Closest(d, first + k);
+            }
+        }
+        i = node.skip;
+    }
+    return best;
+}
+
+// The brick coordinate slot s of level l should hold for the level's current origin.
+fn wanted_brick(l: u32, slot: u32) -> vec3<i32> {
+    let n = params.bricks_per_axis;
+    let local = slot - l * n * n * n;
+    let s = vec3<i32>(vec3<u32>(local % n, (local / n) % n, local / (n * n)));
+    let bo = params.levels[l].brick_origin.xyz;
+    return bo + wrap(s - bo, i32(n));
+}
+
+// Does a scene edit touch brick b of level l (its box grown by the band)?
+fn brick_edited(l: u32, b: vec3<i32>) -> bool {
+    let size = f32(BRICK) * level_voxel(l);
+    let grow = BAND * level_voxel(l);
+    let lo = vec3<f32>(b) * size - grow;
+    let hi = vec3<f32>(b + 1) * size + grow;
+    for (var k = 0u; k < params.dirty_box_count; k++) {
+        let bmin = dirty_boxes[2u * k].xyz;
+        let bmax = dirty_boxes[2u * k + 1u].xyz;
+        if all(lo <= bmax) && all(hi >= bmin) {
+            return true;
+        }
+    }
+    return false;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Atlas texels.
+
+struct CacheTexel {
+    valid: bool,
+    position: vec3<f32>,
+    normal: vec3<f32>,
+}
+
+// The surface a texel of card `ci` holds (invalid where the capture saw nothing).
+fn cache_texel(ci: u32, texel: vec2<u32>) -> CacheTexel {
+    let c = cards[ci];
+    let td = textureLoad(atlas_depth, texel, 0).x;
+    if td > 1.5 {
+        return CacheTexel(false, vec3<f32>(0.0), vec3<f32>(0.0));
+    }
+    let uv = (vec2<f32>(texel - c.rect.xy) + 0.5) / vec2<f32>(c.rect.zw);
+    let n = textureLoad(atlas_normal, texel, 0).xyz;
+    return CacheTexel(true, card_point(c, uv, td), normalize(n));
+}
+
+// Visibility of a light sample from point p (geometric normal n) in the `tracing` mode.
+fn light_visible(p: vec3<f32>, n: vec3<f32>, ls: LightSample) -> bool {
+    if has_flag(FLAG_BVH) {
+        return unoccluded(light_shadow_ray(p, n, ls));
+    }
+    // The light is geometry in the field too: stop a surface bias (at the light's end) short.
+    let end = p + ls.wi * ls.dist;
+    let t_max = select(max(ls.dist - 2.0 * sdf_bias(end), 0.0), 1e30, ls.dist >= INFINITE_DISTANCE);
+    return !trace_sdf_mode(p, n, ls.wi, t_max, true).hit;
+}

@@ -1,0 +1,356 @@
+//! Surface cache cards on the CPU: objects (connected triangle groups), axis-aligned card
+//! placement per object, and the atlas layout in 128x128 physical pages.
+//!
+//! The seed voxelises each mesh into axis-aligned surfels and clusters them into up to N cards.
+//! Scenes here are triangle soups, so an object is a connected component (triangles sharing a
+//! welded vertex), and clustering works per side: the triangles that face a side are sorted by
+//! depth along its axis and split into layers wherever a gap opens (a concave object, such as a
+//! room with a step, gets one card per layer). Each layer is a card; an object keeps its
+//! `MAX_CARDS_PER_OBJECT` largest by projected area.
+
+use crate::scene::gpu_scene::SceneData;
+use anyhow::{bail, Result};
+use glam::Vec3;
+use std::collections::HashMap;
+
+/// Physical page side in texels (the seed's 128x128 pages in a 4k atlas).
+pub const PAGE: u32 = 128;
+/// Card sides are multiples of the direct-lighting tile (8 texels), so tiles never straddle cards.
+pub const CARD_GRANULE: u32 = 8;
+/// Six sides plus extra layers for concave objects.
+pub const MAX_CARDS_PER_OBJECT: usize = 16;
+/// Share of the atlas the first layout attempt aims to fill.
+const TARGET_FILL: f32 = 0.4;
+
+/// `Card` of shaders/lumen/card.wgsl.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct GpuCard {
+    /// xyz: box minimum, w: side (bits): 0 +x, 1 -x, 2 +y, 3 -y, 4 +z, 5 -z.
+    pub box_min: [f32; 4],
+    /// xyz: box maximum, w: object (bits).
+    pub box_max: [f32; 4],
+    /// Atlas rectangle x, y, width, height.
+    pub rect: [u32; 4],
+    /// First capture index, index count, page, unused.
+    pub draw: [u32; 4],
+}
+
+impl GpuCard {
+    pub fn side(&self) -> u32 {
+        self.box_min[3].to_bits()
+    }
+    pub fn object(&self) -> u32 {
+        self.box_max[3].to_bits()
+    }
+    pub fn centre(&self) -> Vec3 {
+        (Vec3::from_slice(&self.box_min[..3]) + Vec3::from_slice(&self.box_max[..3])) * 0.5
+    }
+    pub fn texels(&self) -> u32 {
+        self.rect[2] * self.rect[3]
+    }
+}
+
+/// Cards, the object tables the shaders need and the capture index buffer.
+#[derive(Clone, Debug, Default)]
+pub struct CardSet {
+    pub cards: Vec<GpuCard>,
+    /// Per object: first card, card count (cards are grouped by object).
+    pub object_cards: Vec<[u32; 2]>,
+    /// Per scene triangle: its object.
+    pub tri_object: Vec<u32>,
+    /// Capture vertex indices (into the scene's raster vertex buffer, BVH order), by object.
+    pub indices: Vec<u32>,
+    /// World size of a texel before per-card clamping.
+    pub texel_size: f32,
+    pub pages_used: u32,
+}
+
+impl CardSet {
+    pub fn object_count(&self) -> usize {
+        self.object_cards.len()
+    }
+    /// 8x8 direct-lighting tiles: (tile x | tile y << 16, card).
+    pub fn tiles(&self, size: u32) -> Vec<[u32; 2]> {
+        let mut out = Vec::new();
+        for (i, c) in self.cards.iter().enumerate() {
+            for ty in 0..c.rect[3] / size {
+                for tx in 0..c.rect[2] / size {
+                    let x = c.rect[0] / size + tx;
+                    let y = c.rect[1] / size + ty;
+                    out.push([x | (y << 16), i as u32]);
+                }
+            }
+        }
+        out
+    }
+}
+
+fn find(parent: &mut [u32], mut i: u32) -> u32 {
+    while parent[i as usize] != i {
+        parent[i as usize] = parent[parent[i as usize] as usize];
+        i = parent[i as usize];
+    }
+    i
+}
+
+/// Object id per triangle: connected components over vertices welded at 1e-5 of the scene's size.
+pub fn objects(tris: &[[Vec3; 3]]) -> (Vec<u32>, usize) {
+    let mut lo = Vec3::splat(f32::MAX);
+    let mut hi = Vec3::splat(f32::MIN);
+    for t in tris {
+        for p in t {
+            lo = lo.min(*p);
+            hi = hi.max(*p);
+        }
+    }
+    let eps = ((hi - lo).length() * 1e-5).max(1e-9);
+    let n = tris.len();
+    let mut parent: Vec<u32> = (0..n as u32).collect();
+    let mut first: HashMap<[i64; 3], u32> = HashMap::new();
+    for (t, tri) in tris.iter().enumerate() {
+        for p in tri {
+            let key = [
+                (p.x / eps).round() as i64,
+                (p.y / eps).round() as i64,
+                (p.z / eps).round() as i64,
+            ];
+            let other = *first.entry(key).or_insert(t as u32);
+            let (a, b) = (find(&mut parent, t as u32), find(&mut parent, other));
+            if a != b {
+                parent[a.max(b) as usize] = a.min(b);
+            }
+        }
+    }
+    let mut ids = HashMap::new();
+    let mut out = Vec::with_capacity(n);
+    for t in 0..n as u32 {
+        let r = find(&mut parent, t);
+        let next = ids.len() as u32;
+        out.push(*ids.entry(r).or_insert(next));
+    }
+    (out, ids.len())
+}
+
+/// A card before it has a place in the atlas.
+#[derive(Clone, Debug)]
+struct Layer {
+    side: u32,
+    lo: Vec3,
+    hi: Vec3,
+    area: f32,
+}
+
+fn side_dir(side: u32) -> Vec3 {
+    let mut d = Vec3::ZERO;
+    d[(side / 2) as usize] = if side & 1 == 1 { -1.0 } else { 1.0 };
+    d
+}
+
+/// The card layers of one object's triangles.
+fn object_layers(tris: &[[Vec3; 3]], double_sided: &[bool], pad: f32) -> Vec<Layer> {
+    let mut lo = Vec3::splat(f32::MAX);
+    let mut hi = Vec3::splat(f32::MIN);
+    for t in tris {
+        for p in t {
+            lo = lo.min(*p);
+            hi = hi.max(*p);
+        }
+    }
+    let gap = ((hi - lo).length() * 0.02).max(4.0 * pad);
+    let mut layers = Vec::new();
+    for side in 0..6u32 {
+        let dir = side_dir(side);
+        let axis = (side / 2) as usize;
+        // (front depth, back depth, box, projected area): depth grows away from the card.
+        let mut facing: Vec<(f32, f32, Vec3, Vec3, f32)> = Vec::new();
+        for (t, &two) in tris.iter().zip(double_sided) {
+            let n = (t[1] - t[0]).cross(t[2] - t[0]);
+            let area = 0.5 * n.length();
+            if area <= 0.0 {
+                continue;
+            }
+            let c = n.normalize().dot(dir);
+            if !(c > 0.1 || (two && c < -0.1)) {
+                continue;
+            }
+            let tlo = t[0].min(t[1]).min(t[2]);
+            let thi = t[0].max(t[1]).max(t[2]);
+            let (front, back) = if side & 1 == 1 {
+                (tlo[axis], thi[axis])
+            } else {
+                (-thi[axis], -tlo[axis])
+            };
+            facing.push((front, back, tlo, thi, area * c.abs()));
+        }
+        facing.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut current: Option<(f32, Layer)> = None;
+        for (front, back, tlo, thi, area) in facing {
+            match &mut current {
+                Some((end, layer)) if front <= *end + gap => {
+                    *end = end.max(back);
+                    layer.lo = layer.lo.min(tlo);
+                    layer.hi = layer.hi.max(thi);
+                    layer.area += area;
+                }
+                _ => {
+                    if let Some((_, l)) = current.take() {
+                        layers.push(l);
+                    }
+                    current = Some((
+                        back,
+                        Layer {
+                            side,
+                            lo: tlo,
+                            hi: thi,
+                            area,
+                        },
+                    ));
+                }
+            }
+        }
+        if let Some((_, l)) = current {
+            layers.push(l);
+        }
+    }
+    layers.sort_by(|a, b| b.area.total_cmp(&a.area));
+    layers.truncate(MAX_CARDS_PER_OBJECT);
+    for l in &mut layers {
+        l.lo -= Vec3::splat(pad);
+        l.hi += Vec3::splat(pad);
+    }
+    layers
+}
+
+fn card_extent(side: u32, lo: Vec3, hi: Vec3) -> (f32, f32) {
+    let a = (side / 2) as usize;
+    let size = hi - lo;
+    (size[(a + 1) % 3], size[(a + 2) % 3])
+}
+
+fn texels_for(extent: f32, texel: f32) -> u32 {
+    let t = (extent / texel).ceil().max(1.0) as u32;
+    t.div_ceil(CARD_GRANULE).clamp(1, PAGE / CARD_GRANULE) * CARD_GRANULE
+}
+
+/// Places cards in pages with a shelf packer; None when they do not fit.
+fn pack(sizes: &[(u32, u32)], atlas: u32) -> Option<(Vec<[u32; 3]>, u32)> {
+    let pages_per_side = atlas / PAGE;
+    let pages = pages_per_side * pages_per_side;
+    let mut order: Vec<usize> = (0..sizes.len()).collect();
+    order.sort_by_key(|&i| (std::cmp::Reverse(sizes[i].1), std::cmp::Reverse(sizes[i].0)));
+    let mut out = vec![[0u32; 3]; sizes.len()];
+    let (mut page, mut x, mut y, mut shelf) = (0u32, 0u32, 0u32, 0u32);
+    for i in order {
+        let (w, h) = sizes[i];
+        if x + w > PAGE {
+            x = 0;
+            y += shelf;
+            shelf = 0;
+        }
+        if y + h > PAGE {
+            page += 1;
+            x = 0;
+            y = 0;
+            shelf = 0;
+        }
+        if page >= pages {
+            return None;
+        }
+        let px = (page % pages_per_side) * PAGE;
+        let py = (page / pages_per_side) * PAGE;
+        out[i] = [px + x, py + y, page];
+        x += w;
+        shelf = shelf.max(h);
+    }
+    Some((out, page + 1))
+}
+
+/// Cards for every object of the scene, laid out in an atlas of `atlas` texels.
+pub fn build(data: &SceneData, atlas: u32) -> Result<CardSet> {
+    let (tri_object, object_count) = objects(&data.tris);
+    let f = &data.features;
+    let pad = (Vec3::from(f.bounds_max) - Vec3::from(f.bounds_min)).length() * 1e-3;
+    // Double-sidedness per scene triangle, from the BVH-ordered attributes.
+    let mut two_sided = vec![false; data.tris.len()];
+    for (bvh_index, &orig) in data.bvh.order.iter().enumerate() {
+        let m = data.tri_attr[bvh_index].n1[3].to_bits() as usize;
+        two_sided[orig as usize] = data.materials.get(m).is_some_and(|m| m.emissive[3] > 0.5);
+    }
+    let mut per_object: Vec<Vec<[Vec3; 3]>> = vec![Vec::new(); object_count];
+    let mut per_object_two: Vec<Vec<bool>> = vec![Vec::new(); object_count];
+    for (t, tri) in data.tris.iter().enumerate() {
+        let o = tri_object[t] as usize;
+        per_object[o].push(*tri);
+        per_object_two[o].push(two_sided[t]);
+    }
+    // Capture indices by object, in the raster vertex buffer's (BVH) order.
+    let mut by_object: Vec<Vec<u32>> = vec![Vec::new(); object_count];
+    for (bvh_index, &orig) in data.bvh.order.iter().enumerate() {
+        let o = tri_object[orig as usize] as usize;
+        let base = 3 * bvh_index as u32;
+        by_object[o].extend([base, base + 1, base + 2]);
+    }
+    let mut indices = Vec::new();
+    let mut ranges = Vec::with_capacity(object_count);
+    for list in &by_object {
+        ranges.push([indices.len() as u32, list.len() as u32]);
+        indices.extend_from_slice(list);
+    }
+    let mut layers: Vec<(u32, Layer)> = Vec::new();
+    for (o, tris) in per_object.iter().enumerate() {
+        for l in object_layers(tris, &per_object_two[o], pad) {
+            layers.push((o as u32, l));
+        }
+    }
+    let area: f32 = layers
+        .iter()
+        .map(|(_, l)| {
+            let (u, v) = card_extent(l.side, l.lo, l.hi);
+            u * v
+        })
+        .sum();
+    let mut texel = (area / (TARGET_FILL * (atlas as f32).powi(2)))
+        .sqrt()
+        .max(1e-9);
+    for _ in 0..40 {
+        let sizes: Vec<(u32, u32)> = layers
+            .iter()
+            .map(|(_, l)| {
+                let (u, v) = card_extent(l.side, l.lo, l.hi);
+                (texels_for(u, texel), texels_for(v, texel))
+            })
+            .collect();
+        if let Some((places, pages_used)) = pack(&sizes, atlas) {
+            let mut cards = Vec::with_capacity(layers.len());
+            let mut object_cards = vec![[0u32, 0u32]; object_count];
+            for (i, (o, l)) in layers.iter().enumerate() {
+                if object_cards[*o as usize][1] == 0 {
+                    object_cards[*o as usize][0] = cards.len() as u32;
+                }
+                object_cards[*o as usize][1] += 1;
+                let r = ranges[*o as usize];
+                cards.push(GpuCard {
+                    box_min: [l.lo.x, l.lo.y, l.lo.z, f32::from_bits(l.side)],
+                    box_max: [l.hi.x, l.hi.y, l.hi.z, f32::from_bits(*o)],
+                    rect: [places[i][0], places[i][1], sizes[i].0, sizes[i].1],
+                    draw: [r[0], r[1], places[i][2], 0],
+                });
+            }
+            return Ok(CardSet {
+                cards,
+                object_cards,
+                tri_object,
+                indices,
+                texel_size: texel,
+                pages_used,
+            });
+        }
+        texel *= 1.25;
+    }
+    bail!(
+        "lumen: {} cards of {} objects do not fit a {atlas}^2 atlas even at the smallest card size; raise atlas_size",
+        layers.len(),
+        object_count
+    )
+}

@@ -1,0 +1,189 @@
+//! The Lumen technique's parameters (one table: docs, ranges, defaults) and their GPU form.
+
+use crate::render::params::{ParamKind, ParamSpec, Params};
+
+pub const PARAMS: &[ParamSpec] = &[
+    ParamSpec {
+        name: "tracing",
+        what: "what rays trace: the global distance field (the seed's software ray tracing) or the scene's triangles through the BVH (its hardware ray tracing); both read the same surface cache",
+        higher: "bvh: exact hits and shadows, no leaks through thin walls, cost grows with triangles",
+        lower: "sdf: cost independent of triangle count, hits within about a voxel, over-occlusion from the expand",
+        kind: ParamKind::Choice(&["sdf", "bvh"]),
+        default: 0.0,
+    },
+    ParamSpec {
+        name: "clipmap_levels",
+        what: "global SDF clipmaps centred on the camera, each twice the size of the last (levels past the first that holds the whole scene are not built)",
+        higher: "reach farther from the camera",
+        lower: "less memory and build time; rays that leave the last level miss",
+        kind: ParamKind::Int { min: 1, max: 6 },
+        default: 4.0,
+    },
+    ParamSpec {
+        name: "clipmap_resolution",
+        what: "voxels along each side of every clipmap (a multiple of 8: bricks are 8^3)",
+        higher: "finer distance field: hits and thin walls resolved closer, more bricks to build",
+        lower: "coarser: faster builds, more over-occlusion and error",
+        kind: ParamKind::Int { min: 32, max: 256 },
+        default: 128.0,
+    },
+    ParamSpec {
+        name: "atlas_size",
+        what: "side of the surface cache atlas in texels (a multiple of its 128x128 pages); card resolution follows from it",
+        higher: "sharper cache, more memory, each update budget covers a smaller share",
+        lower: "blurrier cache, cheaper updates",
+        kind: ParamKind::Int { min: 128, max: 4096 },
+        default: 2048.0,
+    },
+    ParamSpec {
+        name: "direct_texels_per_frame",
+        what: "surface cache texels whose direct light is updated per frame, quoted for a 4096^2 atlas and scaled to the atlas's area (the seed's 1024^2)",
+        higher: "the cache follows light changes sooner and converges faster",
+        lower: "cheaper frames, more lag",
+        kind: ParamKind::Int { min: 0, max: 16_777_216 },
+        default: 1_048_576.0,
+    },
+    ParamSpec {
+        name: "indirect_texels_per_frame",
+        what: "surface cache texels whose indirect light (probes on 4x4 tiles, 16 rays each) is updated per frame, quoted for a 4096^2 atlas and scaled (the seed's 512^2)",
+        higher: "bounces propagate sooner (each update adds one), more cache rays",
+        lower: "cheaper frames, multi-bounce converges more slowly",
+        kind: ParamKind::Int { min: 0, max: 16_777_216 },
+        default: 262_144.0,
+    },
+    ParamSpec {
+        name: "gather_downsample",
+        what: "final gather at one pixel per NxN block, upsampled with normal and depth weights",
+        higher: "fewer gather rays per pixel, blurrier indirect light",
+        lower: "1: every pixel gathers",
+        kind: ParamKind::Int { min: 1, max: 4 },
+        default: 1.0,
+    },
+    ParamSpec {
+        name: "rays_per_pixel",
+        what: "final gather rays per gathering pixel per frame (the viewer's ray-budget slider sets it)",
+        higher: "less noise per frame, more rays",
+        lower: "cheaper frames, noisier",
+        kind: ParamKind::Int { min: 1, max: 64 },
+        default: 2.0,
+    },
+    ParamSpec {
+        name: "sign_rays",
+        what: "rays per narrow-band voxel that decide the distance field's sign by counting back faces (the seed casts 64)",
+        higher: "a more reliable sign near open or messy geometry, slower SDF builds",
+        lower: "faster builds, more voxels with the wrong sign",
+        kind: ParamKind::Int { min: 4, max: 64 },
+        default: 16.0,
+    },
+    ParamSpec {
+        name: "accumulate",
+        what: "average frames into the output (off: each frame alone, the real-time view)",
+        higher: "on: a static view converges",
+        lower: "off: what a game would show each frame",
+        kind: ParamKind::Bool,
+        default: 1.0,
+    },
+    ParamSpec {
+        name: "debug_views",
+        what: "compute the debug views each frame (cache channels, cards, SDF slice, steps and error: one more SDF trace per pixel, inside the apply pass's time)",
+        higher: "on: the viewer's debug views show data",
+        lower: "off: timings without the debug work (benchmarks)",
+        kind: ParamKind::Bool,
+        default: 1.0,
+    },
+];
+
+/// The parameters, typed.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LumenSettings {
+    pub bvh: bool,
+    pub clipmap_levels: u32,
+    pub clipmap_resolution: u32,
+    pub atlas_size: u32,
+    pub direct_texels_per_frame: u32,
+    pub indirect_texels_per_frame: u32,
+    pub gather_downsample: u32,
+    pub rays_per_pixel: u32,
+    pub sign_rays: u32,
+    pub accumulate: bool,
+    pub debug_views: bool,
+}
+
+impl LumenSettings {
+    pub fn from_params(p: &Params) -> Self {
+        LumenSettings {
+            bvh: p.u32("tracing") == 1,
+            clipmap_levels: p.u32("clipmap_levels"),
+            clipmap_resolution: p.u32("clipmap_resolution"),
+            atlas_size: p.u32("atlas_size"),
+            direct_texels_per_frame: p.u32("direct_texels_per_frame"),
+            indirect_texels_per_frame: p.u32("indirect_texels_per_frame"),
+            gather_downsample: p.u32("gather_downsample"),
+            rays_per_pixel: p.u32("rays_per_pixel"),
+            sign_rays: p.u32("sign_rays"),
+            accumulate: p.bool("accumulate"),
+            debug_views: p.bool("debug_views"),
+        }
+    }
+
+    /// What the table's ranges cannot say.
+    pub fn check(&self) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            self.clipmap_resolution % 8 == 0,
+            "lumen: clipmap_resolution = {} is not a multiple of 8 (bricks are 8^3 voxels)",
+            self.clipmap_resolution
+        );
+        anyhow::ensure!(
+            self.atlas_size % super::cards::PAGE == 0,
+            "lumen: atlas_size = {} is not a multiple of the {}-texel page",
+            self.atlas_size,
+            super::cards::PAGE
+        );
+        Ok(())
+    }
+}
+
+/// One clipmap of `LumenParams` (shaders/lumen/shared.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct LevelGpu {
+    pub origin: [f32; 4],
+    pub brick_origin: [i32; 4],
+    pub update: [u32; 4],
+}
+
+/// `LumenParams` of shaders/lumen/shared.wgsl.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct LumenParamsGpu {
+    pub levels: [LevelGpu; 6],
+    pub resolution: u32,
+    pub levels_built: u32,
+    pub bricks_per_axis: u32,
+    pub pool_bricks: u32,
+    pub atlas_size: u32,
+    pub card_count: u32,
+    pub flags: u32,
+    pub rays_per_pixel: u32,
+    pub gather_downsample: u32,
+    pub gather_width: u32,
+    pub gather_height: u32,
+    pub dirty_box_count: u32,
+    pub direct_tile_first: u32,
+    pub direct_tile_count: u32,
+    pub direct_tiles_total: u32,
+    pub probe_tile_first: u32,
+    pub probe_tile_count: u32,
+    pub probe_tiles_total: u32,
+    pub sign_rays: u32,
+    pub query_count: u32,
+    pub slice_depth: f32,
+    pub query_mode: u32,
+    pub pad: [u32; 2],
+}
+
+pub const FLAG_BVH: u32 = 1;
+pub const FLAG_SKY: u32 = 2;
+pub const FLAG_ACCUMULATE: u32 = 4;
+pub const FLAG_DEBUG: u32 = 8;
+pub const FLAG_LIGHTS: u32 = 16;
