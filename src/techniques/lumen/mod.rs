@@ -793,14 +793,14 @@ impl Lumen {
             &[bg, &r.args_bind_group],
             [1, 1, 1],
         );
-        for l in 0..plan.built as usize {
+        for (l, name) in FILL_PASS_NAMES.iter().enumerate().take(plan.built as usize) {
             if plan.levels[l].update[0] == 0 {
                 continue;
             }
             pipelines::list_pass(
                 enc,
                 timer,
-                FILL_PASS_NAMES[l],
+                name,
                 &p.sdf_fill,
                 &[
                     &ctx.scene.bind_group,

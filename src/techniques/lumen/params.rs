@@ -129,12 +129,12 @@ impl LumenSettings {
     /// What the table's ranges cannot say.
     pub fn check(&self) -> anyhow::Result<()> {
         anyhow::ensure!(
-            self.clipmap_resolution % 8 == 0,
+            self.clipmap_resolution.is_multiple_of(8),
             "lumen: clipmap_resolution = {} is not a multiple of 8 (bricks are 8^3 voxels)",
             self.clipmap_resolution
         );
         anyhow::ensure!(
-            self.atlas_size % super::cards::PAGE == 0,
+            self.atlas_size.is_multiple_of(super::cards::PAGE),
             "lumen: atlas_size = {} is not a multiple of the {}-texel page",
             self.atlas_size,
             super::cards::PAGE
