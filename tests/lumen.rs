@@ -97,8 +97,9 @@ fn exact_distance(tris: &[[Vec3; 3]], p: Vec3) -> f32 {
 }
 
 /// The seed's sign, decided on the CPU with 256 random rays (the GPU casts `sign_rays`): inside
-/// when most hits are back faces; None where the vote is close (between 15% and 85%: the GPU's
-/// 16 rays cannot settle those).
+/// when most hits are back faces and at least 3/4 of the rays hit; None where either vote is
+/// close (back faces between 15% and 85% of hits, hits between 60% and 90% of rays: the GPU's 16
+/// rays cannot settle those).
 fn robust_inside(bvh: &Bvh, tris: &[[Vec3; 3]], p: Vec3, rng: &mut Rand) -> Option<bool> {
     let (mut hits, mut back) = (0, 0);
     for _ in 0..256 {
@@ -110,8 +111,11 @@ fn robust_inside(bvh: &Bvh, tris: &[[Vec3; 3]], p: Vec3, rng: &mut Rand) -> Opti
         }
     }
     let f = back as f32 / hits.max(1) as f32;
+    let enclosed = hits as f32 / 256.0;
     match hits {
         0 => Some(false),
+        _ if enclosed < 0.6 => Some(false),
+        _ if enclosed < 0.9 => None,
         _ if f > 0.85 => Some(true),
         _ if f < 0.15 => Some(false),
         _ => None,
@@ -126,12 +130,10 @@ fn scene_tris(s: &Scene) -> Vec<[Vec3; 3]> {
 }
 
 /// 10,000 random points per scene: in the narrow band the distance is within one voxel of the
-/// level that answered (at 99% of points; see below). The sign is checked where the field stores it, at voxel centres (the
-/// same points snapped): outside a half-voxel shell it must match the seed's back-face vote taken
-/// on the CPU with 256 rays, wherever that vote is clear (open scenes leave some points with no
-/// clear inside).
-/// Between centres trilinear filtering can flip it within about half a voxel of a second
-/// surface; that count is reported.
+/// level that answered. The sign is checked where the field stores it, at voxel centres (the
+/// same points snapped): outside a half-voxel shell it must match the back-face vote taken on the
+/// CPU with 256 rays, wherever that vote is clear. Between centres trilinear filtering can flip
+/// it within about half a voxel of a second surface; that count is reported.
 #[test]
 fn sdf_matches_exact_distances() {
     for (name, scene) in [
@@ -214,69 +216,95 @@ fn sdf_matches_exact_distances() {
             clip.voxel(clip.built - 1)
         );
         assert!(band > 500, "{name}: too few points in the band ({band})");
-        // Open geometry (glossy's walls end in mid-air) has no clean inside: the back-face vote
-        // flips between neighbouring voxels with no surface between them, and trilinear
-        // filtering across such a flip is off by up to ~3 voxels at under 2% of band points.
+        // Measured: worst 0.58 voxel, no wrong sign (the vote needs an enclosed point: behind
+        // an open scene's walls there is no inside to flip to). Trilinear filtering at a convex
+        // edge stays within a voxel.
         assert!(
-            over_one * 50 <= band,
+            over_one == 0,
             "{name}: {over_one} of {band} points over a voxel off"
         );
-        assert!(worst <= 4.0, "{name}: error {worst} voxels");
+        assert!(worst <= 1.0, "{name}: error {worst} voxels");
         assert!(
-            sign_wrong * 200 <= sign_checked,
+            sign_wrong == 0,
             "{name}: {sign_wrong} wrong signs at centres"
         );
         assert!(
-            between_wrong * 100 <= between_checked,
+            between_wrong * 200 <= between_checked,
             "{name}: {between_wrong} wrong signs"
         );
     }
 }
 
-/// Rays from random points inside the Cornell box: the SDF's sphere-traced hit (bare field, no
-/// expand) lies within 1.5 voxels (of the level it stopped in) of the plane of the triangle the
-/// BVH hit, for at least 99% of rays both hit; a ray that slipped through a wall would be far from
-/// that plane. Along the ray the error grows as 1 / sin(grazing angle); that share is reported.
+/// Rays from random points in the Cornell box's free space, at least one voxel (of the finest
+/// level holding them: the technique's surface bias) from every surface, sphere traced as the
+/// technique does (with the expand), against the BVH's hits on the same rays. Asserted: no ray
+/// passes through a surface (the SDF stops no later than 1.5 voxels past the BVH hit) and every
+/// stop is on geometry (within 1.5 voxels of a triangle), for 99% of rays both hit. Reported: the
+/// share within 1.5 voxels of the BVH hit's plane (the issue's metric), which the expand lowers
+/// by design: a grazing ray stops up to 0.87 voxel from a surface it passes. At the default 128^3.
 #[test]
 fn sdf_hits_match_bvh_hits() {
     let scene = builtin::cornell();
+    let tris = scene_tris(&scene);
     let (lo, hi) = scene.bounds();
-    let mut e = engine("lumen", small(toml::Table::new()), scene, [32, 32], 1);
+    let params = toml::toml! { clipmap_resolution = 128
+    atlas_size = 512 };
+    let mut e = engine("lumen", params, scene, [32, 32], 1);
     frames(&mut e, 1);
     let clip = lumen(&e).clipmaps().unwrap().clone();
     let mut rng = Rand(7);
     let inset = (hi - lo) * 0.1;
-    let rays: Vec<_> = (0..4096)
-        .map(|_| {
-            (
-                rng.in_box(lo + inset, hi - inset).to_array(),
-                rng.dir().to_array(),
-            )
-        })
+    let points: Vec<_> = (0..6000)
+        .map(|_| (rng.in_box(lo + inset, hi - inset).to_array(), [0.0; 3]))
         .collect();
-    let sdf = query(&e, QueryMode::SdfTrace, &rays);
+    let levels = query(&e, QueryMode::SdfDistance, &points);
+    let rays: Vec<_> = points
+        .iter()
+        .zip(&levels)
+        .filter(|((p, _), q)| {
+            let l = (q[1][2] as u32).min(clip.built - 1);
+            exact_distance(&tris, Vec3::from(*p)) >= clip.voxel(l)
+        })
+        .map(|((p, _), _)| (*p, rng.dir().to_array()))
+        .take(4096)
+        .collect();
     let bvh = query(&e, QueryMode::BvhTrace, &rays);
-    let (mut both, mut close, mut along, mut worst) = (0, 0, 0, 0.0f32);
+    let sdf = query(&e, QueryMode::SdfTraceExpanded, &rays);
+    let (mut both, mut inside, mut close, mut through, mut off_surface) = (0, 0, 0, 0, 0);
     for ((ray, s), b) in rays.iter().zip(&sdf).zip(&bvh) {
         let (s, b, n) = (s[0], b[0], Vec3::from_slice(&b[1][..3]));
+        let (o, d) = (Vec3::from(ray.0), Vec3::from(ray.1));
         if s[1] < 0.5 || b[1] < 0.5 {
+            continue;
+        }
+        if n.dot(d) > 0.0 {
+            // The BVH met a back face: the origin is inside a block, not in free space.
+            inside += 1;
             continue;
         }
         both += 1;
         let voxel = clip.voxel((s[3] as u32).min(clip.built - 1));
-        let (o, d) = (Vec3::from(ray.0), Vec3::from(ray.1));
         let plane = ((o + d * s[0]) - (o + d * b[0])).dot(n).abs() / voxel;
-        worst = worst.max(plane);
         close += (plane <= 1.5) as u32;
-        along += ((s[0] - b[0]).abs() <= 1.5 * voxel) as u32;
+        through += (s[0] > b[0] + 1.5 * voxel) as u32;
+        off_surface += (exact_distance(&tris, o + d * s[0]) > 1.5 * voxel) as u32;
     }
     eprintln!(
-        "SDF vs BVH hits, cornell: {both} of 4096 rays hit in both; {close} within 1.5 voxels of the BVH hit's plane (worst {worst:.2}), {along} within 1.5 voxels along the ray"
+        "SDF (as traced) vs BVH hits, cornell 128^3: {} rays from free space, {both} hit in both ({inside} started inside a block); \
+         {close} ({:.2}%) within 1.5 voxels of the BVH hit's plane, {through} passed through a surface, {off_surface} stopped over 1.5 voxels from any triangle",
+        rays.len(),
+        100.0 * close as f64 / both as f64
     );
-    assert!(both > 3000, "{both}");
-    // The issue asks for 99%; measured 93.7% at 64^3 (see README "Known gaps"): grazing rays
-    // stop early where the trilinear field is off by up to half a voxel.
-    assert!(close as f64 >= 0.9 * both as f64, "{close} of {both}");
+    assert!(both > 2500, "{both}");
+    assert!(through * 100 <= both, "{through} of {both} passed through");
+    assert!(
+        off_surface * 100 <= both,
+        "{off_surface} of {both} stopped in empty space"
+    );
+    assert!(
+        close * 10 >= both * 9,
+        "{close} of {both} near the BVH hit's plane"
+    );
 }
 
 /// Moving the camera scrolls the clipmaps (only new slabs are rebuilt); the field afterwards
@@ -365,12 +393,65 @@ fn cache_direct_light_matches_reference() {
         );
         results.push((mode, rel, n));
     }
-    // BVH shadow rays: within 10% (measured +1.2%). SDF shadow rays over-occlude (expand,
-    // surface bias of a 0.6-unit voxel at this size): measured -13%, bounded at 20%.
+    // BVH shadow rays: within 10% (measured +1.2%). SDF shadow rays over-occlude (the expand, a
+    // 0.6-unit voxel at this size): measured -9.0%, bounded at 15%.
     for (mode, rel, n) in results {
         assert!(n as f64 > 0.4 * px as f64, "{mode}: {n} pixels");
-        let bound = if mode == "bvh" { 0.1 } else { 0.2 };
+        let bound = if mode == "bvh" { 0.1 } else { 0.15 };
         assert!(rel.abs() < bound, "{mode}: {rel}");
+    }
+}
+
+/// Rays as the gather traces them (cosine directions from the surfaces the camera sees, 80²
+/// pixels): where a ray hits a front face, the surface cache must answer (a card covers the hit
+/// and its depth matches). Failed lookups lose that ray's energy; the seed accepts that for
+/// coverage holes, but every surface of these scenes has cards. Counted in both tracing modes.
+#[test]
+fn cache_lookups_at_hits_find_the_surface() {
+    // Lost share allowed per (scene, mode): SDF hits on the Cornell box measured 7.0% (back faces
+    // where a probe sits in a concave corner, stops beside a grazed edge): README, Known gaps.
+    let cases = [
+        (builtin::furnace(0.8, 1.0, 2), [0.01, 0.01]),
+        (builtin::cornell(), [0.08, 0.01]),
+    ];
+    for (scene, bounds) in cases {
+        let name = scene.name.clone();
+        for (mode, bound) in ["sdf", "bvh"].into_iter().zip(bounds) {
+            let mut t = toml::Table::new();
+            t.insert("tracing".into(), mode.into());
+            let mut e = engine("lumen", small(t), scene.clone(), [80, 80], 1);
+            frames(&mut e, 2);
+            let inputs: Vec<_> = e
+                .read_primary_surfaces()
+                .unwrap()
+                .unwrap()
+                .iter()
+                .filter(|s| s.pos[3] > 0.5)
+                .map(|s| {
+                    let p = [s.pos[0], s.pos[1], s.pos[2]];
+                    let n = [s.geo_specular[0], s.geo_specular[1], s.geo_specular[2]];
+                    (p, n)
+                })
+                .collect();
+            let out = query(&e, QueryMode::CacheRay, &inputs);
+            let hits = out.iter().filter(|o| o[0][1] > 0.5).count();
+            let back = out.iter().filter(|o| o[0][2] > 0.5).count();
+            let empty = out
+                .iter()
+                .filter(|o| o[0][1] > 0.5 && o[0][2] < 0.5 && o[0][3] <= 1e-4)
+                .count();
+            eprintln!(
+                "{name} ({mode}): {hits} of {} rays hit; {back} on a back face, {empty} with no cache answer",
+                inputs.len()
+            );
+            assert!(hits > 1000, "{name} ({mode}): {hits}");
+            let lost = (back + empty) as f64 / hits as f64;
+            assert!(
+                lost <= bound,
+                "{name} ({mode}): {:.2}% of hits lost",
+                100.0 * lost
+            );
+        }
     }
 }
 
@@ -404,11 +485,10 @@ fn furnace_converges_in_both_modes() {
         means.push(m[1]);
         assert_eq!(e.ray_counts().unwrap().invalid_samples, 0);
     }
-    // BVH mode meets the issue's 5%. SDF mode does not yet (measured -40%, see README "Known
-    // gaps"): cache lookups at distance-field hits on the curved interior miss. Asserted here:
-    // it loses energy but never gains any.
-    assert!((means[1] / 5.0 - 1.0).abs() < 0.05, "bvh: {}", means[1]);
-    assert!(means[0] > 1.0 && means[0] < 5.0 * 1.02, "sdf: {}", means[0]);
+    // Measured: SDF 4.837 (-3.3%), BVH 4.856 (-2.9%): the rest of the feedback's bounces.
+    for (mode, mean) in ["sdf", "bvh"].iter().zip(&means) {
+        assert!((mean / 5.0 - 1.0).abs() < 0.05, "{mode}: {mean}");
+    }
 }
 
 /// Cornell box at 128² against a 2,048-spp reference in both modes: energy within 10%, relMSE
@@ -517,4 +597,52 @@ fn bad_parameters_give_clear_errors() {
     assert!(err.contains("tracing"), "{err}");
     // A rejected change leaves the previous values.
     assert_eq!(t.params()["clipmap_resolution"].as_integer(), Some(128));
+}
+
+/// A ray-budget change (the viewer's slider) keeps the distance field, cards and atlas; a
+/// change of a size (the atlas) rebuilds them.
+#[test]
+fn budget_changes_keep_the_scene_representation() {
+    let mut e = engine(
+        "lumen",
+        small(toml::Table::new()),
+        builtin::cornell(),
+        [32, 32],
+        1,
+    );
+    frames(&mut e, 2);
+    assert!(lumen(&e).clipmaps().unwrap().valid[0]);
+    let gather_rays = |e: &Engine| {
+        let named = e.ray_counts().unwrap().named();
+        named
+            .iter()
+            .find(|(n, _)| *n == "indirect")
+            .map_or(0, |(_, c)| *c)
+    };
+    let before = gather_rays(&e);
+    e.set_params(&toml::toml! { rays_per_pixel = 6 }).unwrap();
+    assert!(
+        lumen(&e).clipmaps().unwrap().valid[0],
+        "rays_per_pixel rebuilt the distance field"
+    );
+    frames(&mut e, 1);
+    let after = gather_rays(&e);
+    // Counters run since the last reset (set_params resets): two frames before, one after.
+    let ratio = after as f64 / (before as f64 / 2.0);
+    assert!(
+        (ratio - 3.0).abs() < 0.1,
+        "gather rays per frame x{ratio} at 6 per pixel against 2"
+    );
+    e.set_params(&toml::toml! { atlas_size = 1024 }).unwrap();
+    assert!(
+        !lumen(&e).clipmaps().unwrap().valid[0],
+        "atlas_size did not rebuild"
+    );
+    frames(&mut e, 1);
+    assert!(e
+        .read_output()
+        .unwrap()
+        .mean()
+        .iter()
+        .all(|v| v.is_finite()));
 }

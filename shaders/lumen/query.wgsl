@@ -1,12 +1,21 @@
 // Queries for tests and tools (never part of a frame), `query_mode`:
-// 0: SDF at points: in queries[2i].xyz, out queries[2i + 1] = (distance, object, level, 0);
+// 0: SDF at points: in queries[2i].xyz (queries[2i + 1] = (level, 1) to read that level rather
+//    than the finest holding the point), out queries[2i + 1] = (distance, object, level, 0);
 // 1: SDF sphere trace of rays (origin queries[2i].xyz, direction queries[2i + 1].xyz), from the
 //    origin itself with no surface bias and no expand (the bare field): out queries[2i] = (t, hit, steps, level);
+// 4: the same with the expand the technique traces with (no surface bias: the caller places the origin);
 // 2: the same rays through the BVH: out queries[2i] = (t, hit, 0, 0), queries[2i + 1] = the hit
-//    triangle's normal.
+//    triangle's normal;
+// 3: a ray as the cache probes and the gather trace it, in the `tracing` mode, from surface
+//    point queries[2i].xyz with normal queries[2i + 1].xyz, cosine direction hashed from i:
+//    out queries[2i] = (t, hit, back face, cache weight), queries[2i + 1] = (luminance of the
+//    cache's reflected radiance, best card or -1, object, steps).
 #import gilab::bvh::{trace_closest, NO_HIT}
 #import gilab::scene::tri_geom
-#import gilab::lumen::{params, queries, sdf_sample, sdf_object, sdf_trace, finest_level}
+#import gilab::math::{to_world, luminance}
+#import gilab::sampling::sample_cosine_hemisphere
+#import gilab::rng::{rng_init, rand_pair, STREAM_LUMEN_QUERY}
+#import gilab::lumen::{params, queries, sdf_distance, sdf_object, sdf_trace, finest_level, trace_scene, hit_cache_sample, EMPTY}
 
 @compute @workgroup_size(64, 1, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -18,16 +27,35 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let b = queries[2u * i + 1u].xyz;
     switch params.query_mode {
         case 0u: {
-            let l = finest_level(a);
+            // b.y > 0.5: read level b.x instead of the finest one holding the point.
+            let l = select(finest_level(a), u32(b.x), b.y > 0.5);
             var object = 0xffffu;
+            var dist = 1e30;
             if l < params.levels_built {
                 object = sdf_object(l, a);
+                dist = sdf_distance(l, a);
             }
-            queries[2u * i + 1u] = vec4<f32>(sdf_sample(a), f32(object), f32(l), 0.0);
+            queries[2u * i + 1u] = vec4<f32>(dist, f32(object), f32(l), 0.0);
         }
-        case 1u: {
-            let h = sdf_trace(a, b, 1e30, false, false);
+        case 1u, 4u: {
+            let h = sdf_trace(a, b, 1e30, false, params.query_mode == 4u);
             queries[2u * i] = vec4<f32>(h.t, select(0.0, 1.0, h.hit), f32(h.steps), f32(h.level));
+        }
+        case 3u: {
+            var rng = rng_init(vec2<u32>(i, 0u), 0u, STREAM_LUMEN_QUERY, 1u);
+            let dir = to_world(sample_cosine_hemisphere(rand_pair(&rng)), b);
+            let h = trace_scene(a, b, dir, 1e30);
+            var weight = 0.0;
+            var radiance = 0.0;
+            var card = -1.0;
+            if h.hit && !h.back_face {
+                let s = hit_cache_sample(h);
+                weight = s.weight;
+                radiance = luminance(s.albedo * (s.direct + s.indirect)) / 3.14159265;
+                card = select(f32(s.best_card), -1.0, s.best_card == EMPTY);
+            }
+            queries[2u * i] = vec4<f32>(h.t, select(0.0, 1.0, h.hit), select(0.0, 1.0, h.back_face), weight);
+            queries[2u * i + 1u] = vec4<f32>(radiance, card, f32(h.object), f32(h.steps));
         }
         default: {
             let h = trace_closest(a, b, 0.0, 1e30);

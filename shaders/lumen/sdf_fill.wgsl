@@ -1,7 +1,7 @@
 // Global SDF update, step 4: one workgroup per allocated brick fills its 8^3 voxels with the
 // distance to the closest triangle (BVH point query, within the band) and that triangle's
 // object. The sign comes from rays, as in the seed: a voxel is inside when most of the
-// single-sided surfaces its `sign_rays` rays hit are back faces.
+// single-sided surfaces its `sign_rays` rays hit are back faces (and most rays hit something).
 #import gilab::scene::{tri_geom, tri_material, materials, scene_triangle}
 #import gilab::bvh::{trace_closest, NO_HIT}
 #import gilab::math::TWO_PI
@@ -35,7 +35,11 @@ fn inside(p: vec3<f32>) -> bool {
             back++;
         }
     }
-    return hits > 0u && 2u * back > hits;
+    // Inside: most hits are back faces (the seed's vote) and the point is enclosed (at least
+    // three quarters of the rays hit something). Behind an open scene's single-sided walls most
+    // rays escape: those points count as outside, so the wall is a thin two-sided surface there
+    // (the expand stops rays at it) instead of a sign flip that reaches into empty space.
+    return 2u * back > hits && 4u * hits >= 3u * params.sign_rays;
 }
 
 // The level this dispatch fills (one dispatch per level, so each level's build is timed).

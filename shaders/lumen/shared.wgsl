@@ -337,6 +337,9 @@ struct TraceHit {
     // The ray met the back of a single-sided surface (it started inside geometry): no light.
     back_face: bool,
     steps: u32,
+    // Voxel size of the level that found the hit (SDF mode), 0 for BVH hits: how far the
+    // position may be off the surface.
+    voxel: f32,
 }
 
 // The world size of the surface bias at p: SURFACE_BIAS_VOXELS of the finest level holding it.
@@ -347,28 +350,58 @@ fn sdf_bias(p: vec3<f32>) -> f32 {
 
 fn trace_sdf_mode(p: vec3<f32>, n_geo: vec3<f32>, d: vec3<f32>, t_max: f32, shadow: bool) -> TraceHit {
     let side = select(-n_geo, n_geo, dot(n_geo, d) >= 0.0);
-    let o = p + side * sdf_bias(p);
+    let bias = sdf_bias(p);
+    var o = p + side * bias;
+    // In a concave corner the offset origin is still within a voxel of the second surface, and
+    // the march would stop there at once: push it out along the field's gradient until it is a
+    // bias away from everything (two steps).
+    for (var k = 0u; k < 2u; k++) {
+        let l = finest_level(o);
+        if l >= params.levels_built {
+            break;
+        }
+        let dist = sdf_distance(l, o);
+        if dist >= 0.9 * bias {
+            break;
+        }
+        o += sdf_normal(l, o) * (bias - dist);
+    }
     let h = sdf_trace(o, d, t_max, shadow, true);
     if !h.hit {
-        return TraceHit(false, t_max, vec3<f32>(0.0), vec3<f32>(0.0), NO_OBJECT, false, h.steps);
+        return TraceHit(false, t_max, vec3<f32>(0.0), vec3<f32>(0.0), NO_OBJECT, false, h.steps, 0.0);
     }
+    // The march stops up to an expand (under a voxel) short of the surface; the cache lookup's
+    // depth tolerance covers that. Stepping on to the surface was tried: it moves thin-wall hits
+    // onto the sunlit side's object and multiplies the leak by four (README, Known gaps).
     let pos = o + d * h.t;
-    let g = sdf_normal(h.level, pos);
+    let l = surface_level(pos, h.level);
+    let g = sdf_normal(l, pos);
     let back = dot(g, d) > 0.0;
-    return TraceHit(true, h.t, pos, select(g, -g, back), sdf_object(h.level, pos), back, h.steps);
+    return TraceHit(true, h.t, pos, select(g, -g, back), sdf_object(l, pos), back, h.steps, level_voxel(l));
+}
+
+// The level to read a hit's surface from: `first` or the next coarser one that holds p with room
+// for the gradient's taps (a march may stop at a level's edge, where the neighbours are not stored).
+fn surface_level(p: vec3<f32>, first: u32) -> u32 {
+    for (var l = first; l + 1u < params.levels_built; l++) {
+        if inside_level(l, p, 2.0 * level_voxel(l)) {
+            return l;
+        }
+    }
+    return max(params.levels_built, 1u) - 1u;
 }
 
 fn trace_bvh_mode(p: vec3<f32>, n_geo: vec3<f32>, d: vec3<f32>, t_max: f32) -> TraceHit {
     let o = offset_point(p, n_geo, d);
     let h = trace_closest(o, d, 0.0, t_max);
     if h.tri == NO_HIT {
-        return TraceHit(false, t_max, vec3<f32>(0.0), vec3<f32>(0.0), NO_OBJECT, false, 0u);
+        return TraceHit(false, t_max, vec3<f32>(0.0), vec3<f32>(0.0), NO_OBJECT, false, 0u, 0.0);
     }
     let g = hit_geometric_normal(h.tri);
     let front = dot(g, d) < 0.0;
     let double_sided = materials[tri_material(h.tri)].emissive.w > 0.5;
     let object = tri_object[scene_triangle(h.tri)];
-    return TraceHit(true, h.t, o + d * h.t, select(-g, g, front), object, !front && !double_sided, 0u);
+    return TraceHit(true, h.t, o + d * h.t, select(-g, g, front), object, !front && !double_sided, 0u, 0.0);
 }
 
 fn hit_geometric_normal(tri: u32) -> vec3<f32> {
@@ -481,11 +514,16 @@ fn hit_radiance(h: TraceHit, sky: vec3<f32>) -> vec3<f32> {
     if h.back_face {
         return vec3<f32>(0.0);
     }
-    let tol = select(1.5 * sdf_bias(h.position), 1e-3 * max(h.t, 1.0), has_flag(FLAG_BVH));
     // Reflected light only: emitters are in the light pool, so light leaving them directly is
     // already counted by next-event estimation where the ray started.
-    let s = sample_cache(h.position, h.normal, h.object, tol);
+    let s = hit_cache_sample(h);
     return s.albedo * (s.direct + s.indirect) * INV_PI;
+}
+
+// The surface cache at a traced hit, with the depth tolerance of the `tracing` mode.
+fn hit_cache_sample(h: TraceHit) -> CacheSample {
+    let tol = select(2.5 * h.voxel, 1e-3 * max(h.t, 1.0), has_flag(FLAG_BVH));
+    return sample_cache(h.position, h.normal, h.object, tol);
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -86,6 +86,12 @@ pub enum QueryMode {
     SdfTrace = 1,
     /// The same rays through the BVH, out (t, hit, 0, 0).
     BvhTrace = 2,
+    /// Like `SdfTrace`, with the expand the technique traces with (the origin is used as given).
+    SdfTraceExpanded = 4,
+    /// Rays as the technique traces them in its `tracing` mode from surface points (point,
+    /// normal), a cosine direction hashed from the index: out (t, hit, back face, cache weight),
+    /// (reflected luminance, best card or -1, object, steps).
+    CacheRay = 3,
 }
 
 /// Global SDF counters read back for tests and the README.
@@ -249,6 +255,8 @@ pub struct Lumen {
     features: SceneFeatures,
     sky: bool,
     extent: [u32; 2],
+    /// The settings the GPU resources were sized for.
+    built_with: Option<LumenSettings>,
 }
 
 impl Default for Lumen {
@@ -268,6 +276,7 @@ impl Default for Lumen {
             direct_cursor: 0,
             probe_cursor: 0,
             scene_tris: Vec::new(),
+            built_with: None,
             scene_materials: Vec::new(),
             features: SceneFeatures::default(),
             sky: false,
@@ -604,6 +613,7 @@ impl Lumen {
         self.scene_tris = data.tris.clone();
         self.scene_materials = bytemuck::cast_slice(&data.materials).to_vec();
         self.res = Some(res);
+        self.built_with = Some(s);
         Ok(())
     }
 
@@ -1090,9 +1100,36 @@ impl Technique for Lumen {
         Ok(())
     }
 
+    /// Rebuilds the distance field, cards and atlas only when a parameter that sizes them
+    /// changed; the ray budget, texel budgets and flags travel in the uniforms. A new tracing
+    /// mode relights the cache from scratch.
     fn apply_params(&mut self, ctx: &RenderContext) -> Result<()> {
-        self.build_resources(ctx)?;
-        self.reset_history(ctx.gpu);
+        self.settings.check()?;
+        let sized = |s: &LumenSettings| {
+            (
+                s.clipmap_levels,
+                s.clipmap_resolution,
+                s.atlas_size,
+                s.gather_downsample,
+                s.sign_rays,
+            )
+        };
+        let old = self.built_with.clone();
+        match (&old, self.res.as_mut()) {
+            (Some(b), Some(r))
+                if sized(b) == sized(&self.settings) && self.extent == ctx.extent =>
+            {
+                r.gpu_params.rays_per_pixel = self.settings.rays_per_pixel;
+                self.built_with = Some(self.settings.clone());
+                if b.bvh != self.settings.bvh {
+                    self.reset_history(ctx.gpu);
+                }
+            }
+            _ => {
+                self.build_resources(ctx)?;
+                self.reset_history(ctx.gpu);
+            }
+        }
         Ok(())
     }
 
