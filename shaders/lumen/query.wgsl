@@ -12,7 +12,7 @@
 //    cache's reflected radiance, best card or -1, object, steps).
 #import gilab::bvh::{trace_closest, NO_HIT}
 #import gilab::scene::tri_geom
-#import gilab::math::{to_world, luminance}
+#import gilab::math::{to_world, luminance, INV_PI}
 #import gilab::sampling::sample_cosine_hemisphere
 #import gilab::rng::{rng_init, rand_pair, STREAM_LUMEN_QUERY}
 #import gilab::lumen::{params, queries, sdf_distance, sdf_object, sdf_trace, finest_level, trace_scene, hit_cache_sample, EMPTY}
@@ -51,7 +51,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             if h.hit && !h.back_face {
                 let s = hit_cache_sample(h);
                 weight = s.weight;
-                radiance = luminance(s.albedo * (s.direct + s.indirect)) / 3.14159265;
+                radiance = luminance(s.albedo * (s.direct + s.indirect)) * INV_PI;
                 card = select(f32(s.best_card), -1.0, s.best_card == EMPTY);
             }
             queries[2u * i] = vec4<f32>(h.t, select(0.0, 1.0, h.hit), select(0.0, 1.0, h.back_face), weight);
