@@ -23,6 +23,13 @@ fn cache() -> PathBuf {
     d
 }
 
+/// One GPU test at a time in this binary: lavapipe shares the two CPU cores, and the timing
+/// test would measure the other tests' load.
+static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
+fn serial() -> std::sync::MutexGuard<'static, ()> {
+    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 fn converge(p: &LoadedPreset, out: &Path, shard: Option<Shard>) -> (Summary, Vec<Row>) {
     let opts = ConvergeOptions {
         out: out.to_path_buf(),
@@ -74,6 +81,7 @@ fn flip_pair() -> (Vec<u8>, Vec<u8>) {
 
 #[test]
 fn flip_matches_nvidias_published_tool() {
+    let _serial = serial();
     let (reference, test) = flip_pair();
     let flip = gilab::compare::flip::ldr_flip_srgb8(&test, &reference, 64, 64).unwrap();
     eprintln!("FLIP {flip:.6} against flip-evaluator 1.7's 0.099458");
@@ -130,6 +138,7 @@ fn gilab_compare(image: &Path, reference: &Path) -> (f64, f64) {
 
 #[test]
 fn converge_columns_match_compare_are_deterministic_and_shards_merge() {
+    let _serial = serial();
     let p = LoadedPreset::from_text(SMALL, None).unwrap();
     let a_dir = tmp("a");
     let (a, a_rows) = converge(&p, &a_dir, None);
@@ -211,6 +220,7 @@ fn converge_columns_match_compare_are_deterministic_and_shards_merge() {
 /// reference: its expected value is 1/N up to the reference's own noise (4,096 spp here).
 #[test]
 fn reference_error_falls_as_one_over_n() {
+    let _serial = serial();
     let text = r#"
 [scene]
 source = "cornell"
@@ -252,6 +262,7 @@ seeds = [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16]
 
 #[test]
 fn lag_experiment_settles_for_every_technique() {
+    let _serial = serial();
     let mut p = LoadedPreset::load(Path::new("presets/experiments/lag-light-on.toml")).unwrap();
     // The shipped experiment, smaller: 32², event at frame 12 of 40.
     p.preset.render.size = [32, 32];
@@ -277,6 +288,7 @@ fn lag_experiment_settles_for_every_technique() {
 
 #[test]
 fn bad_experiments_fail_with_clear_errors() {
+    let _serial = serial();
     let bad_material = SMALL.replace("material = \"lamp\"", "material = \"lmap\"");
     let p = LoadedPreset::from_text(&bad_material, None).unwrap();
     let opts = ConvergeOptions {
@@ -308,4 +320,86 @@ fn bad_experiments_fail_with_clear_errors() {
         .unwrap_err()
         .to_string();
     assert!(e.contains(":") && e.contains("frame"), "{e}");
+}
+
+/// Scoring must not change what is scored or how long frames take: errors every frame and
+/// every 8th frame are bit-identical at the shared frames, the median GPU ms per frame agrees
+/// within 10%, and every run carries its clock check (calibration kernel before and after).
+#[test]
+fn scoring_every_frame_or_every_eighth_gives_the_same_errors_and_times() {
+    let _serial = serial();
+    let text = r#"
+[scene]
+source = "cornell"
+[render]
+size = [64, 64]
+seed = 5
+reference_spp = 32
+[[techniques]]
+name = "reference"
+params = { samples_per_frame = 2 }
+[[techniques]]
+name = "restir"
+params = { accumulate = true }
+[experiment]
+frames = 32
+"#;
+    let every = |n: u32| {
+        let p = LoadedPreset::from_text(
+            &text.replace("frames = 32", &format!("frames = 32\nerror_every = {n}")),
+            None,
+        )
+        .unwrap();
+        converge(&p, &tmp(&format!("every{n}")), None)
+    };
+    let (s1, rows1) = every(1);
+    let (s8, rows8) = every(8);
+    assert_eq!(rows1.len(), 2 * 32);
+    assert_eq!(rows8.len(), 2 * 4, "frames 8, 16, 24, 32 of each run");
+    for r8 in &rows8 {
+        let r1 = rows1
+            .iter()
+            .find(|r| r.run == r8.run && r.frame == r8.frame)
+            .expect("shared frame");
+        assert_eq!(
+            [r1.mse, r1.rel_mse, r1.smape, r1.flip].map(f64::to_bits),
+            [r8.mse, r8.rel_mse, r8.smape, r8.flip].map(f64::to_bits),
+            "{} frame {}",
+            r8.label,
+            r8.frame
+        );
+        assert_eq!(r1.rays, r8.rays);
+    }
+    for (a, b) in s1.runs.iter().zip(&s8.runs) {
+        let median = |rows: &[Row], run: usize| {
+            let mut v: Vec<f64> = rows
+                .iter()
+                .filter(|r| r.run == run)
+                .map(|r| r.gpu_ms)
+                .collect();
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2]
+        };
+        // Every frame is timed either way; the summary's median is over all of them.
+        let (m1, m8) = (a.gpu_ms_median, b.gpu_ms_median);
+        println!(
+            "{}: median GPU ms/frame every frame {m1:.3}, every 8th {m8:.3} (means {:.3} / {:.3}; median of scored rows {:.3} / {:.3}); {} | {}",
+            a.spec.label,
+            a.gpu_ms_per_frame,
+            b.gpu_ms_per_frame,
+            median(&rows1, a.spec.index),
+            median(&rows8, b.spec.index),
+            a.clock_check.summary(),
+            b.clock_check.summary()
+        );
+        assert!(
+            (m8 / m1 - 1.0).abs() <= 0.10,
+            "{}: {m1} vs {m8} ms/frame",
+            a.spec.label
+        );
+        for c in [&a.clock_check, &b.clock_check] {
+            assert!(c.kernel_ms_before > 0.0 && c.kernel_ms_after > 0.0);
+            assert_eq!(c.flagged, c.drift.abs() > 0.10);
+        }
+    }
 }

@@ -415,7 +415,7 @@ fn heatmaps_agree_with_cpu_and_compare() {
     s.runs[0].engine.reset();
     for _ in 0..n {
         assert_eq!(s.step(0.0), 1);
-        means.push(s.runs[0].radiance.as_ref().unwrap().rgb.clone());
+        means.push(s.runs[0].cpu_images(false).unwrap().radiance.rgb.clone());
     }
     let frames = s.runs[0].engine.frame_index as usize;
     assert_eq!(frames, n);
@@ -456,7 +456,8 @@ fn heatmaps_agree_with_cpu_and_compare() {
     let heat_mean = gilab::compare::heatmap::mean(&map);
     let a = f.dir.join("a.exr");
     let b = f.dir.join("b.exr");
-    gilab::compare::io::write_exr(&a, s.runs[0].radiance.as_ref().unwrap()).unwrap();
+    let radiance = s.runs[0].cpu_images(false).unwrap().radiance;
+    gilab::compare::io::write_exr(&a, &radiance).unwrap();
     gilab::compare::io::write_exr(&b, s.reference.image.as_ref().unwrap()).unwrap();
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_gilab"))
         .args(["compare"])
@@ -477,6 +478,134 @@ fn heatmaps_agree_with_cpu_and_compare() {
         "heatmap mean {heat_mean} vs gilab compare {rel}"
     );
     assert!(rel > 0.0);
+
+    // The viewer's GPU reduction of the same frame, read back asynchronously, equals it too.
+    s.finish().unwrap();
+    let gpu = s.runs[0].error.expect("GPU error reduction arrived");
+    let last = s.runs[0].curve.last().expect("curve point");
+    assert_eq!(last.frame, n as u32, "the last frame was scored");
+    println!(
+        "relMSE: GPU reduction {:.9e}, gilab compare {rel:.9e} (rel. diff {:.2e}); MSE {:.9e}",
+        gpu.rel_mse,
+        (gpu.rel_mse - rel).abs() / rel,
+        gpu.mse
+    );
+    assert!(
+        (gpu.rel_mse - rel).abs() <= 1e-5 * rel,
+        "GPU reduction {} vs gilab compare {rel}",
+        gpu.rel_mse
+    );
+    let cpu =
+        gilab::compare::metrics::compare(&radiance, s.reference.image.as_ref().unwrap()).unwrap();
+    for (g, c, what) in [(gpu.mse, cpu.mse, "MSE"), (gpu.smape, cpu.smape, "SMAPE")] {
+        assert!((g - c).abs() <= 1e-5 * c, "{what}: GPU {g} vs CPU {c}");
+    }
+}
+
+/// The viewer's images come from the GPU display pass; the CLI's files from the CPU path.
+/// Both must show the same pixels (within 1/255 per channel) in every display mode, and the
+/// GPU histogram must give the heatmap range the CPU computes.
+#[test]
+fn gpu_display_equals_cpu_path_in_every_mode() {
+    use gilab::compare::display::{DisplayTarget, GpuCompare};
+    let f = fixture("display");
+    let text = CORNELL.replace(
+        "[[techniques]]\nname = \"reference\"\nlabel = \"two-bounce\"\nparams = { samples_per_frame = 1, max_depth = 2 }",
+        "[[techniques]]\nname = \"restir\"",
+    );
+    let preset = LoadedPreset::from_text(&text, None).unwrap();
+    assert_eq!(preset.preset.techniques[1].name, "restir");
+    let mut s = gilab::app::session::Session::new(
+        common::gpu(),
+        ShaderLibrary::discover(),
+        preset,
+        f.dir.join("cache"),
+    )
+    .unwrap();
+    s.layout = Layout::SideBySide;
+    s.panes[0].run = 0;
+    s.panes[1].run = 1;
+    for _ in 0..40 {
+        s.step(0.0);
+    }
+    s.finish().unwrap();
+    assert!(s.reference.on_gpu);
+    let mut cases = vec![
+        (0, DisplayMode::Radiance, 0),
+        (0, DisplayMode::Variance, 0),
+        (0, DisplayMode::Error, 0),
+        (0, DisplayMode::Samples, 0),
+        (1, DisplayMode::Radiance, 0),
+        (1, DisplayMode::Error, 0),
+    ];
+    let views = s.runs[1].engine.technique.debug_views();
+    for (k, _) in views.iter().enumerate() {
+        cases.push((1, DisplayMode::Debug, k));
+    }
+    assert!(views.iter().any(|v| v.is_id) && views.iter().any(|v| !v.is_id));
+    let mut modes_seen = 0;
+    for (run, display, debug) in cases {
+        let pane = gilab::app::session::Pane {
+            run,
+            display,
+            debug,
+        };
+        let (cpu, img, cpu_range) = s.pane_pixels(&pane).expect("CPU image");
+        let mut settings = s.display_settings(&pane).unwrap();
+        let mut target = DisplayTarget::new(&s.gpu, [img.width, img.height]);
+        // First pass: the GPU histogram's range; second: the CPU's range, to compare pixels.
+        for pass in 0..2 {
+            let mut enc = s.gpu.device.create_command_encoder(&Default::default());
+            assert!(s.record_pane_display(&mut enc, &pane, &settings, &mut target));
+            let hist = s.compare.record_histogram_copy(&mut enc, &target);
+            let sub = s.gpu.queue.submit([enc.finish()]);
+            if hist {
+                GpuCompare::start_histogram_read(&mut target, sub);
+            }
+            s.gpu.wait().unwrap();
+            target.poll_range(&s.gpu).unwrap();
+            if pass == 0 {
+                if settings.kind.has_histogram() {
+                    let (g, c) = (target.range.unwrap(), cpu_range.unwrap());
+                    let bin = 1.0 / gilab::compare::heatmap::HIST_PER_DECADE;
+                    assert!(
+                        (g.0 - c.0).abs() <= bin + 1e-6 && (g.1 - c.1).abs() <= bin + 1e-6,
+                        "{display:?} {debug}: GPU range {g:?} vs CPU {c:?}"
+                    );
+                }
+                settings.range = cpu_range;
+            }
+        }
+        let gpu = target.read_rgba(&s.gpu).unwrap();
+        assert_eq!(gpu.len(), cpu.len());
+        let worst = gpu
+            .iter()
+            .zip(&cpu)
+            .map(|(a, b)| (*a as i32 - *b as i32).abs())
+            .max()
+            .unwrap();
+        let differing = gpu.iter().zip(&cpu).filter(|(a, b)| a != b).count();
+        println!(
+            "run {run} {display:?} {debug}: worst channel difference {worst}/255, \
+             {differing} of {} channels differ",
+            cpu.len()
+        );
+        assert!(
+            worst <= 1,
+            "{display:?} {debug}: GPU and CPU differ by {worst}/255"
+        );
+        if matches!(
+            display,
+            DisplayMode::Radiance | DisplayMode::Variance | DisplayMode::Error
+        ) {
+            assert!(
+                cpu.chunks(4).any(|p| p[..3] != cpu[..3]),
+                "a flat image tests nothing"
+            );
+        }
+        modes_seen += 1;
+    }
+    assert_eq!(modes_seen, 6 + views.len());
 }
 
 /// Frame times the viewer reports are never silently wrong: with egui painting on the same

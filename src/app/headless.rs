@@ -10,7 +10,7 @@ use std::sync::Arc;
 pub struct HeadlessViewer {
     pub app: ViewerApp,
     ctx: egui::Context,
-    renderer: egui_wgpu::Renderer,
+    renderer: super::views::EguiRenderer,
     target: wgpu::TextureView,
     size: [u32; 2],
     gpu: Arc<Gpu>,
@@ -20,11 +20,16 @@ const FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 
 impl HeadlessViewer {
     pub fn new(gpu: Arc<Gpu>, options: ViewerOptions, size: [u32; 2]) -> Result<HeadlessViewer> {
-        let app = ViewerApp::with_gpu(Ok(gpu.clone()), options);
+        let mut app = ViewerApp::with_gpu(Ok(gpu.clone()), options);
         if let Some(e) = &app.startup_error {
             anyhow::bail!("viewer: {e}");
         }
-        let renderer = egui_wgpu::Renderer::new(&gpu.device, FORMAT, Default::default());
+        let renderer = Arc::new(egui::mutex::RwLock::new(egui_wgpu::Renderer::new(
+            &gpu.device,
+            FORMAT,
+            Default::default(),
+        )));
+        app.egui_renderer = Some(renderer.clone());
         let texture = gpu.device.create_texture(&wgpu::TextureDescriptor {
             label: Some("headless viewer"),
             size: wgpu::Extent3d {
@@ -67,15 +72,14 @@ impl HeadlessViewer {
             pixels_per_point: output.pixels_per_point,
         };
         let (device, queue) = (&self.gpu.device, &self.gpu.queue);
+        let mut renderer = self.renderer.write();
         for (id, deltas) in &output.textures_delta.set {
             for delta in deltas {
-                self.renderer.update_texture(device, queue, *id, delta);
+                renderer.update_texture(device, queue, *id, delta);
             }
         }
         let mut enc = device.create_command_encoder(&Default::default());
-        let extra = self
-            .renderer
-            .update_buffers(device, queue, &mut enc, &jobs, &screen);
+        let extra = renderer.update_buffers(device, queue, &mut enc, &jobs, &screen);
         {
             let pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: Some("headless viewer"),
@@ -90,13 +94,13 @@ impl HeadlessViewer {
                 })],
                 ..Default::default()
             });
-            self.renderer
-                .render(&mut pass.forget_lifetime(), &jobs, &screen);
+            renderer.render(&mut pass.forget_lifetime(), &jobs, &screen);
         }
         queue.submit(extra.into_iter().chain([enc.finish()]));
         for id in &output.textures_delta.free {
-            self.renderer.free_texture(id);
+            renderer.free_texture(id);
         }
+        drop(renderer);
         self.gpu.wait()?;
         Ok(start.elapsed().as_secs_f64() * 1e3)
     }

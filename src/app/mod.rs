@@ -79,6 +79,8 @@ pub struct ViewerApp {
     pub last_screenshot: Option<PathBuf>,
     /// UI frame times (ms) of the last frames, for the status line.
     pub ui_frame_ms: f64,
+    /// egui's wgpu renderer, to draw the panes' GPU textures (None: CPU upload path).
+    pub egui_renderer: Option<views::EguiRenderer>,
 }
 
 impl ViewerApp {
@@ -95,7 +97,9 @@ impl ViewerApp {
             }),
             None => Gpu::new(options.backend),
         };
-        Self::with_gpu(gpu.map(Arc::new), options)
+        let mut app = Self::with_gpu(gpu.map(Arc::new), options);
+        app.egui_renderer = cc.wgpu_render_state.as_ref().map(|rs| rs.renderer.clone());
+        app
     }
 
     pub fn with_gpu(gpu: Result<Arc<Gpu>>, options: ViewerOptions) -> ViewerApp {
@@ -149,6 +153,7 @@ impl ViewerApp {
             render_in_ui: true,
             last_screenshot: None,
             ui_frame_ms: 0.0,
+            egui_renderer: None,
         }
     }
 

@@ -21,16 +21,18 @@ pub fn save_ab(session: &Session, out_dir: &Path) -> Result<PathBuf> {
     let mut tiles: Vec<(u32, u32, Vec<u8>)> = Vec::new();
     for (i, pane) in panes.iter().enumerate() {
         let run = &session.runs[pane.run];
-        let Some(radiance) = &run.radiance else {
+        if run.engine.frame_index == 0 {
             continue;
-        };
+        }
         let stem = format!(
             "pane{}-{}-{}",
             i + 1,
             sanitize(run.label()),
             format!("{:?}", pane.display).to_lowercase()
         );
-        let (rgba, _) = session.pane_pixels(pane).context("pane has no image yet")?;
+        // The CPU path (the same images `gilab shot` writes), read back once for the files.
+        let (rgba, radiance, _) = session.pane_pixels(pane).context("pane has no image yet")?;
+        let radiance = &radiance;
         io::write_png_rgba(
             &dir.join(format!("{stem}.png")),
             radiance.width,

@@ -3,6 +3,10 @@
 //! preset loads, parameter edits, camera moves and file changes. Everything that can fail
 //! is built aside first and swapped in only on success, so bad input never loses state.
 
+use crate::compare::display::{
+    DisplayKind, DisplaySettings, DisplaySource, DisplayTarget, GpuCompare, MetricsReduction,
+    PixelProbe,
+};
 use crate::compare::{self, heatmap, io, metrics, Image, Metrics};
 use crate::gpu::{shaders::ShaderLibrary, Gpu};
 use crate::jobs::{reference_key_for_camera, reference_setup};
@@ -28,22 +32,32 @@ pub struct ConvergencePoint {
     pub rel_mse: f64,
 }
 
-/// One technique entry of the preset with its engine and what it last produced.
+/// One technique entry of the preset with its engine and what it last produced. Images stay
+/// on the GPU: the panes are drawn from the engine's buffers (`compare::display`), errors come
+/// from a GPU reduction read back a frame or more late; `cpu_images` reads them on demand.
 pub struct Run {
     pub entry: TechniqueEntry,
     pub engine: Engine,
     pub rays: RayCounts,
     pub last_frame: Option<FrameReport>,
-    pub radiance: Option<Image>,
-    pub variance: Option<Image>,
-    /// The technique's debug buffer from the last frame (one vec4 per pixel).
-    pub debug: Option<Vec<[f32; 4]>>,
-    /// Per-pixel relMSE against the current reference and its mean metrics.
-    pub error_map: Option<Vec<f32>>,
+    /// The latest mean errors against the reference (from the asynchronous reduction).
     pub error: Option<Metrics>,
     pub curve: Vec<ConvergencePoint>,
-    /// Bumped whenever the images change (the UI re-uploads textures then).
+    /// Bumped whenever a frame is submitted (the panes display again then).
     pub version: u64,
+    metrics: MetricsReduction,
+    /// Per completed frame: cumulative GPU ms and rays per pixel, until its error arrives.
+    costs: BTreeMap<u32, (f64, f64)>,
+    errors_by_frame: BTreeMap<u32, Metrics>,
+    gpu_ms_cum: f64,
+    pub probe: PixelProbe,
+}
+
+/// A run's images read back to the CPU (screenshots, tests): what the CLI's files use.
+pub struct CpuImages {
+    pub radiance: Image,
+    pub variance: Option<Image>,
+    pub debug: Option<Vec<[f32; 4]>>,
 }
 
 impl Run {
@@ -69,16 +83,17 @@ impl Run {
         )?;
         Ok(Run {
             entry,
+            metrics: MetricsReduction::new(gpu, engine.extent),
+            probe: PixelProbe::new(gpu, 3),
             engine,
             rays: RayCounts::default(),
             last_frame: None,
-            radiance: None,
-            variance: None,
-            debug: None,
-            error_map: None,
             error: None,
             curve: Vec::new(),
             version: 0,
+            costs: BTreeMap::new(),
+            errors_by_frame: BTreeMap::new(),
+            gpu_ms_cum: 0.0,
         })
     }
 
@@ -97,39 +112,87 @@ impl Run {
         self.last_frame = None;
         self.curve.clear();
         self.error = None;
-        self.error_map = None;
+        self.costs.clear();
+        self.errors_by_frame.clear();
+        self.gpu_ms_cum = 0.0;
+        self.version += 1;
     }
 
-    /// Renders one frame and reads back what the views need.
-    /// `want_debug`: a visible pane shows one of the technique's debug views, so its debug
-    /// buffer is read back too (otherwise that readback is skipped).
-    fn render_frame(&mut self, reference: Option<&Image>, want_debug: bool) -> Result<()> {
-        let report = self.engine.render_frame()?;
+    /// Submits one frame (not waited for) and, when a reference is on the GPU and a readback
+    /// slot is free, the reduction of its error; then collects what has arrived.
+    fn render_frame(
+        &mut self,
+        compare: &GpuCompare,
+        reference: Option<&wgpu::Buffer>,
+    ) -> Result<()> {
+        self.engine.submit_frame(None)?;
+        let key = self.engine.frame_index - 1;
+        if let Some(r) = reference {
+            let gpu = self.engine.gpu.clone();
+            let mut enc = gpu.device.create_command_encoder(&Default::default());
+            let (mean, _) = self.engine.output_buffers();
+            if compare.record_metrics(&gpu, &mut enc, mean, r, &mut self.metrics, key) {
+                let submission = gpu.queue.submit([enc.finish()]);
+                GpuCompare::start_metrics_read(&mut self.metrics, &submission);
+            }
+        }
+        self.version += 1;
+        self.collect()
+    }
+
+    /// Takes in completed frames and errors (never waits) and extends the convergence curve.
+    pub fn collect(&mut self) -> Result<()> {
+        self.engine.poll_frames(false)?;
+        let pixels = (self.engine.extent[0] * self.engine.extent[1]) as f64;
+        for f in self.engine.take_completed() {
+            self.gpu_ms_cum += f.report.gpu_ms;
+            self.costs.insert(
+                f.report.frame_index,
+                (self.gpu_ms_cum, f.rays.total() as f64 / pixels),
+            );
+            self.rays = f.rays;
+            self.last_frame = Some(f.report);
+        }
+        self.probe.poll(&self.engine.gpu)?;
+        for (frame, m) in self.metrics.poll(&self.engine.gpu)? {
+            self.errors_by_frame.insert(frame, m);
+            self.error = Some(m);
+        }
+        let ready: Vec<u32> = self
+            .errors_by_frame
+            .keys()
+            .copied()
+            .filter(|k| self.costs.contains_key(k))
+            .collect();
+        for k in ready {
+            let m = self.errors_by_frame.remove(&k).expect("listed");
+            let (gpu_ms, rays_per_pixel) = self.costs[&k];
+            self.curve.push(ConvergencePoint {
+                frame: k + 1,
+                gpu_ms,
+                rays_per_pixel,
+                mse: m.mse,
+                rel_mse: m.rel_mse,
+            });
+            // Costs of frames before a scored one are no longer needed.
+            self.costs.retain(|f, _| *f > k);
+        }
+        Ok(())
+    }
+
+    /// Reads the run's images back (blocking): the CPU path for screenshots and tests.
+    pub fn cpu_images(&self, want_debug: bool) -> Result<CpuImages> {
         let (radiance, variance) = self.engine.read_output_and_variance()?;
-        self.variance = variance;
-        self.debug = if want_debug {
+        let debug = if want_debug {
             self.engine.read_debug()?
         } else {
             None
         };
-        self.rays = self.engine.ray_counts()?;
-        let pixels = (radiance.width * radiance.height) as f64;
-        if let Some(r) = reference {
-            let m = metrics::compare(&radiance, r)?;
-            self.error_map = Some(metrics::rel_mse_map(&radiance, r));
-            self.error = Some(m);
-            self.curve.push(ConvergencePoint {
-                frame: self.engine.frame_index,
-                gpu_ms: self.engine.total_gpu_ms,
-                rays_per_pixel: self.rays.total() as f64 / pixels,
-                mse: m.mse,
-                rel_mse: m.rel_mse,
-            });
-        }
-        self.radiance = Some(radiance);
-        self.last_frame = Some(report);
-        self.version += 1;
-        Ok(())
+        Ok(CpuImages {
+            radiance,
+            variance,
+            debug,
+        })
     }
 }
 
@@ -143,10 +206,15 @@ pub enum ReferenceSource {
     Done,
 }
 
-/// The reference path tracer at the viewer's camera, rendered progressively (or loaded).
+/// The reference path tracer at the viewer's camera, rendered progressively (or loaded). The
+/// image lives on the GPU (`gpu_image`, copied from the engine after each of its frames); the
+/// CPU copy exists once loaded from the cache or done (written to the cache then).
 pub struct ReferenceRun {
     pub engine: Engine,
     pub image: Option<Image>,
+    /// One vec4 per pixel; valid when `on_gpu`.
+    pub gpu_image: wgpu::Buffer,
+    pub on_gpu: bool,
     pub target_spp: u32,
     pub source: ReferenceSource,
     cache_file: PathBuf,
@@ -167,34 +235,79 @@ impl ReferenceRun {
         (self.samples() as f32 / self.target_spp.max(1) as f32).min(1.0)
     }
 
+    /// The reference on the GPU, when there is one.
+    pub fn buffer(&self) -> Option<&wgpu::Buffer> {
+        self.on_gpu.then_some(&self.gpu_image)
+    }
+
     fn restart(&mut self, cache_dir: &Path, preset: &LoadedPreset) {
         let key = reference_key_for_camera(preset, &self.engine.camera);
         self.cache_file = cache_dir.join(format!("{key}.exr"));
         self.engine.reset();
         self.image = None;
+        self.on_gpu = false;
         self.source = ReferenceSource::Rendering;
         if let Ok(img) = io::read_exr(&self.cache_file) {
             if [img.width, img.height] == self.engine.extent {
+                let px: Vec<[f32; 4]> = img
+                    .rgb
+                    .chunks_exact(3)
+                    .map(|p| [p[0], p[1], p[2], 0.0])
+                    .collect();
+                self.engine
+                    .gpu
+                    .queue
+                    .write_buffer(&self.gpu_image, 0, bytemuck::cast_slice(&px));
+                self.on_gpu = true;
                 self.image = Some(img);
                 self.source = ReferenceSource::Cached(self.cache_file.clone());
             }
         }
     }
 
+    /// Drops the current image (its shader changed): renders anew.
+    fn invalidate(&mut self) {
+        self.engine.reset();
+        self.image = None;
+        self.on_gpu = false;
+        self.source = ReferenceSource::Rendering;
+    }
+
     fn render_frame(&mut self) -> Result<()> {
         self.engine.render_frame()?;
-        self.image = Some(self.engine.read_output()?);
+        let gpu = self.engine.gpu.clone();
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        let (mean, _) = self.engine.output_buffers();
+        enc.copy_buffer_to_buffer(mean, 0, &self.gpu_image, 0, mean.size());
+        gpu.queue.submit([enc.finish()]);
+        self.on_gpu = true;
         if self.engine.samples >= self.target_spp {
             self.source = ReferenceSource::Done;
-            if let (Some(dir), Some(img)) = (self.cache_file.parent(), &self.image) {
+            let img = self.engine.read_output()?;
+            if let Some(dir) = self.cache_file.parent() {
                 // A cache that cannot be written only costs a re-render next time.
                 let _ = std::fs::create_dir_all(dir);
-                if let Err(e) = io::write_exr(&self.cache_file, img) {
+                if let Err(e) = io::write_exr(&self.cache_file, &img) {
                     log::warn!("reference cache not written: {e:#}");
                 }
             }
+            self.image = Some(img);
         }
         Ok(())
+    }
+
+    /// The reference on the CPU: the cached or finished image, else the partial one read back.
+    pub fn cpu_image(&self) -> Result<Option<Image>> {
+        if let Some(img) = &self.image {
+            return Ok(Some(img.clone()));
+        }
+        if !self.on_gpu {
+            return Ok(None);
+        }
+        let [w, h] = self.engine.extent;
+        let px: Vec<[f32; 4]> =
+            crate::gpu::readback::read_buffer(&self.engine.gpu, &self.gpu_image, (w * h) as usize)?;
+        Ok(Some(Image::from_rgba(w, h, &px)))
     }
 }
 
@@ -241,6 +354,8 @@ pub struct Session {
     pub errors: BTreeMap<String, String>,
     /// Recent events, newest last (reloads, saves, errors).
     pub log: Vec<String>,
+    /// The display and error passes on the GPU (shared by every pane and run).
+    pub compare: GpuCompare,
     next_run: usize,
 }
 
@@ -255,7 +370,9 @@ impl Session {
         cache_dir: PathBuf,
     ) -> Result<Session> {
         let loaded = Self::build(&gpu, &shaders, preset, None, &cache_dir)?;
+        let compare = GpuCompare::new(&gpu, &shaders)?;
         let mut s = Session {
+            compare,
             gpu,
             shaders,
             preset: loaded.preset.clone(),
@@ -311,7 +428,14 @@ impl Session {
             ..TechniqueEntry::new("reference")
         };
         let ref_run = Run::new(gpu, shaders, &staged, ref_entry, camera, &ref_preset)?;
+        let [w, h] = ref_run.engine.extent;
         let mut reference = ReferenceRun {
+            gpu_image: crate::render::pipelines::storage_buffer(
+                gpu,
+                "viewer reference",
+                w as u64 * h as u64 * 16,
+            ),
+            on_gpu: false,
             engine: ref_run.engine,
             image: None,
             target_spp: setup.spp,
@@ -547,11 +671,8 @@ impl Session {
             self.next_run = self.next_run.wrapping_add(1);
             let result = match slot {
                 Some(i) => {
-                    let want_debug = self.panes[..self.layout.pane_count()]
-                        .iter()
-                        .any(|p| p.run == i && p.display == DisplayMode::Debug);
-                    let reference = self.reference.image.as_ref();
-                    self.runs[i].render_frame(reference, want_debug)
+                    let reference = self.reference.buffer();
+                    self.runs[i].render_frame(&self.compare, reference)
                 }
                 None => self.reference.render_frame(),
             };
@@ -575,7 +696,30 @@ impl Session {
                 break;
             }
         }
+        self.collect();
         frames
+    }
+
+    /// Takes in every run's completed frames and errors without waiting.
+    pub fn collect(&mut self) {
+        for i in 0..self.runs.len() {
+            if let Err(e) = self.runs[i].collect() {
+                let key = self.runs[i].label().to_string();
+                self.errors.insert(key, format!("{e:#}"));
+            }
+        }
+    }
+
+    /// Waits for every run's frames in flight and their errors (tests, screenshots).
+    pub fn finish(&mut self) -> Result<()> {
+        for r in &mut self.runs {
+            r.engine.finish_frames()?;
+        }
+        self.gpu.wait()?;
+        for r in &mut self.runs {
+            r.collect()?;
+        }
+        Ok(())
     }
 
     /// Reacts to changed files: shaders rebuild the pipelines that import them (keeping the
@@ -647,9 +791,16 @@ impl Session {
             match self.reference.engine.rebuild() {
                 Ok(()) => {
                     // Cached and partial references came from the old shader: render anew.
-                    self.reference.engine.reset();
-                    self.reference.image = None;
-                    self.reference.source = ReferenceSource::Rendering;
+                    self.reference.invalidate();
+                    rebuilt += 1;
+                }
+                Err(e) => failures.push(format!("{e:#}")),
+            }
+        }
+        if entries.iter().any(|e| e.starts_with("compare/")) {
+            match GpuCompare::new(&self.gpu, &self.shaders) {
+                Ok(c) => {
+                    self.compare = c;
                     rebuilt += 1;
                 }
                 Err(e) => failures.push(format!("{e:#}")),
@@ -672,48 +823,49 @@ impl Session {
         }
     }
 
-    /// The per-pixel scalars behind a heatmap pane (None for radiance): variance, relMSE,
-    /// samples per pixel or a channel of the technique's debug buffer.
+    /// The per-pixel scalars behind a heatmap pane (None for radiance), read back to the CPU:
+    /// variance, relMSE, samples per pixel or a channel of the technique's debug buffer.
     pub fn pane_values(&self, pane: &Pane) -> Option<Vec<f32>> {
         let run = self.runs.get(pane.run)?;
+        let images = run.cpu_images(pane.display == DisplayMode::Debug).ok()?;
+        self.values_of(pane, &images)
+    }
+
+    fn values_of(&self, pane: &Pane, images: &CpuImages) -> Option<Vec<f32>> {
+        let run = self.runs.get(pane.run)?;
+        let img = &images.radiance;
         match pane.display {
             DisplayMode::Radiance => None,
-            DisplayMode::Variance => run.variance.as_ref().map(heatmap::variance_scalar),
-            DisplayMode::Error => run.error_map.clone(),
-            DisplayMode::Samples => {
-                let img = run.radiance.as_ref()?;
-                Some(vec![
-                    run.engine.samples as f32;
-                    (img.width * img.height) as usize
-                ])
+            DisplayMode::Variance => images.variance.as_ref().map(heatmap::variance_scalar),
+            DisplayMode::Error => {
+                let r = self.reference.cpu_image().ok()??;
+                Some(metrics::rel_mse_map(img, &r))
             }
+            DisplayMode::Samples => Some(vec![
+                run.engine.samples as f32;
+                (img.width * img.height) as usize
+            ]),
             DisplayMode::Debug => {
-                let view = run
-                    .engine
-                    .technique
-                    .debug_views()
-                    .into_iter()
-                    .nth(pane.debug)?;
-                let data = run.debug.as_ref()?;
+                let view = self.debug_view(pane)?;
+                let data = images.debug.as_ref()?;
                 let pixels = (run.engine.extent[0] * run.engine.extent[1]) as usize;
                 Some(crate::render::debug_channel(data, pixels, view.channel))
             }
         }
     }
 
-    /// The display image of a pane: RGBA8 pixels and, for heatmaps, the log10 range shown.
-    pub fn pane_pixels(&self, pane: &Pane) -> Option<(Vec<u8>, Option<LogRange>)> {
+    /// The display image of a pane computed on the CPU (the path the CLI's files use; the
+    /// viewer draws the GPU one): RGBA8 pixels, the radiance and, for heatmaps, the range.
+    pub fn pane_pixels(&self, pane: &Pane) -> Option<(Vec<u8>, Image, Option<LogRange>)> {
         let run = self.runs.get(pane.run)?;
+        let images = run.cpu_images(pane.display == DisplayMode::Debug).ok()?;
         if pane.display == DisplayMode::Radiance {
             let tonemap = &self.preset.preset.tonemap;
-            return run.radiance.as_ref().map(|img| {
-                (
-                    compare::tonemap::to_srgb8(img, tonemap.operator, tonemap.exposure),
-                    None,
-                )
-            });
+            let rgba =
+                compare::tonemap::to_srgb8(&images.radiance, tonemap.operator, tonemap.exposure);
+            return Some((rgba, images.radiance, None));
         }
-        let values = self.pane_values(pane)?;
+        let values = self.values_of(pane, &images)?;
         let is_id = pane.display == DisplayMode::Debug
             && run
                 .engine
@@ -722,31 +874,140 @@ impl Session {
                 .get(pane.debug)
                 .is_some_and(|v| v.is_id);
         if is_id {
-            return Some((heatmap::id_colours(&values), None));
+            return Some((heatmap::id_colours(&values), images.radiance, None));
         }
         let range = match pane.display {
             DisplayMode::Samples => (0.0, (run.engine.samples.max(1) as f32).log10().max(1.0)),
             _ => heatmap::log_range(&values).unwrap_or((-6.0, 0.0)),
         };
-        Some((heatmap::to_rgba(&values, range.0, range.1), Some(range)))
+        Some((
+            heatmap::to_rgba(&values, range.0, range.1),
+            images.radiance,
+            Some(range),
+        ))
     }
 
-    /// HDR value, variance and error of one pixel of a run (the pixel inspector).
+    /// The technique debug view a pane shows.
+    fn debug_view(&self, pane: &Pane) -> Option<crate::render::DebugView> {
+        let run = self.runs.get(pane.run)?;
+        run.engine
+            .technique
+            .debug_views()
+            .into_iter()
+            .nth(pane.debug)
+    }
+
+    /// The GPU display settings of a pane (`range`: None for the histogram's).
+    pub fn display_settings(&self, pane: &Pane) -> Option<DisplaySettings> {
+        self.runs.get(pane.run)?;
+        let tonemap = &self.preset.preset.tonemap;
+        let (kind, channel) = match pane.display {
+            DisplayMode::Radiance => (DisplayKind::Radiance, 0),
+            DisplayMode::Variance => (DisplayKind::Variance, 0),
+            DisplayMode::Error => (DisplayKind::Error, 0),
+            DisplayMode::Samples => (DisplayKind::Samples, 0),
+            DisplayMode::Debug => {
+                let view = self.debug_view(pane)?;
+                let kind = if view.is_id {
+                    DisplayKind::DebugId
+                } else {
+                    DisplayKind::DebugValue
+                };
+                (kind, view.channel)
+            }
+        };
+        Some(DisplaySettings {
+            kind,
+            operator: tonemap.operator,
+            exposure_ev: tonemap.exposure,
+            channel,
+            range: None,
+        })
+    }
+
+    /// Records a pane's display pass on the GPU into `target`; false when it cannot show yet.
+    pub fn record_pane_display(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        pane: &Pane,
+        settings: &DisplaySettings,
+        target: &mut DisplayTarget,
+    ) -> bool {
+        let Some(run) = self.runs.get(pane.run) else {
+            return false;
+        };
+        if run.engine.frame_index == 0 {
+            return false;
+        }
+        let (mean, m2) = run.engine.output_buffers();
+        let src = DisplaySource {
+            mean,
+            m2,
+            reference: self.reference.buffer(),
+            debug: run.engine.technique.debug_buffer(),
+            extent: run.engine.extent,
+            samples: run.engine.samples,
+        };
+        self.compare
+            .record_display(&self.gpu, enc, &src, settings, target)
+    }
+
+    /// Asks for one pixel of every visible run (and the reference) without waiting; the values
+    /// arrive a frame or more later in each run's `probe`.
+    pub fn request_pixel(&mut self, x: u32, y: u32) {
+        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        let mut asked = Vec::new();
+        let reference = &self.reference.gpu_image;
+        for i in self.visible_runs() {
+            let r = &mut self.runs[i];
+            let [w, h] = r.engine.extent;
+            if x >= w || y >= h {
+                continue;
+            }
+            let (mean, m2) = r.engine.output_buffers();
+            let (mean, m2) = (mean.clone(), m2.clone());
+            let index = (y * w + x) as u64;
+            if r.probe
+                .record(&mut enc, (x, y), index, &[&mean, &m2, reference])
+            {
+                asked.push(i);
+            }
+        }
+        if asked.is_empty() {
+            return;
+        }
+        let submission = self.gpu.queue.submit([enc.finish()]);
+        for i in asked {
+            self.runs[i].probe.start(submission.clone());
+        }
+    }
+
+    /// HDR value, variance and error of a pixel of a run, from its last probe (the pixel
+    /// inspector; `request_pixel` asks for it, the values come a frame or more later).
     pub fn inspect(&self, run: usize, x: u32, y: u32) -> Option<PixelInfo> {
+        let on_gpu = self.reference.on_gpu;
         let r = self.runs.get(run)?;
-        let img = r.radiance.as_ref()?;
-        if x >= img.width || y >= img.height {
+        let ((px, py), v) = r.probe.last.as_ref()?;
+        if (*px, *py) != (x, y) {
             return None;
         }
-        let i = (y * img.width + x) as usize;
+        let (mean, m2, reference) = (v[0], v[1], v[2]);
+        let n = mean[3];
+        let d = if n > 1.0 { 1.0 / (n - 1.0) } else { 0.0 };
+        let rel_mse = on_gpu.then(|| {
+            (0..3)
+                .map(|c| {
+                    let e = (mean[c] - reference[c]) as f64;
+                    e * e / ((reference[c] as f64).powi(2) + 0.01)
+                })
+                .sum::<f64>() as f32
+                / 3.0
+        });
         Some(PixelInfo {
-            radiance: img.pixel(x, y),
-            variance: r.variance.as_ref().map(|v| {
-                let p = v.pixel(x, y);
-                (p[0] + p[1] + p[2]) / 3.0
-            }),
-            rel_mse: r.error_map.as_ref().map(|e| e[i]),
-            reference: self.reference.image.as_ref().map(|im| im.pixel(x, y)),
+            radiance: [mean[0], mean[1], mean[2]],
+            variance: Some((m2[0] * d + m2[1] * d + m2[2] * d) / 3.0),
+            rel_mse,
+            reference: on_gpu.then_some([reference[0], reference[1], reference[2]]),
         })
     }
 }

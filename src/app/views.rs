@@ -3,21 +3,37 @@
 //! the error overlay.
 
 use super::{camera, session::Session, ViewerApp};
+use crate::compare::display::{DisplayTarget, GpuCompare};
 use crate::compare::heatmap;
 use crate::preset::{DisplayMode, Layout};
 use egui::{Color32, Pos2, Rect, Sense, Stroke, TextureHandle, Vec2};
 
-/// One uploaded texture per pane, re-uploaded only when its content key changes.
+/// The egui renderer the panes' GPU textures are registered with (eframe's, or the headless
+/// viewer's); without one the panes fall back to the CPU path and upload images.
+pub type EguiRenderer = std::sync::Arc<egui::mutex::RwLock<egui_wgpu::Renderer>>;
+
+/// One texture per pane, displayed again only when its content key changes.
 #[derive(Default)]
 pub struct PaneTextures {
     slots: Vec<Option<Slot>>,
 }
 
+enum PaneTexture {
+    /// Written on the GPU by `compare::display` and drawn by egui as it is.
+    Gpu {
+        target: Box<DisplayTarget>,
+        id: egui::TextureId,
+    },
+    /// Computed on the CPU and uploaded (no egui renderer to register a GPU texture with).
+    Cpu(TextureHandle),
+}
+
 struct Slot {
-    key: TextureKey,
-    texture: TextureHandle,
+    key: Option<TextureKey>,
+    texture: PaneTexture,
     range: Option<(f32, f32)>,
     size: [u32; 2],
+    run: usize,
 }
 
 #[derive(Clone, Copy, PartialEq)]
@@ -27,6 +43,9 @@ struct TextureKey {
     debug: usize,
     version: u64,
     tonemap: (u32, u32),
+    /// The histogram range the GPU display uses (a new one displays again).
+    range: Option<(u32, u32)>,
+    reference: bool,
 }
 
 /// What a pane draws this frame.
@@ -38,51 +57,131 @@ struct PaneImage {
 }
 
 impl PaneTextures {
-    fn update(&mut self, ctx: &egui::Context, s: &Session, pane: usize) -> Option<PaneImage> {
+    fn update(
+        &mut self,
+        ctx: &egui::Context,
+        renderer: Option<&EguiRenderer>,
+        s: &Session,
+        pane: usize,
+    ) -> Option<PaneImage> {
         if self.slots.len() <= pane {
             self.slots.resize_with(pane + 1, || None);
         }
         let p = s.panes[pane];
         let run = s.runs.get(p.run)?;
         let tm = &s.preset.preset.tonemap;
-        let key = TextureKey {
-            run: p.run,
-            display: p.display,
-            debug: p.debug,
-            version: run.version,
-            tonemap: (tm.operator as u32, tm.exposure.to_bits()),
-        };
+        let size = run.engine.extent;
         let slot = &mut self.slots[pane];
-        if slot.as_ref().is_none_or(|sl| sl.key != key) {
-            if let (Some((rgba, range)), Some(img)) = (s.pane_pixels(&p), run.radiance.as_ref()) {
-                let size = [img.width, img.height];
-                let image = egui::ColorImage::from_rgba_unmultiplied(
-                    [size[0] as usize, size[1] as usize],
-                    &rgba,
-                );
-                let options = egui::TextureOptions::NEAREST;
-                match slot {
-                    Some(sl) => {
-                        sl.texture.set(image, options);
-                        sl.key = key;
+        match renderer {
+            Some(renderer) => {
+                let fresh = !matches!(slot, Some(Slot { texture: PaneTexture::Gpu { target, .. }, .. }) if target.extent == size);
+                if fresh {
+                    let target = Box::new(DisplayTarget::new(&s.gpu, size));
+                    let id = renderer.write().register_native_texture(
+                        &s.gpu.device,
+                        &target.view,
+                        wgpu::FilterMode::Nearest,
+                    );
+                    if let Some(Slot {
+                        texture: PaneTexture::Gpu { id: old, .. },
+                        ..
+                    }) = slot.take()
+                    {
+                        renderer.write().free_texture(&old);
+                    }
+                    *slot = Some(Slot {
+                        key: None,
+                        texture: PaneTexture::Gpu { target, id },
+                        range: None,
+                        size,
+                        run: p.run,
+                    });
+                }
+                let sl = slot.as_mut().expect("set above");
+                let PaneTexture::Gpu { target, .. } = &mut sl.texture else {
+                    unreachable!("a GPU slot")
+                };
+                if let Err(e) = target.poll_range(&s.gpu) {
+                    log::warn!("heatmap range readback: {e:#}");
+                }
+                let key = TextureKey {
+                    run: p.run,
+                    display: p.display,
+                    debug: p.debug,
+                    version: run.version,
+                    tonemap: (tm.operator as u32, tm.exposure.to_bits()),
+                    range: target.range.map(|(a, b)| (a.to_bits(), b.to_bits())),
+                    reference: s.reference.on_gpu,
+                };
+                if sl.key != Some(key) {
+                    if let Some(settings) = s.display_settings(&p) {
+                        let mut enc = s.gpu.device.create_command_encoder(&Default::default());
+                        if s.record_pane_display(&mut enc, &p, &settings, target) {
+                            let histogram = s.compare.record_histogram_copy(&mut enc, target);
+                            let submission = s.gpu.queue.submit([enc.finish()]);
+                            if histogram {
+                                GpuCompare::start_histogram_read(target, submission);
+                            }
+                            sl.key = Some(key);
+                            sl.range = target.shown_range;
+                            sl.run = p.run;
+                        }
+                    }
+                }
+            }
+            None => {
+                let key = TextureKey {
+                    run: p.run,
+                    display: p.display,
+                    debug: p.debug,
+                    version: run.version,
+                    tonemap: (tm.operator as u32, tm.exposure.to_bits()),
+                    range: None,
+                    reference: s.reference.on_gpu,
+                };
+                if slot.as_ref().is_none_or(|sl| sl.key != Some(key)) {
+                    if let Some((rgba, img, range)) = s.pane_pixels(&p) {
+                        let size = [img.width, img.height];
+                        let image = egui::ColorImage::from_rgba_unmultiplied(
+                            [size[0] as usize, size[1] as usize],
+                            &rgba,
+                        );
+                        let options = egui::TextureOptions::NEAREST;
+                        match slot {
+                            Some(Slot {
+                                texture: PaneTexture::Cpu(t),
+                                ..
+                            }) => t.set(image, options),
+                            _ => {
+                                *slot = Some(Slot {
+                                    key: None,
+                                    texture: PaneTexture::Cpu(ctx.load_texture(
+                                        format!("pane{pane}"),
+                                        image,
+                                        options,
+                                    )),
+                                    range: None,
+                                    size,
+                                    run: p.run,
+                                })
+                            }
+                        }
+                        let sl = slot.as_mut().expect("set above");
+                        sl.key = Some(key);
                         sl.range = range;
                         sl.size = size;
-                    }
-                    None => {
-                        *slot = Some(Slot {
-                            key,
-                            texture: ctx.load_texture(format!("pane{pane}"), image, options),
-                            range,
-                            size,
-                        })
+                        sl.run = p.run;
                     }
                 }
             }
         }
         slot.as_ref()
-            .filter(|sl| sl.key.run == p.run)
+            .filter(|sl| sl.key.is_some() && sl.run == p.run)
             .map(|sl| PaneImage {
-                texture: sl.texture.id(),
+                texture: match &sl.texture {
+                    PaneTexture::Gpu { id, .. } => *id,
+                    PaneTexture::Cpu(t) => t.id(),
+                },
                 range: sl.range,
                 size: sl.size,
             })
@@ -134,8 +233,9 @@ pub fn central_panel(app: &mut ViewerApp, ui: &mut egui::Ui) {
         status_line(ui, s, app.ui_frame_ms);
         let area = ui.available_rect_before_wrap();
         let count = s.layout.pane_count();
+        let renderer = app.egui_renderer.as_ref();
         let images: Vec<Option<PaneImage>> = (0..count)
-            .map(|i| app.views.update(ui.ctx(), s, i))
+            .map(|i| app.views.update(ui.ctx(), renderer, s, i))
             .collect();
         let mut new_camera = None;
         let mut hovered: Option<(u32, u32)> = None;
@@ -151,6 +251,10 @@ pub fn central_panel(app: &mut ViewerApp, ui: &mut egui::Ui) {
             }
         }
         app.panels.inspected = hovered;
+        if let Some((x, y)) = hovered {
+            // Only the hovered pixel travels back, a frame or more later.
+            s.request_pixel(x, y);
+        }
         if let Some(c) = new_camera {
             s.set_camera(c);
         }
@@ -386,7 +490,11 @@ pub fn inspector(ui: &mut egui::Ui, s: &Session, x: u32, y: u32) {
             ui.label(info.rel_mse.map_or("-".into(), |v| format!("{v:.3e}")));
             ui.end_row();
         }
-        if let Some([r, g, b]) = s.reference.image.as_ref().map(|im| im.pixel(x, y)) {
+        let reference = s.panes[..s.layout.pane_count()]
+            .iter()
+            .find_map(|p| s.inspect(p.run, x, y))
+            .and_then(|info| info.reference);
+        if let Some([r, g, b]) = reference {
             ui.label("reference");
             ui.label(format!("{r:.4} {g:.4} {b:.4}"));
             ui.end_row();

@@ -245,3 +245,178 @@ fn viewer_overhead(gpu: Arc<Gpu>, extent: [u32; 2], frames: u32) -> Result<()> {
     );
     Ok(())
 }
+
+/// Per-pass statistics of one technique over the timed frames.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct PassStats {
+    pub pass: String,
+    pub min_ms: f64,
+    pub median_ms: f64,
+    pub max_ms: f64,
+}
+
+/// `gilab bench --preset`: one technique entry of a preset.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct TechniqueBench {
+    pub label: String,
+    pub technique: String,
+    pub frames: u32,
+    pub passes: Vec<PassStats>,
+    pub frame_min_ms: f64,
+    pub frame_median_ms: f64,
+    pub frame_max_ms: f64,
+    /// Rays per pixel per frame and rays per second of GPU time (whole frame), by kind too.
+    pub rays_per_pixel: f64,
+    pub mrays_per_s: f64,
+    pub rays_by_kind: Vec<(String, u64)>,
+    pub timing: String,
+    pub clock_check: crate::gpu::calibrate::ClockCheck,
+}
+
+fn stats(mut v: Vec<f64>) -> (f64, f64, f64) {
+    v.sort_by(f64::total_cmp);
+    if v.is_empty() {
+        return (0.0, 0.0, 0.0);
+    }
+    (v[0], v[v.len() / 2], v[v.len() - 1])
+}
+
+/// Every technique of a preset at its size: warm-up (calibration kernel stable, then
+/// `warmup` frames), `frames` frames back to back, per-pass min/median/max GPU ms, rays/s,
+/// and the clock check. Prints a table; returns the records (the CLI writes them as JSON).
+pub fn preset(
+    gpu: Arc<Gpu>,
+    p: &LoadedPreset,
+    frames: u32,
+    warmup: u32,
+) -> Result<Vec<TechniqueBench>> {
+    let mut calibration =
+        crate::gpu::calibrate::Calibration::new(&gpu, &ShaderLibrary::discover())?;
+    let mut out = Vec::new();
+    let [w, h] = p.preset.render.size;
+    for (i, entry) in p.preset.techniques.iter().enumerate() {
+        let mut e = crate::jobs::engine_for_entry(gpu.clone(), p, i)?;
+        let (before, warm_ms) = calibration.warm_up(&gpu)?;
+        let clock_before = calibration.clock();
+        for _ in 0..warmup {
+            e.submit_frame(None)?;
+        }
+        e.finish_frames()?;
+        e.take_completed();
+        let rays_before = e.ray_counts()?;
+        let mut results = Vec::new();
+        for _ in 0..frames {
+            e.submit_frame(None)?;
+            results.extend(e.take_completed());
+        }
+        let after = calibration.measure(&gpu)?;
+        e.finish_frames()?;
+        results.extend(e.take_completed());
+        let check = crate::gpu::calibrate::Calibration::check(
+            before,
+            after,
+            warm_ms,
+            (clock_before, calibration.clock()),
+        );
+        let rays_after = results.last().map(|r| r.rays).unwrap_or_default();
+        let mut names: Vec<String> = Vec::new();
+        for r in &results {
+            for (n, _) in &r.report.gpu_ms_by_pass {
+                if !names.contains(n) {
+                    names.push(n.clone());
+                }
+            }
+        }
+        let passes = names
+            .iter()
+            .map(|n| {
+                let v = results
+                    .iter()
+                    .map(|r| {
+                        r.report
+                            .gpu_ms_by_pass
+                            .iter()
+                            .filter(|(m, _)| m == n)
+                            .map(|(_, ms)| ms)
+                            .sum::<f64>()
+                    })
+                    .collect();
+                let (min_ms, median_ms, max_ms) = stats(v);
+                PassStats {
+                    pass: n.clone(),
+                    min_ms,
+                    median_ms,
+                    max_ms,
+                }
+            })
+            .collect();
+        let frame_ms: Vec<f64> = results.iter().map(|r| r.report.gpu_ms).collect();
+        let total_ms: f64 = frame_ms.iter().sum();
+        let (frame_min_ms, frame_median_ms, frame_max_ms) = stats(frame_ms);
+        let rays = rays_after.total().saturating_sub(rays_before.total());
+        let by_kind = rays_after
+            .named()
+            .into_iter()
+            .map(|(k, v)| {
+                let before = rays_before
+                    .named()
+                    .into_iter()
+                    .find(|(b, _)| *b == k)
+                    .map_or(0, |b| b.1);
+                (k.to_string(), v - before)
+            })
+            .collect();
+        out.push(TechniqueBench {
+            label: entry.display_name().to_string(),
+            technique: entry.name.clone(),
+            frames,
+            passes,
+            frame_min_ms,
+            frame_median_ms,
+            frame_max_ms,
+            rays_per_pixel: rays as f64 / (w as f64 * h as f64) / frames as f64,
+            mrays_per_s: rays as f64 / (total_ms * 1e-3).max(1e-12) / 1e6,
+            rays_by_kind: by_kind,
+            timing: results
+                .first()
+                .map_or("none".into(), |r| format!("{:?}", r.report.timing)),
+            clock_check: check,
+        });
+    }
+    println!(
+        "{w}x{h}, {frames} frames back to back after warm-up; GPU ms per pass min / median / max"
+    );
+    for t in &out {
+        println!(
+            "\n{} ({}): frame {:.3} / {:.3} / {:.3} ms, {:.2} rays/px/frame, {:.1} Mrays/s [{}] {}",
+            t.label,
+            t.technique,
+            t.frame_min_ms,
+            t.frame_median_ms,
+            t.frame_max_ms,
+            t.rays_per_pixel,
+            t.mrays_per_s,
+            t.timing,
+            t.clock_check.summary()
+        );
+        println!("  {:<24} {:>9} {:>9} {:>9}", "pass", "min", "median", "max");
+        for p in &t.passes {
+            println!(
+                "  {:<24} {:>9.3} {:>9.3} {:>9.3}",
+                p.pass, p.min_ms, p.median_ms, p.max_ms
+            );
+        }
+        let kinds: Vec<String> = t
+            .rays_by_kind
+            .iter()
+            .map(|(k, v)| {
+                format!(
+                    "{k} {:.2}/px",
+                    *v as f64 / (w as f64 * h as f64) / frames as f64
+                )
+            })
+            .collect();
+        println!("  rays by kind: {}", kinds.join(", "));
+    }
+    Ok(out)
+}

@@ -102,6 +102,16 @@ pub enum Command {
         /// Scenes to measure (default: cornell and the largest built-in scene).
         #[arg(long)]
         scene: Vec<String>,
+        /// Per-pass GPU ms (min, median, max) of every technique of this preset instead, at
+        /// the preset's size (or `--size` when given explicitly).
+        #[arg(long)]
+        preset: Option<PathBuf>,
+        /// Frames rendered before the timed ones (after the calibration warm-up), with --preset.
+        #[arg(long, default_value_t = 8)]
+        warmup: u32,
+        /// Write the --preset results as JSON here.
+        #[arg(long)]
+        json: Option<PathBuf>,
     },
 }
 
@@ -222,6 +232,38 @@ pub fn run(cli: Cli) -> Result<()> {
             size,
             frames,
             scene,
+            preset: Some(path),
+            warmup,
+            json,
+        }) => {
+            let mut p = LoadedPreset::load(&path)?;
+            if std::env::args().any(|a| a == "--size" || a.starts_with("--size=")) {
+                p.preset.render.size = crate::preset::parse_size(&size)?;
+            }
+            let _ = scene;
+            let gpu = std::sync::Arc::new(Gpu::new(cli.backend)?);
+            println!("adapter: {}", gpu.summary);
+            let results = bench::preset(gpu.clone(), &p, frames.max(1), warmup)?;
+            if let Some(json) = json {
+                let record = serde_json::json!({
+                    "preset": path.display().to_string(),
+                    "adapter": gpu.summary,
+                    "size": p.preset.render.size,
+                    "git_commit": crate::experiment::run::git_commit(),
+                    "techniques": results,
+                });
+                std::fs::write(&json, serde_json::to_string_pretty(&record)?)
+                    .map_err(|e| anyhow::anyhow!("writing {}: {e}", json.display()))?;
+                println!("\nJSON: {}", json.display());
+            }
+            Ok(())
+        }
+        Some(Command::Bench {
+            size,
+            frames,
+            scene,
+            preset: None,
+            ..
         }) => {
             let gpu = std::sync::Arc::new(Gpu::new(cli.backend)?);
             println!("adapter: {}", gpu.summary);

@@ -13,31 +13,81 @@ pub fn variance_scalar(variance: &Image) -> Vec<f32> {
         .collect()
 }
 
-/// A log10 display range: the 1st to 99th percentile of the positive finite values, so a
+/// Log10 histogram bins behind heatmap ranges; `shaders/compare/shared.wgsl` has the same
+/// constants (the viewer builds the histogram on the GPU).
+pub const HIST_LO: f32 = -16.0;
+pub const HIST_PER_DECADE: f32 = 64.0;
+pub const HIST_BINS: u32 = 1536;
+
+fn hist_bin(v: f32) -> usize {
+    ((v.log10() - HIST_LO) * HIST_PER_DECADE)
+        .floor()
+        .clamp(0.0, (HIST_BINS - 1) as f32) as usize
+}
+
+/// Counts of the positive finite values per log10 bin.
+pub fn histogram(values: &[f32]) -> Vec<u32> {
+    let mut h = vec![0u32; HIST_BINS as usize];
+    for &v in values {
+        if v.is_finite() && v > 0.0 {
+            h[hist_bin(v)] += 1;
+        }
+    }
+    h
+}
+
+/// A log10 display range from a histogram: from the bin holding the 1st percentile of the
+/// positive finite values to the end of the bin holding the 99th (1/64 decade resolution), so a
 /// few fireflies or black pixels do not flatten the rest. `None` when no value is positive.
-pub fn log_range(values: &[f32]) -> Option<(f32, f32)> {
-    let mut logs: Vec<f32> = values
-        .iter()
-        .filter(|v| v.is_finite() && **v > 0.0)
-        .map(|v| v.log10())
-        .collect();
-    if logs.is_empty() {
+pub fn range_from_histogram(counts: &[u32]) -> Option<(f32, f32)> {
+    let total: u64 = counts.iter().map(|&c| c as u64).sum();
+    if total == 0 {
         return None;
     }
-    logs.sort_by(f32::total_cmp);
-    let at = |q: f32| logs[((logs.len() - 1) as f32 * q).round() as usize];
-    let (lo, hi) = (at(0.01), at(0.99));
-    Some(if hi - lo < 1e-3 {
+    let rank = |q: f64| ((total - 1) as f64 * q).round() as u64;
+    let bin_of = |r: u64| {
+        let mut seen = 0u64;
+        for (i, &c) in counts.iter().enumerate() {
+            seen += c as u64;
+            if seen > r {
+                return i;
+            }
+        }
+        counts.len() - 1
+    };
+    let edge = |b: usize| HIST_LO + b as f32 / HIST_PER_DECADE;
+    let (lo, hi) = (edge(bin_of(rank(0.01))), edge(bin_of(rank(0.99)) + 1));
+    Some(if hi - lo < 0.25 {
         (lo - 0.5, hi + 0.5)
     } else {
         (lo, hi)
     })
 }
 
+/// The log10 display range of a scalar map (`range_from_histogram` of its `histogram`).
+pub fn log_range(values: &[f32]) -> Option<(f32, f32)> {
+    range_from_histogram(&histogram(values))
+}
+
+/// Colour map resolution: positions are rounded to one of this many samples of viridis, on
+/// the CPU and on the GPU alike (neighbouring samples differ by at most 1 per channel).
+pub const COLOUR_MAP_SIZE: usize = 1024;
+
 /// Colour of a position in [0, 1] on the map.
 pub fn colour(t: f32) -> [u8; 3] {
-    let c = colorous::VIRIDIS.eval_continuous(t.clamp(0.0, 1.0) as f64);
+    let i = (t.clamp(0.0, 1.0) * (COLOUR_MAP_SIZE - 1) as f32 + 0.5) as usize;
+    let c = colorous::VIRIDIS.eval_continuous(i as f64 / (COLOUR_MAP_SIZE - 1) as f64);
     [c.r, c.g, c.b]
+}
+
+/// The colour map as packed RGBA8 words (r in the low byte), for the GPU display pass.
+pub fn colour_map_rgba8() -> Vec<u32> {
+    (0..COLOUR_MAP_SIZE)
+        .map(|i| {
+            let c = colorous::VIRIDIS.eval_continuous(i as f64 / (COLOUR_MAP_SIZE - 1) as f64);
+            u32::from_le_bytes([c.r, c.g, c.b, 255])
+        })
+        .collect()
 }
 
 /// RGBA8 heatmap of `values` with log10 range `[lo, hi]`; zero maps to the bottom colour,
@@ -71,11 +121,7 @@ pub fn id_colours(ids: &[f32]) -> Vec<u8> {
             out.extend_from_slice(&[0, 0, 0, 255]);
             continue;
         }
-        // An integer hash (splitmix-style) spreads neighbouring ids over the colour space.
-        let mut h = (id as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-        h ^= h >> 31;
-        h = h.wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        h ^= h >> 29;
+        let h = id_hash(id as u32);
         out.extend_from_slice(&[
             64 + (h & 0xBF) as u8,
             64 + ((h >> 8) & 0xBF) as u8,
@@ -84,4 +130,15 @@ pub fn id_colours(ids: &[f32]) -> Vec<u8> {
         ]);
     }
     out
+}
+
+/// Integer hash (lowbias32, as `shaders/compare/display.wgsl`): neighbouring ids get unrelated
+/// colours.
+pub fn id_hash(mut x: u32) -> u32 {
+    x ^= x >> 16;
+    x = x.wrapping_mul(0x7feb_352d);
+    x ^= x >> 15;
+    x = x.wrapping_mul(0x846c_a68b);
+    x ^= x >> 16;
+    x
 }

@@ -1,5 +1,6 @@
 //! Images, error metrics against a reference, tonemapping and image files.
 
+pub mod display;
 pub mod flip;
 pub mod heatmap;
 pub mod io;

@@ -299,6 +299,14 @@ fn ratio_text(v: Option<f64>) -> String {
 pub fn headline(s: &Summary) -> String {
     let a = &s.analysis;
     let mut t = String::new();
+    for r in s.runs.iter().filter(|r| r.clock_check.flagged) {
+        let _ = writeln!(
+            t,
+            "FLAGGED {}: the GPU's clock state changed during the run ({}); its times are not comparable",
+            r.spec.label,
+            r.clock_check.summary()
+        );
+    }
     let base = a.baseline.as_deref().unwrap_or("—");
     if let Some(ms) = a.equal_time_ms {
         let _ = writeln!(t, "equal time ({ms:.1} GPU ms), {} vs {base}:", a.metric);
@@ -426,6 +434,31 @@ pub fn markdown(s: &Summary) -> String {
             r.passes_run.join(", "),
             opt(Some(r.final_rel_mse), 4),
             r.final_flip
+        );
+    }
+    let _ = writeln!(
+        m,
+        "\n## Timing protocol\n\nFrames of a run go back to back (up to {} in flight; errors are computed afterwards \
+         from copies of the scored frames, every {} frame(s)). Before each run a fixed calibration kernel runs until \
+         its time is stable; it is timed again right behind the run's last frame. A run whose two times differ by \
+         more than {:.0}% ran in another clock state than it started in and is **flagged** (its times are not \
+         comparable).\n\n| run | calibration before → after (ms) | drift | clock before → after | flag |\n| --- | ---: | ---: | --- | --- |",
+        crate::render::engine::FRAMES_IN_FLIGHT,
+        s.settings.error_every.max(1),
+        crate::gpu::calibrate::DRIFT_LIMIT * 100.0
+    );
+    for r in &s.runs {
+        let c = &r.clock_check;
+        let _ = writeln!(
+            m,
+            "| {} | {:.3} → {:.3} | {:+.1}% | {} → {} | {} |",
+            r.spec.label,
+            c.kernel_ms_before,
+            c.kernel_ms_after,
+            c.drift * 100.0,
+            c.clock_before,
+            c.clock_after,
+            if c.flagged { "**FLAGGED**" } else { "ok" }
         );
     }
     let skipped: Vec<String> = s

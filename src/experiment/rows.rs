@@ -26,6 +26,9 @@ pub struct Row {
     pub wall_ms_cum: f64,
     /// `timestamps`, or `wall` where the adapter gave no usable timestamps.
     pub timing: String,
+    /// The run's clock check failed (calibration kernel drifted over 10%): times not comparable.
+    #[serde(default)]
+    pub clock_flagged: bool,
     pub rays: u64,
     pub rays_per_pixel: f64,
     pub rays_camera: u64,
@@ -66,6 +69,9 @@ pub struct RunSummary {
     pub frames: u32,
     pub gpu_ms_total: f64,
     pub gpu_ms_per_frame: f64,
+    /// Median GPU ms of the run's frames (every frame, scored or not).
+    #[serde(default)]
+    pub gpu_ms_median: f64,
     /// Mean GPU ms per frame of each pass.
     pub gpu_ms_by_pass: std::collections::BTreeMap<String, f64>,
     pub passes_run: Vec<String>,
@@ -77,6 +83,9 @@ pub struct RunSummary {
     pub non_finite_pixels: usize,
     /// Last frame, relative to the output folder.
     pub image: String,
+    /// The timing protocol's clock check (`gpu::calibrate`).
+    #[serde(default)]
+    pub clock_check: crate::gpu::calibrate::ClockCheck,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]

@@ -205,11 +205,22 @@ pub fn converge(gpu: Arc<Gpu>, p: &LoadedPreset, opts: &ConvergeOptions) -> Resu
     let shaders = ShaderLibrary::discover();
     let mut rows = Vec::new();
     let mut summaries = Vec::new();
+    let mut calibration = crate::gpu::calibrate::Calibration::new(&gpu, &shaders)?;
     for (i, spec) in mine.iter().enumerate() {
         bar.set_message(format!("run {}/{}: {}", i + 1, mine.len(), spec.label));
-        let (run_rows, summary) =
-            run_one(&gpu, p, &shaders, &states, &events, spec, &exp, opts, &bar)
-                .with_context(|| format!("run '{}'", spec.label))?;
+        let (run_rows, summary) = run_one(
+            &gpu,
+            p,
+            &shaders,
+            &states,
+            &events,
+            spec,
+            &exp,
+            opts,
+            &bar,
+            &mut calibration,
+        )
+        .with_context(|| format!("run '{}'", spec.label))?;
         rows.extend(run_rows);
         summaries.push(summary);
     }
@@ -249,6 +260,7 @@ fn run_one(
     exp: &super::ExperimentSettings,
     opts: &ConvergeOptions,
     bar: &indicatif::ProgressBar,
+    calibration: &mut crate::gpu::calibrate::Calibration,
 ) -> Result<(Vec<Row>, RunSummary)> {
     let entry = TechniqueEntry {
         name: spec.technique.clone(),
@@ -271,84 +283,154 @@ fn run_one(
     )?;
     let pixels = (engine.extent[0] * engine.extent[1]) as f64;
     let (op, ev) = (p.preset.tonemap.operator, p.preset.tonemap.exposure);
+    let image_bytes = engine.output_buffers().0.size();
+    let every = exp.error_every.max(1);
+    let scored = |f: u32| (f + 1).is_multiple_of(every) || f + 1 == exp.frames;
+    // Timing protocol: warm up until the calibration kernel is stable, then frames back to
+    // back (`submit_frame`; nothing waits on the CPU between them), copies of the scored
+    // frames kept on the GPU and evaluated afterwards (or per chunk when they would take too
+    // much memory; a new warm-up follows each chunk and each scene edit).
+    let (before, warm_up_ms) = calibration.warm_up(gpu)?;
+    let clock_before = calibration.clock();
     let mut rows = Vec::new();
     let mut by_pass: std::collections::BTreeMap<String, f64> = Default::default();
     let mut state = 0usize;
-    let mut last_image = None;
-    for f in 0..exp.frames {
+    let mut last_image: Option<Image> = None;
+    let mut copies: Vec<(u32, usize, wgpu::Buffer)> = Vec::new();
+    let mut recent: Vec<(Option<(u32, usize)>, wgpu::Buffer)> = Vec::new();
+    let mut states_of_frames: Vec<usize> = Vec::new();
+    let mut costs: Vec<(crate::render::engine::FrameResult, f64, f64)> = Vec::new();
+    let (mut gpu_cum, mut wall_cum) = (0.0, 0.0);
+    let mut stop_at: Option<u32> = None;
+    let copy_buffer = |label: &str| {
+        gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: image_bytes,
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        })
+    };
+    let mut f = 0u32;
+    while f < exp.frames && stop_at.is_none() {
+        let mut edited = false;
         for _ in events.iter().filter(|e| e.frame == f) {
             state += 1;
             let s = &states[state];
             if !Arc::ptr_eq(&s.scene, &engine.scene) {
                 engine.change_scene(s.scene.clone(), s.gpu_scene.clone())?;
+                edited = true;
             }
             if s.camera != engine.camera {
                 engine.move_camera(s.camera);
             }
         }
-        let report = engine.render_frame()?;
-        for (name, ms) in &report.gpu_ms_by_pass {
-            *by_pass.entry(name.clone()).or_insert(0.0) += ms;
+        if edited {
+            calibration.warm_up(gpu)?;
         }
-        let image = engine.read_output()?;
-        let reference = &states[state].reference;
-        let m = metrics::compare(&image, reference)?;
-        let flip = flip::ldr_flip(&image, reference, op, ev)?;
-        let rays = engine.ray_counts()?;
-        let prev = rows
-            .last()
-            .map_or((0.0, 0.0), |r: &Row| (r.gpu_ms_cum, r.wall_ms_cum));
-        let k = |name: &str| {
-            RAY_KINDS
-                .iter()
-                .position(|n| *n == name)
-                .map_or(0, |i| rays.by_kind[i])
-        };
-        rows.push(Row {
-            run: spec.index,
-            label: spec.label.clone(),
-            technique: spec.technique.clone(),
-            seed: spec.seed,
-            budget: spec.budget,
-            frame: f + 1,
-            state,
-            gpu_ms: report.gpu_ms,
-            gpu_ms_cum: prev.0 + report.gpu_ms,
-            wall_ms: report.wall_ms,
-            wall_ms_cum: prev.1 + report.wall_ms,
-            timing: match report.timing {
-                crate::render::engine::TimingSource::Timestamps => "timestamps",
-                _ => "wall",
+        states_of_frames.push(state);
+        let dst = if scored(f) {
+            copies.push((f, state, copy_buffer("scored frame")));
+            Some(copies.last().expect("pushed").2.clone())
+        } else if exp.seconds > 0.0 {
+            // A time budget may end the run on any frame: keep the last few frames too.
+            let slot = f as usize % (crate::render::engine::FRAMES_IN_FLIGHT + 1);
+            if recent.len() <= slot {
+                recent.push((None, copy_buffer("recent frame")));
             }
-            .into(),
-            rays: rays.total(),
-            rays_per_pixel: rays.total() as f64 / pixels,
-            rays_camera: k("camera"),
-            rays_shadow: k("shadow"),
-            rays_indirect: k("indirect"),
-            rays_probe: k("probe"),
-            rays_surfel: k("surfel"),
-            rays_cache: k("cache"),
-            rays_candidate: k("candidate"),
-            rays_reuse: k("reuse"),
-            mse: m.mse,
-            rel_mse: m.rel_mse,
-            smape: m.smape,
-            flip,
-            passes: report
-                .gpu_ms_by_pass
-                .iter()
-                .map(|(n, ms)| format!("{n}={ms:.4}"))
-                .collect::<Vec<_>>()
-                .join(";"),
-        });
-        last_image = Some(image);
+            recent[slot].0 = Some((f, state));
+            Some(recent[slot].1.clone())
+        } else {
+            None
+        };
+        engine.submit_frame(dst.as_ref())?;
+        f += 1;
         bar.inc(1);
-        if exp.seconds > 0.0 && prev.0 + report.gpu_ms >= exp.seconds * 1e3 {
-            bar.inc((exp.frames - f - 1) as u64);
-            break;
+        let chunk_full = copies.len() as u64 * image_bytes >= CHUNK_BYTES;
+        if chunk_full || f == exp.frames {
+            engine.finish_frames()?;
+        }
+        for done in engine.take_completed() {
+            gpu_cum += done.report.gpu_ms;
+            wall_cum += done.report.wall_ms;
+            for (name, ms) in &done.report.gpu_ms_by_pass {
+                *by_pass.entry(name.clone()).or_insert(0.0) += ms;
+            }
+            let frame = done.report.frame_index;
+            costs.push((done, gpu_cum, wall_cum));
+            if stop_at.is_none() && exp.seconds > 0.0 && gpu_cum >= exp.seconds * 1e3 {
+                stop_at = Some(frame);
+            }
+        }
+        if chunk_full && stop_at.is_none() && f < exp.frames {
+            evaluate(
+                gpu,
+                (op, ev),
+                &mut copies,
+                &costs,
+                states,
+                &mut rows,
+                &mut last_image,
+            )?;
+            calibration.warm_up(gpu)?;
         }
     }
+    // Queued right behind the last frame: the clock state the run ended in.
+    let after = calibration.measure(gpu)?;
+    let clock_check = crate::gpu::calibrate::Calibration::check(
+        before,
+        after,
+        warm_up_ms,
+        (clock_before, calibration.clock()),
+    );
+    engine.finish_frames()?;
+    for done in engine.take_completed() {
+        gpu_cum += done.report.gpu_ms;
+        wall_cum += done.report.wall_ms;
+        for (name, ms) in &done.report.gpu_ms_by_pass {
+            *by_pass.entry(name.clone()).or_insert(0.0) += ms;
+        }
+        costs.push((done, gpu_cum, wall_cum));
+    }
+    // A time budget ends the run on the frame that reached it: later frames do not count.
+    if let Some(last) = stop_at {
+        costs.retain(|c| c.0.report.frame_index <= last);
+        copies.retain(|c| c.0 <= last);
+        if !copies.iter().any(|c| c.0 == last) {
+            let (_, buffer) = recent
+                .iter()
+                .find(|r| r.0.is_some_and(|(fr, _)| fr == last))
+                .context("the last frame's copy")?;
+            copies.push((last, states_of_frames[last as usize], buffer.clone()));
+        }
+        by_pass.clear();
+        for c in &costs {
+            for (name, ms) in &c.0.report.gpu_ms_by_pass {
+                *by_pass.entry(name.clone()).or_insert(0.0) += ms;
+            }
+        }
+    }
+    evaluate(
+        gpu,
+        (op, ev),
+        &mut copies,
+        &costs,
+        states,
+        &mut rows,
+        &mut last_image,
+    )?;
+    let mut frame_ms: Vec<f64> = costs.iter().map(|c| c.0.report.gpu_ms).collect();
+    frame_ms.sort_by(f64::total_cmp);
+    let gpu_ms_median = frame_ms.get(frame_ms.len() / 2).copied().unwrap_or(0.0);
+    for r in &mut rows {
+        r.clock_flagged = clock_check.flagged;
+        r.run = spec.index;
+        r.label = spec.label.clone();
+        r.technique = spec.technique.clone();
+        r.seed = spec.seed;
+        r.budget = spec.budget;
+    }
+    bar.inc((exp.frames - f) as u64);
+    let _ = pixels;
     let image = last_image.context("no frame rendered")?;
     let last = rows.last().cloned().context("no frame rendered")?;
     let frames = last.frame;
@@ -373,6 +455,7 @@ fn run_one(
             frames,
             gpu_ms_total: last.gpu_ms_cum,
             gpu_ms_per_frame: last.gpu_ms_cum / frames as f64,
+            gpu_ms_median,
             gpu_ms_by_pass: meta_by_pass,
             passes_run: passes
                 .iter()
@@ -390,8 +473,110 @@ fn run_one(
             final_flip: last.flip,
             non_finite_pixels: image.non_finite_count(),
             image: format!("runs/{stem}.exr"),
+            clock_check,
         },
     ))
+}
+
+/// Copies of scored frames kept on the GPU before they are read back (per chunk).
+const CHUNK_BYTES: u64 = 512 << 20;
+
+/// Reads back the scored frames' copies, scores them against their state's reference and
+/// appends their rows (times and rays from `costs`, the frames' collected results).
+fn evaluate(
+    gpu: &Gpu,
+    tonemap: (crate::compare::tonemap::Operator, f32),
+    copies: &mut Vec<(u32, usize, wgpu::Buffer)>,
+    costs: &[(crate::render::engine::FrameResult, f64, f64)],
+    states: &[SceneState],
+    rows: &mut Vec<Row>,
+    last_image: &mut Option<Image>,
+) -> Result<()> {
+    let Some(first) = states.first() else {
+        return Ok(());
+    };
+    let (w, h) = (first.reference.width, first.reference.height);
+    for (frame, state, buffer) in copies.drain(..) {
+        let px: Vec<[f32; 4]> = crate::gpu::readback::read_buffer(gpu, &buffer, (w * h) as usize)?;
+        let image = Image::from_rgba(w, h, &px);
+        let cost = costs
+            .iter()
+            .find(|c| c.0.report.frame_index == frame)
+            .context("a scored frame without its timing")?;
+        rows.push(score_row(
+            &image,
+            &states[state],
+            tonemap,
+            state,
+            frame,
+            cost,
+        )?);
+        *last_image = Some(image);
+    }
+    Ok(())
+}
+
+/// One CSV row for a scored frame (the run's identity is filled in by `label_rows`).
+fn score_row(
+    image: &Image,
+    s: &SceneState,
+    tonemap: (crate::compare::tonemap::Operator, f32),
+    state: usize,
+    frame: u32,
+    cost: &(crate::render::engine::FrameResult, f64, f64),
+) -> Result<Row> {
+    let reference = &s.reference;
+    let m = metrics::compare(image, reference)?;
+    let flip = flip::ldr_flip(image, reference, tonemap.0, tonemap.1)?;
+    let (done, gpu_cum, wall_cum) = cost;
+    let rays = &done.rays;
+    let pixels = (image.width * image.height) as f64;
+    let k = |name: &str| {
+        RAY_KINDS
+            .iter()
+            .position(|n| *n == name)
+            .map_or(0, |i| rays.by_kind[i])
+    };
+    let report = &done.report;
+    Ok(Row {
+        run: 0,
+        label: String::new(),
+        technique: String::new(),
+        seed: 0,
+        budget: None,
+        frame: frame + 1,
+        state,
+        gpu_ms: report.gpu_ms,
+        gpu_ms_cum: *gpu_cum,
+        wall_ms: report.wall_ms,
+        wall_ms_cum: *wall_cum,
+        timing: match report.timing {
+            crate::render::engine::TimingSource::Timestamps => "timestamps",
+            _ => "wall",
+        }
+        .into(),
+        clock_flagged: false,
+        rays: rays.total(),
+        rays_per_pixel: rays.total() as f64 / pixels,
+        rays_camera: k("camera"),
+        rays_shadow: k("shadow"),
+        rays_indirect: k("indirect"),
+        rays_probe: k("probe"),
+        rays_surfel: k("surfel"),
+        rays_cache: k("cache"),
+        rays_candidate: k("candidate"),
+        rays_reuse: k("reuse"),
+        mse: m.mse,
+        rel_mse: m.rel_mse,
+        smape: m.smape,
+        flip,
+        passes: report
+            .gpu_ms_by_pass
+            .iter()
+            .map(|(n, ms)| format!("{n}={ms:.4}"))
+            .collect::<Vec<_>>()
+            .join(";"),
+    })
 }
 
 /// Merges shard folders into one output: checks they come from the same experiment, joins

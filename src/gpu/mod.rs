@@ -1,6 +1,7 @@
 //! GPU context: adapter choice (Vulkan preferred, GL fallback), device creation with the
 //! adapter's own limits, an error log instead of panics, timestamp queries and readback.
 
+pub mod calibrate;
 pub mod readback;
 pub mod shaders;
 pub mod timing;

@@ -85,6 +85,41 @@ impl PassTimer {
         }
     }
 
+    /// This frame's pass names, in the order of their queries.
+    pub fn names(&self) -> &[&'static str] {
+        &self.names
+    }
+
+    /// Resolves this frame's queries and copies the ticks to `dst` at `offset` (a staging
+    /// buffer read later: frames can be in flight while earlier ones are read).
+    pub fn resolve_to(&self, enc: &mut wgpu::CommandEncoder, dst: &wgpu::Buffer, offset: u64) {
+        if let Some(buf) = &self.resolve {
+            if !self.names.is_empty() {
+                self.resolve(enc);
+                enc.copy_buffer_to_buffer(buf, 0, dst, offset, self.names.len() as u64 * 16);
+            }
+        }
+    }
+
+    /// (name, milliseconds) per pass from ticks copied by `resolve_to`.
+    pub fn ms_from_ticks(
+        gpu: &Gpu,
+        names: &[&'static str],
+        ticks: &[u64],
+    ) -> Vec<(&'static str, f64)> {
+        let Some(period) = gpu.timestamp_period else {
+            return Vec::new();
+        };
+        names
+            .iter()
+            .enumerate()
+            .map(|(i, n)| {
+                let dt = ticks[2 * i + 1].saturating_sub(ticks[2 * i]);
+                (*n, dt as f64 * period as f64 * 1e-6)
+            })
+            .collect()
+    }
+
     /// Reads back (name, milliseconds) per pass; call after the frame's submission.
     pub fn read(&self, gpu: &Gpu) -> Result<Vec<(&'static str, f64)>> {
         let (Some(buf), Some(period)) = (&self.resolve, gpu.timestamp_period) else {

@@ -19,6 +19,10 @@ pub struct ExperimentSettings {
     /// Stop a run once its summed GPU time reaches this many seconds (0 = frames only).
     #[serde(default)]
     pub seconds: f64,
+    /// Score every N-th frame (and the last): errors are computed afterwards from copies of
+    /// those frames, so scoring never holds up the timed frames; 1 scores every frame.
+    #[serde(default = "default_error_every")]
+    pub error_every: u32,
     /// Seeds each run is repeated with (default: the preset's `render.seed`).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub seeds: Vec<u32>,
@@ -55,6 +59,9 @@ pub struct ExperimentSettings {
 
 fn default_frames() -> u32 {
     64
+}
+fn default_error_every() -> u32 {
+    1
 }
 fn default_settle_factor() -> f64 {
     1.1

@@ -46,6 +46,27 @@ pub struct FrameReport {
     pub timing: TimingSource,
 }
 
+/// A collected frame: its cost and the ray counters (cumulative since the last reset) as
+/// they stood right after it.
+#[derive(Clone, Debug, Default)]
+pub struct FrameResult {
+    pub report: FrameReport,
+    pub rays: RayCounts,
+}
+
+/// Frames submitted ahead of the one being collected (`Engine::submit_frame`).
+pub const FRAMES_IN_FLIGHT: usize = 3;
+const TIMESTAMP_BYTES: u64 = crate::gpu::timing::MAX_PASSES as u64 * 16;
+const COUNTER_BYTES: u64 = (COUNTER_SLOTS * 2 * 4) as u64;
+
+/// A submitted frame waiting for its staging slot.
+struct InFlight {
+    slot: usize,
+    frame_index: u32,
+    submitted: Instant,
+    names: Vec<&'static str>,
+}
+
 /// Where a frame's time comes from.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub enum TimingSource {
@@ -83,6 +104,11 @@ pub struct Engine {
     accum_m2: wgpu::Buffer,
     gbuffer: Option<GBuffer>,
     timer: PassTimer,
+    /// Staging slots of the frames in flight (timestamps, then ray counters).
+    slots: Vec<readback::StagingRead>,
+    in_flight: std::collections::VecDeque<InFlight>,
+    completed: std::collections::VecDeque<FrameResult>,
+    last_completion: Option<Instant>,
     /// Frames since the last history reset.
     pub frame_index: u32,
     /// Samples per pixel accumulated since the last reset.
@@ -186,6 +212,11 @@ impl Engine {
             None
         };
         let timer = PassTimer::new(&gpu);
+        let slots = (0..FRAMES_IN_FLIGHT)
+            .map(|_| {
+                readback::StagingRead::new(&gpu, "frame slot", TIMESTAMP_BYTES + COUNTER_BYTES)
+            })
+            .collect();
         let mut engine = Engine {
             gpu,
             shaders,
@@ -206,6 +237,10 @@ impl Engine {
             accum_m2,
             gbuffer: None,
             timer,
+            slots,
+            in_flight: Default::default(),
+            completed: Default::default(),
+            last_completion: None,
             frame_index: 0,
             samples: 0,
             total_gpu_ms: 0.0,
@@ -252,6 +287,11 @@ impl Engine {
 
     /// Clears history and counters (camera cut, scene edit, parameter change).
     pub fn reset(&mut self) {
+        // Frames in flight belong to the history being cleared.
+        if let Err(e) = self.finish_frames() {
+            log::warn!("frames in flight at reset: {e:#}");
+        }
+        self.completed.clear();
         self.technique.reset_history(&self.gpu);
         self.restart_accumulation();
         self.gpu.queue.write_buffer(
@@ -284,6 +324,7 @@ impl Engine {
     /// caller, shared between runs) without a full reset: counters, frame count and the
     /// technique's reuse history continue; accumulation restarts (`Technique::on_scene_change`).
     pub fn change_scene(&mut self, scene: Arc<Scene>, gpu_scene: Arc<GpuScene>) -> Result<()> {
+        self.finish_frames()?;
         self.scene = scene;
         self.gpu_scene = gpu_scene;
         self.rebuild_primary()?;
@@ -410,9 +451,31 @@ impl Engine {
         f(&render_context!(self), self.technique.as_ref())
     }
 
-    /// Renders one frame of the technique and waits for it.
+    /// Renders one frame of the technique and waits for it (and for any frame in flight).
     pub fn render_frame(&mut self) -> Result<FrameReport> {
-        let start = Instant::now();
+        self.submit_frame(None)?;
+        self.finish_frames()?;
+        let done = std::mem::take(&mut self.completed);
+        done.into_iter()
+            .last()
+            .map(|f| f.report)
+            .context("the submitted frame did not complete")
+    }
+
+    /// Records and submits one frame without waiting for it: frames go back to back, up to
+    /// `FRAMES_IN_FLIGHT`; the oldest is waited for only when all slots are busy (the GPU
+    /// still has the newer ones queued, so it does not idle). Timestamps and ray counters
+    /// travel in the frame's staging slot; `poll_frames` turns them into `FrameResult`s.
+    /// `output_copy`: a buffer (COPY_DST, `pixels * 16` bytes) that receives this frame's
+    /// accumulated output after the frame, for evaluation later (converge).
+    pub fn submit_frame(&mut self, output_copy: Option<&wgpu::Buffer>) -> Result<()> {
+        if self.in_flight.len() >= FRAMES_IN_FLIGHT {
+            self.complete_oldest(true)?;
+        }
+        let slot = (0..FRAMES_IN_FLIGHT)
+            .find(|i| self.slots[*i].is_idle())
+            .context("no idle frame slot")?;
+        let submitted = Instant::now();
         let uniforms = self.uniforms_for_frame();
         self.gpu
             .queue
@@ -436,37 +499,100 @@ impl Engine {
         }
         self.technique
             .render(&render_context!(self), &mut enc, &mut self.timer);
-        self.timer.resolve(&mut enc);
-        self.gpu.queue.submit([enc.finish()]);
-        self.gpu.wait()?;
-        let wall_ms = start.elapsed().as_secs_f64() * 1e3;
-        let passes = self.timer.read(&self.gpu)?;
+        let staging = self.slots[slot].buffer();
+        self.timer.resolve_to(&mut enc, staging, 0);
+        enc.copy_buffer_to_buffer(&self.counters, 0, staging, TIMESTAMP_BYTES, COUNTER_BYTES);
+        if let Some(dst) = output_copy {
+            enc.copy_buffer_to_buffer(&self.accum_mean, 0, dst, 0, self.accum_mean.size());
+        }
+        let submission = self.gpu.queue.submit([enc.finish()]);
+        self.slots[slot].start(submission);
+        self.in_flight.push_back(InFlight {
+            slot,
+            frame_index: self.frame_index,
+            submitted,
+            names: self.timer.names().to_vec(),
+        });
+        self.frame_index += 1;
+        self.samples += self.technique.samples_per_frame();
+        self.prev_camera = self.camera;
+        Ok(())
+    }
+
+    /// Collects the frames that have finished (all of them with `wait`), oldest first.
+    pub fn poll_frames(&mut self, wait: bool) -> Result<()> {
+        while !self.in_flight.is_empty() {
+            if !self.complete_oldest(wait)? {
+                break;
+            }
+        }
+        Ok(())
+    }
+
+    /// Waits for every frame in flight.
+    pub fn finish_frames(&mut self) -> Result<()> {
+        self.poll_frames(true)
+    }
+
+    /// Frames completed since the last call, oldest first.
+    pub fn take_completed(&mut self) -> Vec<FrameResult> {
+        std::mem::take(&mut self.completed).into()
+    }
+
+    /// Frames submitted and not yet collected.
+    pub fn frames_in_flight(&self) -> usize {
+        self.in_flight.len()
+    }
+
+    /// Reads the oldest frame's slot if it is done (or waits for it); returns whether it was.
+    fn complete_oldest(&mut self, wait: bool) -> Result<bool> {
+        let Some(f) = self.in_flight.front() else {
+            return Ok(false);
+        };
+        let Some(bytes) = self.slots[f.slot].poll(&self.gpu, wait)? else {
+            return Ok(false);
+        };
+        let f = self.in_flight.pop_front().expect("front exists");
+        let now = Instant::now();
+        // Wall time of a frame: from when the GPU could start it (its submission, or the
+        // previous frame's completion when frames queue back to back) to its completion.
+        let began = self
+            .last_completion
+            .map_or(f.submitted, |c| c.max(f.submitted));
+        self.last_completion = Some(now);
+        let wall_ms = (now - began).as_secs_f64() * 1e3;
         self.gpu.check_errors()?;
+        let ticks: Vec<u64> = bytemuck::pod_collect_to_vec(&bytes[..f.names.len() * 16]);
+        let words: Vec<u32> = bytemuck::pod_collect_to_vec(
+            &bytes[TIMESTAMP_BYTES as usize..(TIMESTAMP_BYTES + COUNTER_BYTES) as usize],
+        );
+        let passes = PassTimer::ms_from_ticks(&self.gpu, &f.names, &ticks);
         let stamped: f64 = passes.iter().map(|p| p.1).sum();
         let (gpu_ms, timing, passes) = if passes.is_empty() {
             (wall_ms, TimingSource::Wall, Vec::new())
         } else if wall_ms > 20.0 && stamped < 0.1 * wall_ms {
-            // The frame was waited for alone, so GPU work cannot be a tenth of the wall time.
+            // Wall time counts from when the GPU could start this frame, so its GPU work
+            // cannot be a tenth of it (lavapipe's timestamps beside egui's work are).
             (wall_ms, TimingSource::WallTimestampsImplausible, Vec::new())
         } else {
             (stamped, TimingSource::Timestamps, passes)
         };
-        let report = FrameReport {
-            frame_index: self.frame_index,
-            gpu_ms_by_pass: passes
-                .into_iter()
-                .map(|(n, ms)| (n.to_string(), ms))
-                .collect(),
-            gpu_ms,
-            wall_ms,
-            timing,
-        };
         self.total_gpu_ms += gpu_ms;
         self.total_wall_ms += wall_ms;
-        self.frame_index += 1;
-        self.samples += self.technique.samples_per_frame();
-        self.prev_camera = self.camera;
-        Ok(report)
+        self.completed.push_back(FrameResult {
+            report: FrameReport {
+                frame_index: f.frame_index,
+                gpu_ms_by_pass: passes
+                    .into_iter()
+                    .map(|(n, ms)| (n.to_string(), ms))
+                    .collect(),
+                gpu_ms,
+                wall_ms,
+                timing,
+            },
+            rays: RayCounts::from_words(&words),
+        });
+        Ok(true)
     }
 
     /// Renders the G-buffer for the current camera (for techniques that consume it, tests and debug views).
@@ -496,6 +622,12 @@ impl Engine {
         self.gpu.wait()?;
         self.gpu.check_errors()?;
         Ok(gbuffer)
+    }
+
+    /// The accumulated output on the GPU: per pixel mean (w: samples) and Welford M2. The
+    /// viewer's display and error passes read them where they are.
+    pub fn output_buffers(&self) -> (&wgpu::Buffer, &wgpu::Buffer) {
+        (&self.accum_mean, &self.accum_m2)
     }
 
     /// Linear HDR radiance of the technique's output.
