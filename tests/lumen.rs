@@ -1,7 +1,9 @@
-//! Lumen-style GI (part 1) on lavapipe, small sizes: the global distance field against exact
-//! distances and against BVH hits, scrolling, the surface cache's direct light against the
-//! reference, the furnace, the Cornell box against the reference in both tracing modes, leaks
-//! through a thin wall, stability, determinism and parameter errors.
+//! Lumen-style GI on lavapipe, small sizes: the global distance field against exact distances
+//! and against BVH hits, scrolling, the surface cache's direct light against the reference, the
+//! furnace, the Cornell box against the reference in both tracing modes and both final gathers
+//! (screen probes against part 1's per-pixel gather at equal rays, product against uniform
+//! probe sampling, screen traces against world traces only), leaks through a thin wall,
+//! stability, determinism, debug views and parameter errors.
 
 mod common;
 
@@ -456,13 +458,30 @@ fn cache_lookups_at_hits_find_the_surface() {
 }
 
 /// White furnace (closed sphere, albedo 0.8, emission 1): converges to 1 / 0.2 = 5 once the
-/// cache's feedback has carried enough bounces, in both tracing modes.
+/// cache's feedback has carried enough bounces, in both tracing modes with part 1's per-pixel
+/// gather, and with the screen probes (BVH) with and without the world radiance cache.
 #[test]
 fn furnace_converges_in_both_modes() {
+    let runs = [
+        (
+            "sdf, pixels",
+            toml::toml! { tracing = "sdf" final_gather = "pixels" },
+            0.05,
+        ),
+        (
+            "bvh, pixels",
+            toml::toml! { tracing = "bvh" final_gather = "pixels" },
+            0.05,
+        ),
+        ("bvh, probes", toml::toml! { tracing = "bvh" }, 0.1),
+        (
+            "bvh, probes with world cache",
+            toml::toml! { tracing = "bvh" world_cache = true },
+            0.2,
+        ),
+    ];
     let mut means = Vec::new();
-    for mode in ["sdf", "bvh"] {
-        let mut t = toml::Table::new();
-        t.insert("tracing".into(), mode.into());
+    for (label, mut t, _) in runs.clone() {
         t.insert("indirect_texels_per_frame".into(), 16_777_216.into());
         t.insert("direct_texels_per_frame".into(), 16_777_216.into());
         let mut e = engine(
@@ -473,76 +492,197 @@ fn furnace_converges_in_both_modes() {
             1,
         );
         frames(&mut e, 48);
+        // Restart the average (not the caches): what the converged technique shows.
         let camera = e.camera;
         e.move_camera(camera);
         frames(&mut e, 8);
         let img = e.read_output().unwrap();
         let m = img.mean();
         eprintln!(
-            "lumen furnace ({mode}): {:.4} {:.4} {:.4} vs 5",
+            "lumen furnace ({label}): {:.4} {:.4} {:.4} vs 5",
             m[0], m[1], m[2]
         );
         means.push(m[1]);
         assert_eq!(e.ray_counts().unwrap().invalid_samples, 0);
     }
-    // Measured: SDF 4.837 (-3.3%), BVH 4.856 (-2.9%): the rest of the feedback's bounces.
-    for (mode, mean) in ["sdf", "bvh"].iter().zip(&means) {
-        assert!((mean / 5.0 - 1.0).abs() < 0.05, "{mode}: {mean}");
+    // Measured: SDF 4.837 (-3.3%), BVH 4.856 (-2.9%) with the per-pixel gather: the rest of the
+    // feedback's bounces. The probes' temporal filters slow the feedback further; the world
+    // radiance cache loses more (README, Known gaps).
+    for ((label, _, tolerance), mean) in runs.iter().zip(&means) {
+        assert!((mean / 5.0 - 1.0).abs() < *tolerance, "{label}: {mean}");
     }
 }
 
-/// Cornell box at 128² against a 2,048-spp reference in both modes: energy within 10%, relMSE
-/// reported. The bias comes from the cache (diffuse only, texel resolution, probe interpolation,
-/// 4-frame blend) and, with `sdf`, from the distance field's hit positions and over-occlusion.
+/// One Cornell run at 128², 48 frames: the image and its ray counts.
+fn cornell_run(params: toml::Table) -> (Image, gilab::render::RayCounts) {
+    let mut e = engine("lumen", small(params), builtin::cornell(), [128, 128], 1);
+    frames(&mut e, 48);
+    let img = e.read_output().unwrap();
+    let rays = e.ray_counts().unwrap();
+    assert_eq!(rays.invalid_samples, 0);
+    (img, rays)
+}
+
+fn rays_per_pixel_frame(rays: &gilab::render::RayCounts) -> f64 {
+    rays.total() as f64 / (128.0 * 128.0 * 48.0)
+}
+
+fn kind(rays: &gilab::render::RayCounts, name: &str) -> u64 {
+    rays.named()
+        .iter()
+        .find(|(n, _)| *n == name)
+        .map_or(0, |(_, c)| *c)
+}
+
+/// Cornell box at 128² against a 2,048-spp reference.
+///
+/// Part 1's per-pixel gather at default budgets in both tracing modes: energy within 10%. The
+/// bias comes from the cache (diffuse only, texel resolution, probe interpolation, 4-frame
+/// blend) and, with `sdf`, from the distance field's hit positions and over-occlusion.
+///
+/// The screen-probe gather (with cache budgets high enough that the cache has converged, so what
+/// is measured is the gather): energy within 7% in both modes; a frame's relMSE below the
+/// per-pixel gather's at about equal rays per pixel; product and uniform probe sampling agree
+/// on the mean; screen traces take rays off the world trace and leave the energy within 2%.
 #[test]
-fn cornell_energy_near_reference_in_both_modes() {
-    let size = [128, 128];
-    let truth = render_reference(builtin::cornell(), size, 2048, 64, 11, 0).image;
-    let mut ratios = Vec::new();
-    for mode in ["sdf", "bvh"] {
-        let mut t = toml::Table::new();
-        t.insert("tracing".into(), mode.into());
-        let mut e = engine("lumen", small(t), builtin::cornell(), size, 1);
-        frames(&mut e, 48);
-        let img = e.read_output().unwrap();
-        let ratio = energy(&img) / energy(&truth);
-        ratios.push(ratio);
-        let m = metrics::compare(&img, &truth).unwrap();
-        let rays = e.ray_counts().unwrap();
+fn cornell_against_reference_both_gathers() {
+    let truth = render_reference(builtin::cornell(), [128, 128], 2048, 64, 11, 0).image;
+    let report = |label: &str, img: &Image, rays: &gilab::render::RayCounts| {
+        let m = metrics::compare(img, &truth).unwrap();
+        let ratio = energy(img) / energy(&truth);
         eprintln!(
-            "lumen ({mode}), cornell 128², 48 frames: energy ratio {ratio:.4}, relMSE {:.3e}, {:.2} rays/px/frame ({:?})",
+            "lumen {label}, cornell 128², 48 frames: energy ratio {ratio:.4}, relMSE {:.3e}, {:.2} rays/px/frame ({:?})",
             m.rel_mse,
-            rays.total() as f64 / (128.0 * 128.0 * 48.0),
+            rays_per_pixel_frame(rays),
             rays.named()
         );
-        assert_eq!(rays.invalid_samples, 0);
-    }
-    for (mode, ratio) in ["sdf", "bvh"].iter().zip(ratios) {
+        (ratio, m.rel_mse)
+    };
+    for mode in ["sdf", "bvh"] {
+        let (img, rays) = cornell_run(toml::toml! { tracing = mode final_gather = "pixels" });
+        let (ratio, _) = report(&format!("pixels ({mode}), default budgets"), &img, &rays);
         assert!((ratio - 1.0).abs() < 0.1, "{mode}: energy ratio {ratio}");
     }
+    let converged = |mut t: toml::Table| {
+        t.insert("indirect_texels_per_frame".into(), 4_194_304.into());
+        t.insert("direct_texels_per_frame".into(), 4_194_304.into());
+        t
+    };
+    let mut probes = Vec::new();
+    for mode in ["sdf", "bvh"] {
+        let (img, rays) = cornell_run(converged(toml::toml! { tracing = mode }));
+        let (ratio, rel) = report(&format!("screen probes ({mode})"), &img, &rays);
+        assert!((ratio - 1.0).abs() < 0.07, "{mode}: energy ratio {ratio}");
+        probes.push((img, rays, rel));
+    }
+    let (probe_img, probe_rays, _) = &probes[1];
+    // What a real-time frame shows (no accumulation over frames: the probes' own temporal
+    // filters are part of the technique): part 1's gather at one ray per pixel costs about what
+    // the probes, their adaptive extras and the cache updates cost together at this size.
+    let frame_only = |mut t: toml::Table| {
+        t.insert("accumulate".into(), false.into());
+        converged(t)
+    };
+    let (img, rays) = cornell_run(frame_only(toml::toml! { tracing = "bvh" }));
+    let (_, probe_rel) = report("screen probes (bvh), last frame only", &img, &rays);
+    let (img, pixel_rays) = cornell_run(frame_only(
+        toml::toml! { tracing = "bvh" final_gather = "pixels" rays_per_pixel = 1 },
+    ));
+    let (_, pixel_rel) = report(
+        "pixels (bvh), 1 ray per pixel, last frame only",
+        &img,
+        &pixel_rays,
+    );
+    assert!(
+        rays_per_pixel_frame(&rays) <= rays_per_pixel_frame(&pixel_rays) * 1.05,
+        "the comparison is not at equal rays"
+    );
+    assert!(
+        probe_rel < pixel_rel,
+        "screen probes relMSE {probe_rel:.3e} not below the per-pixel gather's {pixel_rel:.3e}"
+    );
+    // Both samplers estimate the same irradiance (each divides by the pdf it drew with): their
+    // 48-frame means agree (filters off); each one's single-frame noise against its own mean is
+    // reported (product sampling was measured noisier on this scene: README).
+    let bare = |sampling: &str, accumulate: bool| {
+        let mut t = toml::toml! { tracing = "bvh" spatial_filter = false temporal_filter = false contact_ao = false };
+        t.insert("probe_sampling".into(), sampling.into());
+        t.insert("accumulate".into(), accumulate.into());
+        cornell_run(converged(t))
+    };
+    let (product_mean, _) = bare("product", true);
+    let (uniform_mean, _) = bare("uniform", true);
+    let (img, product_rays) = bare("product", false);
+    let product_noise = metrics::compare(&img, &product_mean).unwrap().rel_mse;
+    let (img, uniform_rays) = bare("uniform", false);
+    let uniform_noise = metrics::compare(&img, &uniform_mean).unwrap().rel_mse;
+    let agree = energy(&product_mean) / energy(&uniform_mean) - 1.0;
+    eprintln!(
+        "probe sampling: 48-frame means differ by {agree:+.4}; one frame against its mean (relMSE): product {product_noise:.3e} ({} probe rays), uniform {uniform_noise:.3e} ({} probe rays)",
+        kind(&product_rays, "probe"),
+        kind(&uniform_rays, "probe")
+    );
+    assert!(
+        agree.abs() < 0.015,
+        "product and uniform sampling disagree by {agree:+.4}"
+    );
+    let (img, rays) = cornell_run(converged(
+        toml::toml! { tracing = "bvh" world_cache = true },
+    ));
+    report("screen probes (bvh), world cache", &img, &rays);
+    let (img, rays) = cornell_run(converged(
+        toml::toml! { tracing = "bvh" screen_traces = false },
+    ));
+    report("screen probes (bvh), no screen traces", &img, &rays);
+    let (with, without) = (kind(probe_rays, "probe"), kind(&rays, "probe"));
+    eprintln!("world-traced probe rays: {with} with screen traces, {without} without");
+    assert!(
+        // Measured 0.916: the screen traces resolve few rays at this size (README, Known gaps).
+        (with as f64) < 0.95 * without as f64,
+        "screen traces resolved too few rays: {with} against {without}"
+    );
+    let drift = energy(probe_img) / energy(&img) - 1.0;
+    assert!(
+        drift.abs() < 0.02,
+        "screen traces change the energy by {drift:.4}"
+    );
 }
 
 /// The seed's known weakness: light through thin walls. The thin-wall room with its interior
-/// light off is exactly black in the reference; the leak in SDF mode is reported next to BVH mode.
+/// light off is exactly black in the reference; the leak in SDF mode is reported next to BVH
+/// mode, with part 1's per-pixel gather and with the screen probes (whose world radiance cache
+/// interpolates probes, the one path by which BVH mode can leak).
 #[test]
 fn thin_wall_leak_sdf_against_bvh() {
     let size = [48, 48];
     let mut leaks = Vec::new();
-    for mode in ["sdf", "bvh"] {
-        let mut t = toml::Table::new();
-        t.insert("tracing".into(), mode.into());
-        t.insert("indirect_texels_per_frame".into(), 16_777_216.into());
-        let mut e = engine("lumen", small(t), builtin::thin_wall(0.0), size, 1);
-        frames(&mut e, 24);
-        let l = energy(&e.read_output().unwrap());
-        leaks.push(l);
+    for gather in ["pixels", "screen_probes"] {
+        for mode in ["sdf", "bvh"] {
+            let mut t = toml::toml! { tracing = mode final_gather = gather world_cache = true };
+            t.insert("indirect_texels_per_frame".into(), 16_777_216.into());
+            let mut e = engine("lumen", small(t), builtin::thin_wall(0.0), size, 1);
+            frames(&mut e, 24);
+            leaks.push(energy(&e.read_output().unwrap()));
+        }
+        let n = leaks.len();
+        eprintln!(
+            "thin-wall interior luminance (reference 0), {gather}: sdf {:.5}, bvh {:.5}",
+            leaks[n - 2],
+            leaks[n - 1]
+        );
     }
-    eprintln!(
-        "thin-wall interior luminance (reference 0): sdf {:.5}, bvh {:.5}",
-        leaks[0], leaks[1]
-    );
     assert!(leaks[1] <= 1e-6, "BVH mode leaks: {}", leaks[1]);
     assert!(leaks[0] < 0.05, "SDF mode leaks: {}", leaks[0]);
+    assert!(
+        leaks[3] < 1e-3,
+        "BVH mode leaks through the world cache: {}",
+        leaks[3]
+    );
+    assert!(
+        leaks[2] < 0.05,
+        "SDF mode with screen probes leaks: {}",
+        leaks[2]
+    );
 }
 
 /// No NaN/Inf on the hard cases and the glossy scene; a fixed seed gives identical images.
@@ -552,11 +692,18 @@ fn stable_and_deterministic() {
         ("hard-cases", builtin::hard_cases(1.0)),
         ("glossy", builtin::glossy()),
     ] {
-        let mut e = engine("lumen", small(toml::Table::new()), scene, [48, 48], 1);
-        frames(&mut e, 6);
-        let img = e.read_output().unwrap();
-        assert_eq!(e.ray_counts().unwrap().invalid_samples, 0, "{name}");
-        assert!(img.mean().iter().all(|v| v.is_finite()), "{name}");
+        for gather in ["screen_probes", "pixels"] {
+            let t = toml::toml! { final_gather = gather world_cache = true };
+            let mut e = engine("lumen", small(t), scene.clone(), [48, 48], 1);
+            frames(&mut e, 6);
+            let img = e.read_output().unwrap();
+            assert_eq!(
+                e.ray_counts().unwrap().invalid_samples,
+                0,
+                "{name} {gather}"
+            );
+            assert!(img.mean().iter().all(|v| v.is_finite()), "{name} {gather}");
+        }
     }
     let run = || {
         let mut e = engine(
@@ -605,7 +752,7 @@ fn bad_parameters_give_clear_errors() {
 fn budget_changes_keep_the_scene_representation() {
     let mut e = engine(
         "lumen",
-        small(toml::Table::new()),
+        small(toml::toml! { final_gather = "pixels" }),
         builtin::cornell(),
         [32, 32],
         1,
@@ -645,4 +792,94 @@ fn budget_changes_keep_the_scene_representation() {
         .mean()
         .iter()
         .all(|v| v.is_finite()));
+}
+
+/// Screen probes: `probe_spacing` sets the probe rays (64 per uniform probe: a quarter of the
+/// spacing, four times the rays), the ray-budget slider picks the spacing, and a spacing change
+/// keeps the distance field.
+#[test]
+fn probe_spacing_sets_the_probe_rays() {
+    let bare = toml::toml! { adaptive_probes = false world_cache = false screen_traces = false };
+    let mut e = engine("lumen", small(bare), builtin::cornell(), [64, 64], 1);
+    frames(&mut e, 3);
+    let before = kind(&e.ray_counts().unwrap(), "probe") as f64 / 3.0;
+    e.set_params(&toml::toml! { probe_spacing = 8 }).unwrap();
+    assert!(
+        lumen(&e).clipmaps().unwrap().valid[0],
+        "probe_spacing rebuilt the distance field"
+    );
+    frames(&mut e, 3);
+    let after = kind(&e.ray_counts().unwrap(), "probe") as f64 / 3.0;
+    // Directions below a probe's surface are not traced, so the ratio is statistical.
+    let ratio = after / before;
+    eprintln!("probe rays per frame: {before:.0} at spacing 16, {after:.0} at 8 (x{ratio:.2})");
+    assert!((3.5..4.5).contains(&ratio), "x{ratio}");
+    // Say 3 rays per pixel were measured at spacing 8 (1 of them a probe ray): a budget of 6
+    // asks for 4 probe rays per pixel, spacing 4; a budget of 3 keeps spacing 8.
+    let spacing = |budget: f64| {
+        e.technique
+            .params_for_ray_budget(budget, Some(3.0))
+            .and_then(|t| t.get("probe_spacing").and_then(|v| v.as_integer()))
+    };
+    assert_eq!(
+        spacing(6.0),
+        Some(4),
+        "4 probe rays per pixel should give spacing 4"
+    );
+    assert_eq!(
+        spacing(3.0),
+        None,
+        "the measured budget should keep spacing 8"
+    );
+}
+
+/// The screen-probe debug views: placement marks uniform (1) and adaptive (2) probes, probe
+/// radiance, the share of screen-trace hits (0..1) and the world cache are finite and not black.
+#[test]
+fn probe_debug_views_show_the_gather() {
+    let t = toml::toml! { world_cache = true };
+    let mut e = engine("lumen", small(t), builtin::cornell(), [64, 64], 1);
+    frames(&mut e, 4);
+    let stats = e
+        .inspect(|ctx, t| {
+            let any: &dyn std::any::Any = t.as_any();
+            any.downcast_ref::<Lumen>()
+                .unwrap()
+                .probe_stats(ctx.gpu)
+                .unwrap()
+        })
+        .expect("probe counters");
+    eprintln!("{stats:?}");
+    assert!(stats.screen_hits > 0 && stats.world_rays > 0 && stats.world_cache_reads > 0);
+    let data = e.read_debug().unwrap().expect("lumen has a debug buffer");
+    let pixels = 64 * 64;
+    let channel = |c| gilab::render::debug_channel(&data, pixels, c);
+    let placement = channel(8);
+    let count = |v: f32| placement.iter().filter(|x| **x == v).count();
+    eprintln!(
+        "probe placement: {} uniform, {} adaptive pixels marked",
+        count(1.0),
+        count(2.0)
+    );
+    assert!(
+        count(1.0) > 0 && count(2.0) > 0,
+        "placement view lacks uniform or adaptive probes"
+    );
+    for (c, name) in [
+        (9, "probe radiance"),
+        (10, "screen-trace share"),
+        (11, "world cache"),
+    ] {
+        let v = channel(c);
+        let mean = v.iter().map(|x| *x as f64).sum::<f64>() / v.len() as f64;
+        eprintln!("debug view {name}: mean {mean:.4}");
+        assert!(v.iter().all(|x| x.is_finite()), "{name}");
+        assert!(mean > 0.0, "{name} is black");
+        if c == 10 {
+            assert!(
+                v.iter().all(|x| (0.0..=1.0).contains(x)),
+                "{name} outside 0..1"
+            );
+        }
+    }
 }

@@ -36,6 +36,10 @@ const STREAM_LUMEN_PROBE: u32 = 15u;
 const STREAM_LUMEN_GATHER: u32 = 16u;
 const STREAM_LUMEN_PIXEL: u32 = 17u;
 const STREAM_LUMEN_QUERY: u32 = 18u;
+const STREAM_LUMEN_PLACE: u32 = 19u;
+const STREAM_LUMEN_PROBE_RAYS: u32 = 20u;
+const STREAM_LUMEN_WORLD: u32 = 21u;
+const STREAM_LUMEN_AO: u32 = 22u;
 
 // The sequence for one pixel (or work item), sample index (frame or sample number) and stream.
 fn rng_init(pixel: vec2<u32>, sample_index: u32, stream: u32, seed: u32) -> Rng {

@@ -1,7 +1,9 @@
 // Per pixel: emission + direct light (NEE through the BVH, one light by power) + diffuse albedo
 // x gathered irradiance / pi. With `gather_downsample` > 1 the four nearest gather samples are
 // blended by bilinear, normal and depth weights (the nearest valid one where all fail). Writes
-// the debug planes (with `debug_views`) and accumulates.
+// the debug planes (with `debug_views`) and accumulates. With screen probes the irradiance comes
+// from `integrate` at full resolution, and the reflected radiance (no emission) is kept for next
+// frame's screen traces.
 #import gilab::frame::{frame, FLAG_NO_PRIMARY_EMISSION}
 #import gilab::math::{INV_PI, luminance}
 #import gilab::counters::{flush_counts, no_counts, RAY_SHADOW, COUNT_INVALID_SAMPLES}
@@ -10,6 +12,7 @@
 #import gilab::primary::{current_surface, surface_material, GSurface}
 #import gilab::brdf::diffuse_color
 #import gilab::nee::direct_light
+#import gilab::lumen_probes::{pixel_data, lit_index, parity, probes_flag, PROBES_ACTIVE}
 #import gilab::lumen::{params, gather_out, debug_out, tri_object, has_flag, sample_cache, cache_radiance, sdf_trace, sdf_sample, sdf_bias, level_voxel, FLAG_ACCUMULATE, FLAG_DEBUG, FLAG_LIGHTS, EMPTY}
 
 fn gathered_irradiance(pixel: vec2<u32>, s: GSurface) -> vec3<f32> {
@@ -57,6 +60,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         if (frame.flags & FLAG_NO_PRIMARY_EMISSION) != 0u {
             l = vec3<f32>(0.0);
         }
+        let emitted = l;
         var first_plane = vec4<f32>(0.0);
         var second_plane = vec4<f32>(0.0);
         if s.pos.w > 0.5 {
@@ -87,7 +91,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             let dir = -s.wo_dist.xyz;
             let slice = frame.camera_pos.xyz + dir * params.slice_depth / max(dot(dir, frame.camera_forward.xyz), 1e-3);
             second_plane.y = abs(sdf_sample(slice));
-            let h = sdf_trace(frame.camera_pos.xyz, dir, 1e30, false, false);
+            let h = sdf_trace(frame.camera_pos.xyz, dir, 1e30, false, false, 0.0);
             second_plane.z = f32(h.steps);
             if h.hit && s.pos.w > 0.5 {
                 second_plane.w = abs(h.t - s.wo_dist.w) / level_voxel(min(h.level, params.levels_built - 1u));
@@ -95,6 +99,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             let px = frame.size.x * frame.size.y;
             debug_out[idx] = first_plane;
             debug_out[px + idx] = second_plane;
+        }
+        if probes_flag(PROBES_ACTIVE) {
+            pixel_data[lit_index(parity(), idx)] = vec4<f32>(l - emitted, s.pos.w);
         }
         if !accumulate_sample(idx, l, has_flag(FLAG_ACCUMULATE)) {
             counts[COUNT_INVALID_SAMPLES] = 1u;

@@ -38,7 +38,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             queries[2u * i + 1u] = vec4<f32>(dist, f32(object), f32(l), 0.0);
         }
         case 1u, 4u: {
-            let h = sdf_trace(a, b, 1e30, false, params.query_mode == 4u);
+            let h = sdf_trace(a, b, 1e30, false, params.query_mode == 4u, 0.0);
             queries[2u * i] = vec4<f32>(h.t, select(0.0, 1.0, h.hit), f32(h.steps), f32(h.level));
         }
         case 3u: {

@@ -35,7 +35,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
     },
     TechniqueInfo {
         id: "lumen",
-        what: "Lumen-style GI: global distance field clipmaps and surface cache cards (direct + multi-bounce indirect through feedback), rays traced through the SDF or the BVH, a per-pixel final gather",
+        what: "Lumen-style GI: global distance field clipmaps and surface cache cards (direct + multi-bounce indirect through feedback), rays traced through the SDF or the BVH; final gather by screen probes (screen traces first, world radiance cache optional) or per pixel",
         create: || Box::new(lumen::Lumen::default()),
     },
 ];

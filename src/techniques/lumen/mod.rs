@@ -1,4 +1,4 @@
-//! # Lumen-style GI (`lumen`), part 1: scene representation and world tracing
+//! # Lumen-style GI (`lumen`): scene representation, world tracing, screen-probe final gather
 //!
 //! "Lumen: Real-time Global Illumination in Unreal Engine 5" (SIGGRAPH 2022 Advances,
 //! shared/seeds/000). Per frame:
@@ -15,18 +15,32 @@
 //!    frame's 8x8 tiles), `cache probes` (a 16-ray hemisphere probe per 4x4 tile, hits read the
 //!    cache itself: multi-bounce through feedback) and `cache indirect` (texels interpolate
 //!    their four probes with plane and hit-distance weights, blended over at most 4 frames).
-//! 4. `gather`: cosine rays per pixel (or per `gather_downsample` block) lit by the cache;
-//!    `apply`: emission + NEE + albedo x irradiance / pi, debug views, accumulation.
+//! 4. The final gather, `final_gather = screen_probes` (the seed's Screen Space Radiance Cache,
+//!    `screen_probes.rs`): world radiance cache probes selected and traced (`world select`,
+//!    `world update`), last frame's closest-depth mips (`hzb`), probes placed on a jittered
+//!    16x16 grid plus adaptive ones (`probe place`, `probe adaptive`), 64 ray directions per
+//!    probe importance sampled from BRDF x last frame's probe radiance (`probe sample`), screen
+//!    traces first, the unresolved rays compacted and traced in the world to
+//!    `world_cache_distance`, then the world cache (`screen trace`, `world trace`), per-cell
+//!    resolve with temporal blend, spatial filter, and per-pixel `integrate` (irradiance from
+//!    the probes of the pixel's plane, full-resolution temporal filter, contact AO).
+//!    `final_gather = pixels` is part 1's `gather`: cosine rays per pixel (or per
+//!    `gather_downsample` block) lit by the cache.
+//! 5. `apply`: emission + NEE + albedo x irradiance / pi, debug views, accumulation.
 //!
 //! Rays trace the SDF or the BVH (`tracing`) through one function, so both read the same cache.
 //! Files: `params.rs` (the table), `cards.rs` (objects, card placement, atlas pages), `sdf.rs`
-//! (clipmap placement and update plans), this file (GPU resources and passes).
+//! (clipmap placement and update plans), `screen_probes.rs` (the final gather's buffers and
+//! passes), this file (GPU resources and passes).
 
 pub mod cards;
 mod params;
+pub mod screen_probes;
 pub mod sdf;
 
 pub use params::{LumenParamsGpu, LumenSettings, PARAMS};
+pub use screen_probes::ProbeStats;
+use screen_probes::{ProbePipelines, ScreenProbes};
 
 use crate::gpu::{readback, timing::PassTimer, Gpu};
 use crate::render::params::Params;
@@ -113,6 +127,8 @@ struct Layouts {
     capture: wgpu::BindGroupLayout,
     /// An empty group 1 for the query pipeline (it needs no frame).
     empty: wgpu::BindGroupLayout,
+    /// Group 3 of the final gather's passes and `apply`: screen probes, world cache.
+    probes: wgpu::BindGroupLayout,
 }
 
 struct Pipelines {
@@ -122,6 +138,8 @@ struct Pipelines {
     capture: wgpu::RenderPipeline,
     capture_clear: wgpu::RenderPipeline,
     query: wgpu::ComputePipeline,
+    apply: wgpu::ComputePipeline,
+    probes: ProbePipelines,
 }
 
 impl Pipelines {
@@ -151,6 +169,7 @@ struct Resources {
     index_buffer: wgpu::Buffer,
     capture_depth_view: wgpu::TextureView,
     gpu_params: LumenParamsGpu,
+    probes: ScreenProbes,
 }
 
 impl Resources {
@@ -348,6 +367,7 @@ impl Lumen {
                 ),
                 capture: pipelines::layout(gpu, "lumen capture", &[capture]),
                 empty: pipelines::layout(gpu, "lumen empty", &[]),
+                probes: ScreenProbes::layout(gpu),
             }
         })
     }
@@ -459,6 +479,7 @@ impl Lumen {
                 l.fill_level.clone(),
                 l.capture.clone(),
                 l.empty.clone(),
+                l.probes.clone(),
             ]
         };
         let max_binding = gpu.device.limits().max_storage_buffer_binding_size;
@@ -476,7 +497,12 @@ impl Lumen {
         let pool_bricks = slots.min(max_binding / BRICK_BYTES) as u32;
         let coarse_cells = s.clipmap_levels as u64 * (s.clipmap_resolution as u64 / 4).pow(3);
         let pixels = ctx.extent[0] as u64 * ctx.extent[1] as u64;
-        let ds = s.gather_downsample;
+        // Screen probes integrate at full resolution into the gather buffer.
+        let ds = if s.screen_probes {
+            1
+        } else {
+            s.gather_downsample
+        };
         let gather = [ctx.extent[0].div_ceil(ds), ctx.extent[1].div_ceil(ds)];
         let ([cards_buffer, object_cards, tri_object, tiles], index_buffer, nd, np) =
             card_buffers(gpu, &card_set);
@@ -520,7 +546,7 @@ impl Lumen {
             buf("lumen probes", atlas_texels / 16 * 48),
             tiles,
             buf("lumen gather", 2 * gather[0] as u64 * gather[1] as u64 * 16),
-            buf("lumen debug", 2 * pixels * 16),
+            buf("lumen debug", 3 * pixels * 16),
             buf("lumen queries", QUERY_CAPACITY as u64 * 32),
         ];
         let size = wgpu::Extent3d {
@@ -588,6 +614,7 @@ impl Lumen {
             index_buffer,
             capture_depth_view,
             gpu_params,
+            probes: ScreenProbes::new(ctx, &layouts[5], &s)?,
         };
         // Every brick free, every slot unbuilt.
         let stack: Vec<u32> = (0..pool_bricks).rev().collect();
@@ -676,6 +703,12 @@ impl Lumen {
     /// The cards and objects of the current scene.
     pub fn card_set(&self) -> Option<&CardSet> {
         self.cards.as_ref()
+    }
+
+    /// Screen-probe counters since the last reset (probes, screen-trace hits, world-traced
+    /// rays, world cache reads); None before the first build.
+    pub fn probe_stats(&self, gpu: &Gpu) -> Result<Option<ProbeStats>> {
+        self.res.as_ref().map(|r| r.probes.stats(gpu)).transpose()
     }
 
     /// The clipmaps' placement as of the last frame.
@@ -917,6 +950,102 @@ impl Lumen {
     }
 }
 
+impl Lumen {
+    /// What the screen-probe final gather runs this frame, and why (the UI's pass list).
+    fn probe_passes(&self, f: &SceneFeatures) -> Vec<PassInfo> {
+        let s = &self.settings;
+        let pass = |name, runs, why: String| PassInfo { name, runs, why };
+        let tracing = if s.bvh { "BVH" } else { "SDF" };
+        let world = |why: String| {
+            if s.world_cache {
+                why
+            } else {
+                "world_cache = false".into()
+            }
+        };
+        let levels = s.world_cache_levels;
+        let per_axis = s.world_cache_probes;
+        let mut v = vec![
+            pass("world select", s.world_cache, world(format!("{levels} clipmap levels of {per_axis}^3 probes around the camera; marks the ones screen probes read"))),
+            pass(
+                "world update",
+                s.world_cache && s.world_probes_per_frame > 0,
+                world(format!("{} marked probes per frame, 256 {tracing} rays each (16x16 cells), lit from the surface cache", s.world_probes_per_frame)),
+            ),
+            pass(
+                "hzb",
+                s.screen_traces,
+                if s.screen_traces { "closest-depth mips of last frame for the screen traces".into() } else { "screen_traces = false".into() },
+            ),
+            pass(
+                "probe place",
+                true,
+                format!("one probe per {0}x{0} tile on the G-buffer, jittered each frame", s.probe_spacing),
+            ),
+            pass(
+                "probe adaptive",
+                s.adaptive_probes,
+                if s.adaptive_probes {
+                    "extra probes where the uniform ones fail to interpolate (depth and normal edges)".into()
+                } else {
+                    "adaptive_probes = false".into()
+                },
+            ),
+            pass(
+                "probe sample",
+                true,
+                if s.product_sampling {
+                    "64 directions per probe from BRDF x last frame's radiance (world cache where reprojection fails)".into()
+                } else {
+                    "64 stratified uniform directions per probe".into()
+                },
+            ),
+            pass(
+                "screen trace",
+                s.screen_traces,
+                if s.screen_traces {
+                    format!("hierarchical-Z walk in last frame's image, at most {} steps; misses go to the world trace", s.screen_trace_steps)
+                } else {
+                    "screen_traces = false: every probe ray is traced in the world".into()
+                },
+            ),
+            pass(
+                "world trace",
+                true,
+                if s.world_cache {
+                    format!("{tracing} rays to {} scene units, then the world cache (or on to the end where it is empty)", s.world_cache_distance)
+                } else {
+                    format!("{tracing} rays to the first hit, lit from the surface cache")
+                },
+            ),
+            pass("probe resolve", true, if s.temporal_filter { "per-cell radiance and hit distance, blended with the probe's last frames".into() } else { "per-cell radiance and hit distance (temporal_filter = false)".into() }),
+            pass(
+                "probe filter",
+                s.spatial_filter,
+                if s.spatial_filter { "3x3 neighbouring probes, plane and 10-degree angle-error weights".into() } else { "spatial_filter = false".into() },
+            ),
+            pass(
+                "integrate",
+                true,
+                format!(
+                    "per pixel: irradiance from the probes of its plane{}{}",
+                    if s.temporal_filter { ", full-resolution temporal filter" } else { "" },
+                    if s.contact_ao { ", contact AO" } else { "" }
+                ),
+            ),
+        ];
+        if !f.has_glossy && !f.has_mirror {
+            return v;
+        }
+        v.push(pass(
+            "probe reflections",
+            false,
+            "not built (issue 16 item 6): glossy surfaces get direct specular only".into(),
+        ));
+        v
+    }
+}
+
 impl Technique for Lumen {
     fn id(&self) -> &'static str {
         "lumen"
@@ -995,17 +1124,19 @@ impl Technique for Lumen {
                 "enclosed: no ray from the camera's side reaches the sky".into()
             },
         ));
-        v.push(pass(
-            "gather",
-            true,
-            format!(
-                "{} {} rays per {}x{} block, lit from the surface cache",
-                s.rays_per_pixel,
-                if s.bvh { "BVH" } else { "SDF" },
-                s.gather_downsample,
-                s.gather_downsample
-            ),
-        ));
+        let tracing = if s.bvh { "BVH" } else { "SDF" };
+        if s.screen_probes {
+            v.extend(self.probe_passes(f));
+        } else {
+            v.push(pass(
+                "gather",
+                true,
+                format!(
+                    "{} {tracing} rays per {}x{} block, lit from the surface cache",
+                    s.rays_per_pixel, s.gather_downsample, s.gather_downsample
+                ),
+            ));
+        }
         v.push(pass(
             "direct",
             lights,
@@ -1038,7 +1169,7 @@ impl Technique for Lumen {
 
     fn build(&mut self, ctx: &RenderContext) -> Result<()> {
         let gpu = ctx.gpu;
-        let (lumen, args, fill_level, capture_layout, empty) = {
+        let (lumen, args, fill_level, capture_layout, empty, probe_layout) = {
             let l = self.layouts(gpu);
             (
                 l.lumen.clone(),
@@ -1046,6 +1177,7 @@ impl Technique for Lumen {
                 l.fill_level.clone(),
                 l.capture.clone(),
                 l.empty.clone(),
+                l.probes.clone(),
             )
         };
         // Every pipeline first: on an error nothing is replaced.
@@ -1054,8 +1186,19 @@ impl Technique for Lumen {
             if name == "query" {
                 continue;
             }
+            if name == "apply" {
+                // Apply also writes the screen traces' image (group 3).
+                compute.push(pipelines::compute_pipeline(
+                    gpu,
+                    ctx.shaders,
+                    entry,
+                    &[&ctx.scene.layout, ctx.frame_layout, &lumen, &probe_layout],
+                )?);
+                continue;
+            }
             compute.push(ctx.pipeline(entry, &lumen)?);
         }
+        let probes = ProbePipelines::build(ctx, &lumen, &probe_layout)?;
         let sdf_args = pipelines::compute_pipeline(
             gpu,
             ctx.shaders,
@@ -1085,6 +1228,11 @@ impl Technique for Lumen {
             });
         let capture = Self::capture_pipeline(gpu, &module, &raster_layout, false)?;
         let capture_clear = Self::capture_pipeline(gpu, &module, &raster_layout, true)?;
+        let apply = compute[COMPUTE
+            .iter()
+            .position(|(n, _)| *n == "apply")
+            .expect("apply")]
+        .clone();
         self.pipelines = Some(Pipelines {
             compute,
             sdf_args,
@@ -1092,6 +1240,8 @@ impl Technique for Lumen {
             capture,
             capture_clear,
             query,
+            apply,
+            probes,
         });
         if !self.refresh_for_scene(ctx)? {
             self.build_resources(ctx)?;
@@ -1112,13 +1262,28 @@ impl Technique for Lumen {
                 s.atlas_size,
                 s.gather_downsample,
                 s.sign_rays,
+                s.screen_probes,
             )
         };
+        // The screen probes' buffers resize on their own (the ray-budget slider moves
+        // probe_spacing) without touching the distance field or the cache.
+        let probes_sized =
+            |s: &LumenSettings| (s.probe_spacing, s.world_cache_levels, s.world_cache_probes);
         let old = self.built_with.clone();
         match (&old, self.res.as_mut()) {
             (Some(b), Some(r))
                 if sized(b) == sized(&self.settings) && self.extent == ctx.extent =>
             {
+                if probes_sized(b) != probes_sized(&self.settings) {
+                    let layout = self
+                        .layouts
+                        .as_ref()
+                        .expect("built with layouts")
+                        .probes
+                        .clone();
+                    r.probes = ScreenProbes::new(ctx, &layout, &self.settings)?;
+                }
+                let r = self.res.as_mut().expect("resources");
                 r.gpu_params.rays_per_pixel = self.settings.rays_per_pixel;
                 self.built_with = Some(self.settings.clone());
                 if b.bvh != self.settings.bvh {
@@ -1134,9 +1299,10 @@ impl Technique for Lumen {
     }
 
     fn reset_history(&mut self, gpu: &Gpu) {
-        let Some(r) = &self.res else {
+        let Some(r) = self.res.as_mut() else {
             return;
         };
+        r.probes.reset(gpu);
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         for b in [12usize, 13, 14, 16, 17] {
             enc.clear_buffer(r.buffer(b), 0, None);
@@ -1203,7 +1369,7 @@ impl Technique for Lumen {
         if !captures.is_empty() {
             self.record_capture(ctx, enc, timer, &captures);
         }
-        let (Some(p), Some(r)) = (&self.pipelines, &self.res) else {
+        let (Some(p), Some(r)) = (&self.pipelines, self.res.as_mut()) else {
             return;
         };
         let bg = &r.bind_group;
@@ -1239,16 +1405,29 @@ impl Technique for Lumen {
                 [probes.div_ceil(4), 1, 1],
             );
         }
+        if self.settings.screen_probes {
+            r.probes
+                .record(ctx, enc, timer, bg, &self.settings, &p.probes);
+        } else {
+            pipelines::technique_pass(
+                ctx,
+                enc,
+                timer,
+                "gather",
+                p.get("gather"),
+                &[bg],
+                [gp.gather_width.div_ceil(8), gp.gather_height.div_ceil(8), 1],
+            );
+        }
         pipelines::technique_pass(
             ctx,
             enc,
             timer,
-            "gather",
-            p.get("gather"),
-            &[bg],
-            [gp.gather_width.div_ceil(8), gp.gather_height.div_ceil(8), 1],
+            "apply",
+            &p.apply,
+            &[bg, &r.probes.bind_group],
+            [ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1],
         );
-        pipelines::image_pass(ctx, enc, timer, "apply", p.get("apply"), bg);
     }
 
     fn debug_views(&self) -> Vec<DebugView> {
@@ -1266,6 +1445,22 @@ impl Technique for Lumen {
             view("SDF distance slice (|d|)", 5, false),
             view("SDF steps (camera ray)", 6, false),
             view("SDF hit error vs BVH (voxels)", 7, false),
+            view("screen probes: placement (1 uniform, 2 adaptive)", 8, false),
+            view(
+                "screen probes: radiance (octahedral map per tile)",
+                9,
+                false,
+            ),
+            view(
+                "screen probes: share of rays hit by screen traces",
+                10,
+                false,
+            ),
+            view(
+                "world radiance cache where a probe ray along the normal ends",
+                11,
+                false,
+            ),
         ]
     }
 
@@ -1303,6 +1498,19 @@ impl Technique for Lumen {
             "lumen/gather.wgsl",
             "lumen/apply.wgsl",
             "lumen/query.wgsl",
+            "lumen/world_select.wgsl",
+            "lumen/world_update.wgsl",
+            "lumen/hzb_build.wgsl",
+            "lumen/hzb_top.wgsl",
+            "lumen/probe_place.wgsl",
+            "lumen/probe_adaptive.wgsl",
+            "lumen/probe_sample.wgsl",
+            "lumen/screen_trace.wgsl",
+            "lumen/world_args.wgsl",
+            "lumen/world_trace.wgsl",
+            "lumen/probe_resolve.wgsl",
+            "lumen/probe_filter.wgsl",
+            "lumen/integrate.wgsl",
         ]
     }
 
@@ -1318,6 +1526,28 @@ impl Technique for Lumen {
     ) -> Option<toml::Table> {
         // Everything but the gather (camera, NEE, cache updates amortised over pixels) is taken
         // from the measurement at the current settings when there is one.
+        if self.settings.screen_probes {
+            // 64 rays per probe: the budget picks the power-of-two spacing whose uniform probes
+            // come closest (adaptive probes and world-cache updates ride on top, measured).
+            let s = self.settings.probe_spacing;
+            let probes_now = ScreenProbes::rays_per_pixel(s);
+            let other = measured
+                .map(|m| (m - probes_now).max(self.fixed_rays_per_pixel()))
+                .unwrap_or(self.fixed_rays_per_pixel());
+            let want = (rays_per_pixel - other).max(ScreenProbes::rays_per_pixel(64));
+            let spacing = [4u32, 8, 16, 32, 64]
+                .into_iter()
+                .min_by(|a, b| {
+                    let err = |x: u32| (ScreenProbes::rays_per_pixel(x) / want).ln().abs();
+                    err(*a).total_cmp(&err(*b))
+                })
+                .unwrap_or(s);
+            return (spacing != s).then(|| {
+                let mut t = toml::Table::new();
+                t.insert("probe_spacing".into(), (spacing as i64).into());
+                t
+            });
+        }
         let ds2 = (self.settings.gather_downsample as f64).powi(2);
         let gather_now = self.settings.rays_per_pixel as f64 / ds2;
         let other = measured

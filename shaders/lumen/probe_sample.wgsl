@@ -1,0 +1,94 @@
+// Ray directions of a screen probe (one workgroup per probe, one thread per octahedral cell and
+// per ray): the seed's product importance sampling. Each cell's weight is the BRDF of the pixels
+// the probe serves (mean clamped cosine over 16 of their normals) times the light arriving from
+// it, estimated by last frame's probe on the same plane (reprojected) or else the world radiance
+// cache; a quarter of the rays stay uniform over the cells any of those pixels sees (defensive).
+// 64 stratified numbers pick cells through the CDF, a ray is uniform within its cell (cells have
+// equal solid angle), and its weight 1 / (64 p_cell) makes the cell's radiance estimate unbiased
+// (probe_resolve). `probe_sampling = uniform` uses the defensive part alone.
+#import gilab::frame::frame
+#import gilab::math::luminance
+#import gilab::primary::current_surface
+#import gilab::rng::{rng_init, rand, rand_pair, STREAM_LUMEN_PROBE_RAYS}
+#import gilab::lumen_probes::{pp, probe_data, load_probe, parity, probe_count, probes_flag, previous_match, cache_index, ray_index, cell_dir, world_lookup, spacing, PROBE_CELLS, PROBE_RES, NO_PROBE, DEFENSIVE, PROBES_PRODUCT, PROBES_WORLD_CACHE}
+
+var<workgroup> normals: array<vec3<f32>, 16>;
+var<workgroup> pdf: array<f32, 64>;
+var<workgroup> cdf: array<f32, 64>;
+var<workgroup> support: array<f32, 64>;
+
+@compute @workgroup_size(64, 1, 1)
+fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) j: u32) {
+    let probe = wid.x;
+    let q = load_probe(parity(), probe);
+    let live = probe < probe_count() && q.valid;
+    // The pixels the probe serves: its tile (uniform) or its cell (adaptive), on its plane.
+    if j < 16u {
+        var n = vec3<f32>(0.0);
+        if live {
+            let extent = select(spacing(), spacing() / 2u, q.adaptive);
+            let corner = q.pixel - min(q.pixel % extent, q.pixel);
+            let pixel = min(corner + (vec2<u32>(j % 4u, j / 4u) * extent + extent / 2u) / 4u, frame.size - 1u);
+            let s = current_surface(pixel.y * frame.size.x + pixel.x);
+            if s.pos.w > 0.5 && abs(dot(q.normal, s.pos.xyz - q.pos)) < 0.05 * q.dist {
+                n = s.normal_alpha.xyz;
+            }
+        }
+        normals[j] = n;
+    }
+    workgroupBarrier();
+    let d = cell_dir(j, PROBE_RES, vec2<f32>(0.5));
+    var brdf = max(dot(q.normal, d), 0.0);
+    for (var k = 0u; k < 16u; k++) {
+        brdf += max(dot(normals[k], d), 0.0);
+    }
+    // Cells straddling the horizon of some served pixel count as seen.
+    let seen = brdf > 0.0 || dot(q.normal, d) > -0.35;
+    var light = 1.0;
+    if live && probes_flag(PROBES_PRODUCT) {
+        let prev = previous_match(q);
+        if prev != NO_PROBE {
+            light = luminance(probe_data[cache_index(1u - parity(), prev, j)].xyz);
+        } else if probes_flag(PROBES_WORLD_CACHE) {
+            let w = world_lookup(q.pos + q.normal * 0.01 * q.dist, d, true);
+            light = select(1.0, luminance(w.radiance), w.weight > 0.0);
+        }
+    }
+    support[j] = select(0.0, 1.0, seen);
+    pdf[j] = select(0.0, (brdf + 0.05) * max(light, 0.0), seen);
+    workgroupBarrier();
+    if j == 0u {
+        var total = 0.0;
+        var count = 0.0;
+        for (var k = 0u; k < PROBE_CELLS; k++) {
+            total += pdf[k];
+            count += support[k];
+        }
+        let product = select(0.0, 1.0 - DEFENSIVE, probes_flag(PROBES_PRODUCT) && total > 0.0);
+        var sum = 0.0;
+        for (var k = 0u; k < PROBE_CELLS; k++) {
+            let p = product * pdf[k] / max(total, 1e-30) + (1.0 - product) * support[k] / max(count, 1.0);
+            pdf[k] = p;
+            sum += p;
+            cdf[k] = sum;
+        }
+        cdf[PROBE_CELLS - 1u] = 2.0;
+    }
+    workgroupBarrier();
+    // Seeded by the probe's pixel: adaptive probes' indices depend on the order of atomics.
+    var rng = rng_init(q.pixel, frame.frame_index * PROBE_CELLS + j, STREAM_LUMEN_PROBE_RAYS, frame.seed);
+    let u = (f32(j) + rand(&rng)) / f32(PROBE_CELLS);
+    var cell = 0u;
+    while cell < PROBE_CELLS - 1u && (cdf[cell] <= u || pdf[cell] <= 0.0) {
+        cell++;
+    }
+    let offset = rand_pair(&rng);
+    let uv = (vec2<f32>(f32(cell % PROBE_RES), f32(cell / PROBE_RES)) + offset) / f32(PROBE_RES);
+    var weight = 0.0;
+    if live && pdf[cell] > 0.0 {
+        weight = 1.0 / (f32(PROBE_CELLS) * pdf[cell]);
+    }
+    let r = ray_index(probe, j);
+    probe_data[r] = vec4<f32>(uv, weight, bitcast<f32>(cell));
+    probe_data[r + 1u] = vec4<f32>(0.0, 0.0, 0.0, 0.0);
+}
