@@ -392,11 +392,18 @@ frames = 32
             a.clock_check.summary(),
             b.clock_check.summary()
         );
-        assert!(
-            (m8 / m1 - 1.0).abs() <= 0.10,
-            "{}: {m1} vs {m8} ms/frame",
-            a.spec.label
-        );
+        // A run whose calibration kernel drifted is flagged by the protocol as not comparable
+        // (the shared CI host changed speed under it: seen once at +770%); only unflagged
+        // pairs must agree.
+        if a.clock_check.flagged || b.clock_check.flagged {
+            println!("{}: flagged run, times not compared", a.spec.label);
+        } else {
+            assert!(
+                (m8 / m1 - 1.0).abs() <= 0.10,
+                "{}: {m1} vs {m8} ms/frame",
+                a.spec.label
+            );
+        }
         for c in [&a.clock_check, &b.clock_check] {
             assert!(c.kernel_ms_before > 0.0 && c.kernel_ms_after > 0.0);
             assert_eq!(c.flagged, c.drift.abs() > 0.10);
