@@ -507,7 +507,7 @@ fn furnace_converges_in_both_modes() {
     }
     // Measured: SDF 4.837 (-3.3%), BVH 4.856 (-2.9%) with the per-pixel gather: the rest of the
     // feedback's bounces. The probes' temporal filters slow the feedback further; the world
-    // radiance cache loses more (README, Known gaps).
+    // radiance cache loses more (README, Known gaps). Measured: probes 4.543, with the cache 4.164.
     for ((label, _, tolerance), mean) in runs.iter().zip(&means) {
         assert!((mean / 5.0 - 1.0).abs() < *tolerance, "{label}: {mean}");
     }
@@ -637,8 +637,7 @@ fn cornell_against_reference_both_gathers() {
     let (with, without) = (kind(probe_rays, "probe"), kind(&rays, "probe"));
     eprintln!("world-traced probe rays: {with} with screen traces, {without} without");
     assert!(
-        // Measured 0.916: the screen traces resolve few rays at this size (README, Known gaps).
-        (with as f64) < 0.95 * without as f64,
+        (with as f64) < 0.8 * without as f64,
         "screen traces resolved too few rays: {with} against {without}"
     );
     let drift = energy(probe_img) / energy(&img) - 1.0;
