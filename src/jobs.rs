@@ -62,6 +62,11 @@ impl Engine {
             .with_context(|| format!("technique '{}'", entry.display_name()))?;
         let mut engine =
             Engine::with_shared_scene(gpu, shaders, scene, gpu_scene, technique, settings)?;
+        // The shared denoiser, before the budget: the budget's calibration counts its
+        // primary-surface rays like every other pass's.
+        if entry.denoise {
+            engine.set_denoise(true)?;
+        }
         // The entry's ray budget, mapped as the viewer's slider and `converge` map it.
         if let Some(budget) = entry.budget {
             engine.apply_ray_budget(budget, None)?;
@@ -313,6 +318,25 @@ pub fn reference_image(
     force: bool,
     quiet: bool,
 ) -> Result<(Image, PathBuf)> {
+    let seed = reference_setup(p).seed;
+    reference_image_seeded(gpu, p, scene, camera, key, cache, seed, force, quiet)
+}
+
+/// `reference_image` with another seed than the preset's reference seed (real-time
+/// experiments render each frame's reference with its own seed, so consecutive references
+/// are independent renders); `key` must include the seed.
+#[allow(clippy::too_many_arguments)]
+pub fn reference_image_seeded(
+    gpu: Arc<Gpu>,
+    p: &LoadedPreset,
+    scene: crate::scene::Scene,
+    camera: crate::scene::Camera,
+    key: &str,
+    cache: &Path,
+    seed: u32,
+    force: bool,
+    quiet: bool,
+) -> Result<(Image, PathBuf)> {
     let path = cache.join(format!("{key}.exr"));
     if path.exists() && !force {
         if !quiet {
@@ -342,7 +366,7 @@ pub fn reference_image(
     technique.set_params(&entry.params)?;
     let settings = EngineSettings {
         extent: p.preset.render.size,
-        seed: setup.seed,
+        seed,
         camera,
     };
     let mut engine = Engine::new(gpu, ShaderLibrary::discover(), scene, technique, settings)?;
@@ -353,7 +377,7 @@ pub fn reference_image(
     let mut p = p.clone();
     p.preset.techniques = vec![entry.clone()];
     p.preset.render.spp = setup.spp;
-    p.preset.render.seed = setup.seed;
+    p.preset.render.seed = seed;
     let meta = metadata(&engine, &p, &entry, &image, by_pass)?;
     write_outputs(cache, key, &image, &meta, &p)?;
     if !quiet {

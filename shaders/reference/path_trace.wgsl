@@ -14,6 +14,8 @@ struct DispatchSample {
 struct ReferenceSettings {
     // Maximum bounces; 0 = unbounded (Russian roulette only).
     max_depth: u32,
+    // 0: the frame's first sample replaces the pixel's average (nothing kept across frames).
+    accumulate: u32,
 }
 @group(2) @binding(1) var<uniform> settings: ReferenceSettings;
 
@@ -33,7 +35,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         counts[RAY_CAMERA] = path.first_rays;
         counts[RAY_SHADOW] = path.shadow_rays;
         counts[RAY_INDIRECT] = path.indirect_rays;
-        if !accumulate_sample(idx, path.radiance, true) {
+        let keep = settings.accumulate != 0u || dispatch_sample.index > 0u;
+        if !accumulate_sample(idx, path.radiance, keep) {
             counts[COUNT_INVALID_SAMPLES] = 1u;
         }
     }

@@ -272,6 +272,17 @@ fn side_contents(app: &mut ViewerApp, ui: &mut egui::Ui) {
                     "measured: {} rays/px/frame",
                     measured.map_or("-".into(), |m| format!("{m:.2}"))
                 ));
+                let mut denoise = run.engine.denoise();
+                if ui
+                    .checkbox(&mut denoise, format!("Denoise {} (SVGF)", run.label()))
+                    .on_hover_text(
+                        "the shared SVGF-style denoiser after every frame (src/render/denoise.rs); \
+                         its GPU time counts in the frame time",
+                    )
+                    .changed()
+                {
+                    action = Some((i, Action::Denoise(denoise)));
+                }
                 ui.label("passes:");
                 for p in run.engine.passes() {
                     ui.small(format!(
@@ -291,6 +302,7 @@ fn side_contents(app: &mut ViewerApp, ui: &mut egui::Ui) {
             Action::Technique(name) => s.set_run_technique(i, &name),
             Action::Params(t) => s.set_run_params(i, &t),
             Action::Budget(b) => s.set_ray_budget(i, b),
+            Action::Denoise(on) => s.set_run_denoise(i, on),
             Action::Reset => {
                 s.reset_run(i);
                 Ok(())
@@ -360,6 +372,7 @@ enum Action {
     Technique(String),
     Params(toml::Table),
     Budget(f64),
+    Denoise(bool),
     Reset,
 }
 

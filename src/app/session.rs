@@ -637,6 +637,16 @@ impl Session {
         Ok(())
     }
 
+    /// The denoise checkbox: the shared denoiser on or off for a run (its entry's `denoise`).
+    /// Errors leave the run as it was.
+    pub fn set_run_denoise(&mut self, run: usize, on: bool) -> Result<()> {
+        let r = &mut self.runs[run];
+        r.engine.set_denoise(on)?;
+        r.entry.denoise = on;
+        r.reset();
+        Ok(())
+    }
+
     /// The ray-budget slider: rays per pixel per frame, mapped by the technique to its knobs.
     /// Errors leave the run as it was.
     pub fn set_ray_budget(&mut self, run: usize, rays_per_pixel: f64) -> Result<()> {

@@ -5,9 +5,10 @@
 //! error, time-to-error, a Pareto front and lag after events.
 
 pub mod plot;
+pub mod realtime;
 pub mod report;
 pub mod rows;
 pub mod run;
 pub mod spec;
 
-pub use spec::{Event, ExperimentSettings, Metric, Shard, Sweep};
+pub use spec::{CameraKey, Event, ExperimentSettings, Metric, Mode, Shard, Sweep};

@@ -216,10 +216,14 @@ fn pareto(path: &Path, s: &Summary) -> Result<()> {
         };
         let mut chart = ChartBuilder::on(root)
             .caption(
-                format!(
-                    "{} after {} frames against GPU ms/frame",
-                    a.metric, a.pareto_frame
-                ),
+                if a.real_time.is_empty() {
+                    format!(
+                        "{} after {} frames against GPU ms/frame",
+                        a.metric, a.pareto_frame
+                    )
+                } else {
+                    format!("median per-frame {} against median GPU ms/frame", a.metric)
+                },
                 ("sans-serif", 22),
             )
             .margin(12)

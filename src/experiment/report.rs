@@ -23,6 +23,41 @@ pub struct Analysis {
     pub pareto_frame: u32,
     pub pareto: Vec<ParetoPoint>,
     pub lag: Vec<Lag>,
+    /// Real-time mode: per run, the median frame time and per-frame error and the flicker ratio.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub real_time: Vec<RealTimeRun>,
+    /// Real-time mode: per frame-time budget and technique entry, the best run that fits.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub frame_budgets: Vec<FrameBudget>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct RealTimeRun {
+    pub label: String,
+    /// The `[[techniques]]` entry it comes from.
+    pub entry: String,
+    pub denoise: bool,
+    /// Median GPU ms over all the run's frames.
+    pub ms_per_frame: f64,
+    /// Median over the scored frames of each frame's own error.
+    pub median_error: Option<f64>,
+    pub flicker: Option<f64>,
+    pub flicker_reference: Option<f64>,
+    /// flicker / flicker_reference (1: as stable as the ground truth).
+    pub flicker_ratio: Option<f64>,
+    pub clock_flagged: bool,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct FrameBudget {
+    pub budget_ms: f64,
+    pub entry: String,
+    /// The run (sweep value) with the lowest median per-frame error among those whose median
+    /// ms/frame fits the budget; None when none fits.
+    pub run: Option<String>,
+    pub ms_per_frame: Option<f64>,
+    pub median_error: Option<f64>,
+    pub flicker_ratio: Option<f64>,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -190,20 +225,94 @@ pub fn analyse(summary: &Summary, rows: &[Row]) -> Analysis {
         None => Vec::new(),
     };
 
-    let pareto_frame = segs.iter().map(|(_, v)| v.len() as u32).min().unwrap_or(0);
-    let mut pareto: Vec<ParetoPoint> = segs
-        .iter()
-        .filter(|_| pareto_frame > 0)
-        .map(|(label, v)| {
-            let last = v[pareto_frame as usize - 1];
-            ParetoPoint {
-                label: label.clone(),
-                ms_per_frame: last.gpu_ms_cum / last.frame as f64,
-                error: last.error(metric),
-                on_front: false,
+    let real_time_mode = s.mode == super::Mode::RealTime;
+    let real_time: Vec<RealTimeRun> = if real_time_mode {
+        summary
+            .runs
+            .iter()
+            .map(|r| {
+                let mine: Vec<&Row> = rows.iter().filter(|x| x.run == r.spec.index).collect();
+                let mean = |f: &dyn Fn(&Row) -> Option<f64>| {
+                    let v: Vec<f64> = mine
+                        .iter()
+                        .filter(|x| x.flicker.is_some() && x.flicker_reference.is_some())
+                        .filter_map(|x| f(x))
+                        .collect();
+                    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+                };
+                let flicker = mean(&|x| x.flicker);
+                let flicker_reference = mean(&|x| x.flicker_reference);
+                RealTimeRun {
+                    label: r.spec.label.clone(),
+                    entry: r.spec.entry.clone(),
+                    denoise: r.spec.denoise,
+                    ms_per_frame: r.gpu_ms_median,
+                    median_error: super::run::median(
+                        mine.iter().map(|x| x.error(metric)).collect(),
+                    ),
+                    flicker,
+                    flicker_reference,
+                    flicker_ratio: ratio(flicker, flicker_reference),
+                    clock_flagged: r.clock_check.flagged,
+                }
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let mut frame_budgets = Vec::new();
+    for &budget in s.frame_ms.iter().filter(|_| real_time_mode) {
+        let mut entries: Vec<&str> = Vec::new();
+        for r in &real_time {
+            if !entries.contains(&r.entry.as_str()) {
+                entries.push(&r.entry);
             }
+        }
+        for entry in entries {
+            let best = real_time
+                .iter()
+                .filter(|r| r.entry == entry && r.ms_per_frame <= budget)
+                .filter(|r| r.median_error.is_some())
+                .min_by(|a, b| {
+                    a.median_error
+                        .unwrap_or(f64::INFINITY)
+                        .total_cmp(&b.median_error.unwrap_or(f64::INFINITY))
+                });
+            frame_budgets.push(FrameBudget {
+                budget_ms: budget,
+                entry: entry.to_string(),
+                run: best.map(|b| b.label.clone()),
+                ms_per_frame: best.map(|b| b.ms_per_frame),
+                median_error: best.and_then(|b| b.median_error),
+                flicker_ratio: best.and_then(|b| b.flicker_ratio),
+            });
+        }
+    }
+    let pareto_frame = if real_time_mode {
+        0
+    } else {
+        segs.iter().map(|(_, v)| v.len() as u32).min().unwrap_or(0)
+    };
+    let mut pareto: Vec<ParetoPoint> = real_time
+        .iter()
+        .filter_map(|r| {
+            Some(ParetoPoint {
+                label: r.label.clone(),
+                ms_per_frame: r.ms_per_frame,
+                error: r.median_error?,
+                on_front: false,
+            })
         })
         .collect();
+    pareto.extend(segs.iter().filter(|_| pareto_frame > 0).map(|(label, v)| {
+        let last = v[pareto_frame as usize - 1];
+        ParetoPoint {
+            label: label.clone(),
+            ms_per_frame: last.gpu_ms_cum / last.frame as f64,
+            error: last.error(metric),
+            on_front: false,
+        }
+    }));
     let points: Vec<(f64, f64)> = pareto.iter().map(|p| (p.ms_per_frame, p.error)).collect();
     for p in pareto.iter_mut() {
         p.on_front = !points.iter().any(|&(ms, e)| {
@@ -248,6 +357,12 @@ pub fn analyse(summary: &Summary, rows: &[Row]) -> Analysis {
         }
     }
 
+    // Accumulated-image tables say nothing about single real-time frames.
+    let (equal_time_ms, equal_time, target_error, time_to_error) = if real_time_mode {
+        (None, Vec::new(), None, Vec::new())
+    } else {
+        (equal_time_ms, equal_time, target_error, time_to_error)
+    };
     Analysis {
         metric: metric.name().into(),
         baseline: baseline.map(|b| b.spec.label.clone()),
@@ -258,6 +373,8 @@ pub fn analyse(summary: &Summary, rows: &[Row]) -> Analysis {
         pareto_frame,
         pareto,
         lag,
+        real_time,
+        frame_budgets,
     }
 }
 
@@ -334,6 +451,36 @@ pub fn headline(s: &Summary) -> String {
             );
         }
     }
+    if !a.frame_budgets.is_empty() {
+        let _ = writeln!(
+            t,
+            "error at a frame-time budget (median per-frame {}):",
+            a.metric
+        );
+        for b in &a.frame_budgets {
+            let _ = writeln!(
+                t,
+                "  {:>6.1} ms  {:<24} {:>12}  {:<40} {:>8} ms/frame  flicker {}",
+                b.budget_ms,
+                b.entry,
+                opt(b.median_error, 4),
+                b.run.as_deref().unwrap_or("(nothing fits)"),
+                opt(b.ms_per_frame, 2),
+                ratio_text(b.flicker_ratio)
+            );
+        }
+    }
+    for r in &a.real_time {
+        let _ = writeln!(
+            t,
+            "  {:<40} {:>9.2} ms/frame  median {} {:>12}  flicker ratio {}",
+            r.label,
+            r.ms_per_frame,
+            a.metric,
+            opt(r.median_error, 4),
+            ratio_text(r.flicker_ratio)
+        );
+    }
     for l in &a.lag {
         let _ = writeln!(
             t,
@@ -400,12 +547,40 @@ pub fn markdown(s: &Summary) -> String {
             )
         }
     );
-    for r in &s.references {
+    let real_time = s.settings.mode == super::Mode::RealTime;
+    if real_time {
         let _ = writeln!(
             m,
-            "| reference, state {} (from frame {}) | {} spp, seed {}, `{}` |",
-            r.state, r.from_frame, r.spp, r.seed, r.cache_file
+            "| mode | real-time: every {} frame(s) scored on its own against a reference rendered for that frame |",
+            s.settings.reference_every.max(1)
         );
+        let _ = writeln!(
+            m,
+            "| camera | {} |",
+            if s.settings.camera_path.is_empty() {
+                "still (or moved by events)".to_string()
+            } else {
+                format!("path of {} keys", s.settings.camera_path.len())
+            }
+        );
+        let _ = writeln!(
+            m,
+            "| references | {} per-frame references, {} spp, each with its own seed (cached by content in `{}`) |",
+            s.references.len(),
+            s.references.first().map_or(0, |r| r.spp),
+            s.references
+                .first()
+                .and_then(|r| Path::new(&r.cache_file).parent())
+                .map_or("—".into(), |d| d.display().to_string())
+        );
+    } else {
+        for r in &s.references {
+            let _ = writeln!(
+                m,
+                "| reference, state {} (from frame {}) | {} spp, seed {}, `{}` |",
+                r.state, r.from_frame, r.spp, r.seed, r.cache_file
+            );
+        }
     }
     let _ = writeln!(m);
     let _ = writeln!(
@@ -476,6 +651,58 @@ pub fn markdown(s: &Summary) -> String {
             let _ = writeln!(m, "- {p}");
         }
     }
+    if !a.frame_budgets.is_empty() {
+        let _ = writeln!(
+            m,
+            "\n## Error at a frame-time budget\n\nPer budget and technique entry: the run (sweep value) whose median GPU ms per frame \
+             fits the budget and whose median per-frame {} is lowest. Flicker ratio: the run's mean change of the displayed \
+             luminance between consecutive frames (camera motion undone by reprojection) over the same for the references \
+             (1: as stable as the ground truth).\n",
+            a.metric
+        );
+        let _ = writeln!(
+            m,
+            "| budget ms | technique | run | median ms/frame | median {} | flicker ratio |\n| ---: | --- | --- | ---: | ---: | ---: |",
+            a.metric
+        );
+        for b in &a.frame_budgets {
+            let _ = writeln!(
+                m,
+                "| {} | {} | {} | {} | {} | {} |",
+                b.budget_ms,
+                b.entry,
+                b.run.as_deref().unwrap_or("nothing fits"),
+                opt(b.ms_per_frame, 2),
+                opt(b.median_error, 4),
+                ratio_text(b.flicker_ratio)
+            );
+        }
+    }
+    if !a.real_time.is_empty() {
+        let _ = writeln!(
+            m,
+            "\n## Real-time runs\n\n| run | denoised | median ms/frame | median {} | flicker | reference flicker | flicker ratio |\n| --- | :---: | ---: | ---: | ---: | ---: | ---: |",
+            a.metric
+        );
+        for r in &a.real_time {
+            let _ = writeln!(
+                m,
+                "| {}{} | {} | {:.2} | {} | {} | {} | {} |",
+                r.label,
+                if r.clock_flagged {
+                    " (**FLAGGED**)"
+                } else {
+                    ""
+                },
+                if r.denoise { "yes" } else { "" },
+                r.ms_per_frame,
+                opt(r.median_error, 4),
+                opt(r.flicker, 4),
+                opt(r.flicker_reference, 4),
+                ratio_text(r.flicker_ratio)
+            );
+        }
+    }
     let base = a.baseline.as_deref().unwrap_or("—");
     if let Some(ms) = a.equal_time_ms {
         let _ = writeln!(m, "\n## Equal time: {} at {ms:.1} GPU ms\n\nThe image each run had finished by the budget; ratio to `{base}` (below 1: better).\n", a.metric);
@@ -504,11 +731,19 @@ pub fn markdown(s: &Summary) -> String {
         }
     }
     if !a.pareto.is_empty() {
-        let _ = writeln!(
-            m,
-            "\n## Pareto front: {} after {} frames against GPU ms per frame\n",
-            a.metric, a.pareto_frame
-        );
+        if real_time {
+            let _ = writeln!(
+                m,
+                "\n## Pareto front: median per-frame {} against median GPU ms per frame\n",
+                a.metric
+            );
+        } else {
+            let _ = writeln!(
+                m,
+                "\n## Pareto front: {} after {} frames against GPU ms per frame\n",
+                a.metric, a.pareto_frame
+            );
+        }
         let _ = writeln!(
             m,
             "| run | ms/frame | {} | on the front |\n| --- | ---: | ---: | :---: |",

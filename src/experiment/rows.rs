@@ -43,6 +43,13 @@ pub struct Row {
     pub rel_mse: f64,
     pub smape: f64,
     pub flip: f64,
+    /// Real-time mode: mean change of the displayed luminance since the previous frame, over
+    /// the pixels that reproject (camera motion undone); empty on the first frame.
+    #[serde(default)]
+    pub flicker: Option<f64>,
+    /// The same between this frame's and the previous frame's references.
+    #[serde(default)]
+    pub flicker_reference: Option<f64>,
     /// GPU ms of this frame per pass: `name=ms;name=ms`.
     pub passes: String,
 }
@@ -86,11 +93,22 @@ pub struct RunSummary {
     /// The timing protocol's clock check (`gpu::calibrate`).
     #[serde(default)]
     pub clock_check: crate::gpu::calibrate::ClockCheck,
+    /// Median over the scored frames of each frame's error (the experiment's metric): what a
+    /// real-time run shows on a typical frame.
+    #[serde(default)]
+    pub median_error: Option<f64>,
+    /// Real-time mode: mean flicker of the run over mean flicker of the references on the same
+    /// frames (1: as stable as the ground truth; above: flickers more).
+    #[serde(default)]
+    pub flicker_ratio: Option<f64>,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct ReferenceInfo {
     pub state: usize,
+    /// Real-time mode: the frame this reference was rendered for (its camera and seed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame: Option<u32>,
     pub from_frame: u32,
     pub key: String,
     pub cache_file: String,

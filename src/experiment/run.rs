@@ -1,9 +1,10 @@
 //! Runs an experiment: references per scene state (cached), then every run of the shard frame
 //! by frame, recording time, rays and error after each frame.
 
+use super::realtime::{self, FrameUse, RealTimePlan};
 use super::report::{self, Analysis};
 pub use super::rows::{read_output_dir, ReferenceInfo, Row, RunSummary, Summary};
-use super::spec::{expand_runs, Event, RunSpec, Shard};
+use super::spec::{expand_runs, Event, Mode, RunSpec, Shard};
 use crate::compare::{flip, io, metrics, Image};
 use crate::gpu::{shaders::ShaderLibrary, Gpu};
 use crate::jobs;
@@ -13,6 +14,7 @@ use crate::scene::{gpu_scene::GpuScene, Camera, Scene};
 use crate::techniques::create_technique;
 use anyhow::{ensure, Context, Result};
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -28,7 +30,10 @@ struct SceneState {
     scene: Arc<Scene>,
     gpu_scene: Arc<GpuScene>,
     camera: Camera,
-    reference: Image,
+    /// The state's reference (accumulate mode; real-time mode renders one per frame).
+    reference: Option<Image>,
+    /// Image size of the experiment.
+    extent: [u32; 2],
     info: ReferenceInfo,
 }
 
@@ -102,6 +107,7 @@ fn build_states(
     events: &[Event],
     cache: &Path,
     quiet: bool,
+    render_references: bool,
 ) -> Result<Vec<SceneState>> {
     let mut scene = p.load_scene()?;
     let mut camera = p.camera(&scene);
@@ -123,24 +129,31 @@ fn build_states(
             h.write(serde_json::to_string(&events[..k])?.as_bytes());
             format!("{:016x}", h.finish())
         };
-        let (reference, path) = jobs::reference_image(
-            gpu.clone(),
-            p,
-            scene.clone(),
-            camera,
-            &key,
-            cache,
-            false,
-            quiet,
-        )?;
+        let (reference, path) = if render_references {
+            let (image, path) = jobs::reference_image(
+                gpu.clone(),
+                p,
+                scene.clone(),
+                camera,
+                &key,
+                cache,
+                false,
+                quiet,
+            )?;
+            (Some(image), path)
+        } else {
+            (None, cache.join(format!("{key}.exr")))
+        };
         let gpu_scene = Arc::new(GpuScene::upload(gpu, &scene));
         states.push(SceneState {
             scene: Arc::new(scene.clone()),
             gpu_scene,
             camera,
             reference,
+            extent: p.preset.render.size,
             info: ReferenceInfo {
                 state: k,
+                frame: None,
                 from_frame: if k == 0 { 0 } else { events[k - 1].frame },
                 key,
                 cache_file: path.display().to_string(),
@@ -177,18 +190,36 @@ pub fn converge(gpu: Arc<Gpu>, p: &LoadedPreset, opts: &ConvergeOptions) -> Resu
             .set_params(&r.params)
             .with_context(|| format!("run '{}'", r.label))?;
     }
+    let real_time = exp.mode == Mode::RealTime;
+    let runs = if real_time {
+        real_time_runs(runs, &exp, &events)?
+    } else {
+        ensure!(
+            exp.camera_path.is_empty() && exp.frame_ms.is_empty() && exp.reference_every == 1,
+            "[[experiment.camera]], frame_ms and reference_every belong to mode = \"real-time\""
+        );
+        runs
+    };
     std::fs::create_dir_all(opts.out.join("runs"))
         .with_context(|| format!("creating {}", opts.out.display()))?;
-    let states = build_states(&gpu, p, &events, &opts.cache, opts.quiet)?;
-    for s in &states {
+    let states = build_states(&gpu, p, &events, &opts.cache, opts.quiet, !real_time)?;
+    let plan = if real_time {
+        Some(real_time_plan(&gpu, p, &states, &events, &exp, opts)?)
+    } else {
+        None
+    };
+    for (s, reference) in states
+        .iter()
+        .filter_map(|s| s.reference.as_ref().map(|r| (s, r)))
+    {
         let name = format!("reference-state{}", s.info.state);
         io::write_exr(
             &opts.out.join("runs").join(format!("{name}.exr")),
-            &s.reference,
+            reference,
         )?;
         io::write_png(
             &opts.out.join("runs").join(format!("{name}.png")),
-            &s.reference,
+            reference,
             p.preset.tonemap.operator,
             p.preset.tonemap.exposure,
         )?;
@@ -213,6 +244,7 @@ pub fn converge(gpu: Arc<Gpu>, p: &LoadedPreset, opts: &ConvergeOptions) -> Resu
             p,
             &shaders,
             &states,
+            plan.as_ref(),
             &events,
             spec,
             &exp,
@@ -242,11 +274,170 @@ pub fn converge(gpu: Arc<Gpu>, p: &LoadedPreset, opts: &ConvergeOptions) -> Resu
         settings: exp.clone(),
         total_runs: runs.len(),
         shards: opts.shard.into_iter().collect(),
-        references: states.iter().map(|s| s.info.clone()).collect(),
+        references: match &plan {
+            Some(plan) => plan.infos.clone(),
+            None => states.iter().map(|s| s.info.clone()).collect(),
+        },
         runs: summaries,
         analysis: Analysis::default(),
     };
     report::finish(summary, rows, &opts.out)
+}
+
+/// Real-time mode's checks and parameters: every technique shows single frames
+/// (`accumulate = false`; an entry asking for accumulation is an error), camera keys are
+/// ordered and do not clash with camera events.
+fn real_time_runs(
+    mut runs: Vec<RunSpec>,
+    exp: &super::ExperimentSettings,
+    events: &[Event],
+) -> Result<Vec<RunSpec>> {
+    ensure!(
+        exp.reference_every >= 1,
+        "reference_every must be at least 1"
+    );
+    ensure!(
+        exp.error_every == 1,
+        "mode = \"real-time\" scores frames with reference_every, not error_every"
+    );
+    ensure!(
+        exp.frame_ms.iter().all(|m| m.is_finite() && *m > 0.0),
+        "frame_ms: budgets must be positive milliseconds"
+    );
+    let mut frames: Vec<u32> = exp.camera_path.iter().map(|k| k.frame).collect();
+    frames.sort_unstable();
+    frames.dedup();
+    ensure!(
+        frames.len() == exp.camera_path.len(),
+        "[[experiment.camera]]: two keys at the same frame"
+    );
+    ensure!(
+        exp.camera_path.windows(2).all(|w| w[0].frame < w[1].frame),
+        "[[experiment.camera]]: keys must be listed in frame order"
+    );
+    ensure!(
+        exp.camera_path.is_empty() || events.iter().all(|e| e.camera.is_none()),
+        "a camera path and camera events both move the camera: use one"
+    );
+    for r in &mut runs {
+        let has = create_technique(&r.technique)?
+            .params()
+            .contains_key("accumulate");
+        if !has {
+            continue;
+        }
+        ensure!(
+            r.params.get("accumulate").and_then(|v| v.as_bool()) != Some(true),
+            "run '{}': accumulate = true contradicts mode = \"real-time\" (each frame is scored on its own)",
+            r.label
+        );
+        r.params.insert("accumulate".into(), false.into());
+    }
+    Ok(runs)
+}
+
+/// Cameras, per-frame references (cached by content, cost estimated before rendering),
+/// reprojection maps and the references' own flicker.
+fn real_time_plan(
+    gpu: &Arc<Gpu>,
+    p: &LoadedPreset,
+    states: &[SceneState],
+    events: &[Event],
+    exp: &super::ExperimentSettings,
+    opts: &ConvergeOptions,
+) -> Result<RealTimePlan> {
+    let every = exp.reference_every.max(1);
+    let cameras = realtime::frame_cameras(exp.frames, &exp.camera_path, &states[0].camera, events);
+    let setup = jobs::reference_setup(p);
+    let state_of = |f: u32| events.iter().filter(|e| e.frame <= f).count();
+    let wanted: Vec<(u32, usize, u32, String)> = realtime::reference_frames(exp.frames, every)
+        .into_iter()
+        .map(|f| {
+            let state = state_of(f);
+            let seed = realtime::frame_seed(setup.seed, f);
+            let key =
+                realtime::frame_reference_key(&states[state].info.key, &cameras[f as usize], seed);
+            (f, state, seed, key)
+        })
+        .collect();
+    let missing: Vec<&(u32, usize, u32, String)> = wanted
+        .iter()
+        .filter(|w| !opts.cache.join(format!("{}.exr", w.3)).exists())
+        .collect();
+    let [w, h] = p.preset.render.size;
+    if !opts.quiet {
+        println!(
+            "references: {} frames need one ({} cached, {} to render at {} spp, {w}x{h})",
+            wanted.len(),
+            wanted.len() - missing.len(),
+            missing.len(),
+            setup.spp
+        );
+    }
+    let bar = jobs::progress_bar(missing.len() as u64, "references", opts.quiet);
+    let mut references = BTreeMap::new();
+    let mut infos = Vec::new();
+    for (f, state, seed, key) in &wanted {
+        let started = std::time::Instant::now();
+        let fresh = missing.iter().any(|m| m.0 == *f);
+        let (image, path) = jobs::reference_image_seeded(
+            gpu.clone(),
+            p,
+            (*states[*state].scene).clone(),
+            cameras[*f as usize],
+            key,
+            &opts.cache,
+            *seed,
+            false,
+            true,
+        )?;
+        if fresh {
+            bar.inc(1);
+            if bar.position() == 1 && !opts.quiet {
+                let each = started.elapsed().as_secs_f64();
+                bar.suspend(|| {
+                    println!(
+                        "references: the first took {each:.1} s: about {:.0} s for all {}",
+                        each * missing.len() as f64,
+                        missing.len()
+                    )
+                });
+            }
+        }
+        references.insert(*f, image);
+        infos.push(ReferenceInfo {
+            state: *state,
+            frame: Some(*f),
+            from_frame: *f,
+            key: key.clone(),
+            cache_file: path.display().to_string(),
+            spp: setup.spp,
+            seed: *seed,
+        });
+    }
+    bar.finish_and_clear();
+    let reprojection =
+        realtime::reprojection_maps(&states[0].scene, &cameras, every, p.preset.render.size);
+    let (op, ev) = (p.preset.tonemap.operator, p.preset.tonemap.exposure);
+    let mut reference_flicker = BTreeMap::new();
+    for (f, map) in &reprojection {
+        let (Some(cur), Some(prev)) = (references.get(f), references.get(&(f - 1))) else {
+            continue;
+        };
+        let cur = realtime::display_luminance(cur, op, ev);
+        let prev = realtime::display_luminance(prev, op, ev);
+        if let Some(v) = realtime::flicker(&cur, &prev, map.as_deref()) {
+            reference_flicker.insert(*f, v);
+        }
+    }
+    Ok(RealTimePlan {
+        every,
+        cameras,
+        references,
+        infos,
+        reprojection,
+        reference_flicker,
+    })
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -255,6 +446,7 @@ fn run_one(
     p: &LoadedPreset,
     shaders: &ShaderLibrary,
     states: &[SceneState],
+    plan: Option<&RealTimePlan>,
     events: &[Event],
     spec: &RunSpec,
     exp: &super::ExperimentSettings,
@@ -267,11 +459,12 @@ fn run_one(
         label: Some(spec.label.clone()),
         params: spec.params.clone(),
         budget: spec.budget,
+        denoise: spec.denoise,
     };
     let settings = EngineSettings {
         extent: p.preset.render.size,
         seed: spec.seed,
-        camera: states[0].camera,
+        camera: plan.map_or(states[0].camera, |p| p.cameras[0]),
     };
     let mut engine = Engine::for_entry(
         gpu.clone(),
@@ -285,7 +478,12 @@ fn run_one(
     let (op, ev) = (p.preset.tonemap.operator, p.preset.tonemap.exposure);
     let image_bytes = engine.output_buffers().0.size();
     let every = exp.error_every.max(1);
-    let scored = |f: u32| (f + 1).is_multiple_of(every) || f + 1 == exp.frames;
+    // Frames whose image is copied for scoring (real-time mode: also the frame before each
+    // scored one, for flicker).
+    let scored = |f: u32| match plan {
+        Some(plan) => plan.frame_use(f) != FrameUse::Unused,
+        None => (f + 1).is_multiple_of(every) || f + 1 == exp.frames,
+    };
     // Timing protocol: warm up until the calibration kernel is stable, then frames back to
     // back (`submit_frame`; nothing waits on the CPU between them), copies of the scored
     // frames kept on the GPU and evaluated afterwards (or per chunk when they would take too
@@ -296,6 +494,8 @@ fn run_one(
     let mut by_pass: std::collections::BTreeMap<String, f64> = Default::default();
     let mut state = 0usize;
     let mut last_image: Option<Image> = None;
+    // Real-time mode: the last evaluated frame's displayed luminance, for flicker.
+    let mut previous: Option<(u32, Vec<f32>)> = None;
     let mut copies: Vec<(u32, usize, wgpu::Buffer)> = Vec::new();
     let mut recent: Vec<(Option<(u32, usize)>, wgpu::Buffer)> = Vec::new();
     let mut states_of_frames: Vec<usize> = Vec::new();
@@ -320,8 +520,15 @@ fn run_one(
                 engine.change_scene(s.scene.clone(), s.gpu_scene.clone())?;
                 edited = true;
             }
-            if s.camera != engine.camera {
+            if plan.is_none() && s.camera != engine.camera {
                 engine.move_camera(s.camera);
+            }
+        }
+        // Real-time mode: the camera of this frame (on the path, or the state's).
+        if let Some(plan) = plan {
+            let camera = plan.cameras[f as usize];
+            if camera != engine.camera {
+                engine.move_camera(camera);
             }
         }
         if edited {
@@ -367,9 +574,10 @@ fn run_one(
                 (op, ev),
                 &mut copies,
                 &costs,
-                states,
+                (states, plan),
                 &mut rows,
                 &mut last_image,
+                &mut previous,
             )?;
             calibration.warm_up(gpu)?;
         }
@@ -395,7 +603,8 @@ fn run_one(
     if let Some(last) = stop_at {
         costs.retain(|c| c.0.report.frame_index <= last);
         copies.retain(|c| c.0 <= last);
-        if !copies.iter().any(|c| c.0 == last) {
+        // Real-time mode scores only frames with a reference of their own.
+        if plan.is_none() && !copies.iter().any(|c| c.0 == last) {
             let (_, buffer) = recent
                 .iter()
                 .find(|r| r.0.is_some_and(|(fr, _)| fr == last))
@@ -414,9 +623,10 @@ fn run_one(
         (op, ev),
         &mut copies,
         &costs,
-        states,
+        (states, plan),
         &mut rows,
         &mut last_image,
+        &mut previous,
     )?;
     let mut frame_ms: Vec<f64> = costs.iter().map(|c| c.0.report.gpu_ms).collect();
     frame_ms.sort_by(f64::total_cmp);
@@ -439,6 +649,7 @@ fn run_one(
     let entry = TechniqueEntry {
         label: Some(spec.label.clone()),
         params: engine.technique.params(),
+        denoise: spec.denoise,
         ..TechniqueEntry::new(&spec.technique)
     };
     let mut meta_by_pass = by_pass.clone();
@@ -446,6 +657,8 @@ fn run_one(
     let meta = jobs::metadata(&engine, p, &entry, &image, meta_by_pass.clone())?;
     jobs::write_outputs(&dir, &stem, &image, &meta, p)?;
     let passes = engine.passes();
+    let median_error = median(rows.iter().map(|r| r.error(exp.metric)).collect());
+    let flicker_ratio = flicker_ratio(&rows);
     Ok((
         rows,
         RunSummary {
@@ -474,28 +687,54 @@ fn run_one(
             non_finite_pixels: image.non_finite_count(),
             image: format!("runs/{stem}.exr"),
             clock_check,
+            median_error,
+            flicker_ratio,
         },
     ))
+}
+
+/// Median of finite values (None when there are none).
+pub fn median(mut v: Vec<f64>) -> Option<f64> {
+    v.retain(|x| x.is_finite());
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied()
+}
+
+/// Mean flicker of a run over the references' mean flicker on the same frames.
+pub fn flicker_ratio(rows: &[Row]) -> Option<f64> {
+    let (mut run, mut reference) = (0.0, 0.0);
+    for r in rows {
+        if let (Some(a), Some(b)) = (r.flicker, r.flicker_reference) {
+            run += a;
+            reference += b;
+        }
+    }
+    (reference > 0.0).then(|| run / reference)
 }
 
 /// Copies of scored frames kept on the GPU before they are read back (per chunk).
 const CHUNK_BYTES: u64 = 512 << 20;
 
-/// Reads back the scored frames' copies, scores them against their state's reference and
-/// appends their rows (times and rays from `costs`, the frames' collected results).
+/// Reads back the scored frames' copies, scores them against their reference (the state's,
+/// or in real-time mode the frame's own) and appends their rows (times and rays from `costs`,
+/// the frames' collected results). Real-time mode also measures flicker against the previous
+/// frame, which `previous` carries from one call to the next.
+#[allow(clippy::too_many_arguments)]
 fn evaluate(
     gpu: &Gpu,
     tonemap: (crate::compare::tonemap::Operator, f32),
     copies: &mut Vec<(u32, usize, wgpu::Buffer)>,
     costs: &[(crate::render::engine::FrameResult, f64, f64)],
-    states: &[SceneState],
+    (states, plan): (&[SceneState], Option<&RealTimePlan>),
     rows: &mut Vec<Row>,
     last_image: &mut Option<Image>,
+    previous: &mut Option<(u32, Vec<f32>)>,
 ) -> Result<()> {
     let Some(first) = states.first() else {
         return Ok(());
     };
-    let (w, h) = (first.reference.width, first.reference.height);
+    let (w, h) = (first.extent[0], first.extent[1]);
+    copies.sort_by_key(|c| c.0);
     for (frame, state, buffer) in copies.drain(..) {
         let px: Vec<[f32; 4]> = crate::gpu::readback::read_buffer(gpu, &buffer, (w * h) as usize)?;
         let image = Image::from_rgba(w, h, &px);
@@ -503,15 +742,31 @@ fn evaluate(
             .iter()
             .find(|c| c.0.report.frame_index == frame)
             .context("a scored frame without its timing")?;
-        rows.push(score_row(
-            &image,
-            &states[state],
-            tonemap,
-            state,
-            frame,
-            cost,
-        )?);
-        *last_image = Some(image);
+        let Some(plan) = plan else {
+            let reference = states[state]
+                .reference
+                .as_ref()
+                .context("a scene state without its reference")?;
+            rows.push(score_row(&image, reference, tonemap, state, frame, cost)?);
+            *last_image = Some(image);
+            continue;
+        };
+        let luminance = realtime::display_luminance(&image, tonemap.0, tonemap.1);
+        if plan.frame_use(frame) == FrameUse::Scored {
+            let reference = plan
+                .references
+                .get(&frame)
+                .context("a scored frame without its reference")?;
+            let mut row = score_row(&image, reference, tonemap, state, frame, cost)?;
+            if let Some((_, prev)) = previous.as_ref().filter(|p| p.0 + 1 == frame) {
+                let map = plan.reprojection.get(&frame).and_then(|m| m.as_deref());
+                row.flicker = realtime::flicker(&luminance, prev, map);
+                row.flicker_reference = plan.reference_flicker.get(&frame).copied();
+            }
+            rows.push(row);
+            *last_image = Some(image);
+        }
+        *previous = Some((frame, luminance));
     }
     Ok(())
 }
@@ -519,13 +774,12 @@ fn evaluate(
 /// One CSV row for a scored frame (the run's identity is filled in by `label_rows`).
 fn score_row(
     image: &Image,
-    s: &SceneState,
+    reference: &Image,
     tonemap: (crate::compare::tonemap::Operator, f32),
     state: usize,
     frame: u32,
     cost: &(crate::render::engine::FrameResult, f64, f64),
 ) -> Result<Row> {
-    let reference = &s.reference;
     let m = metrics::compare(image, reference)?;
     let flip = flip::ldr_flip(image, reference, tonemap.0, tonemap.1)?;
     let (done, gpu_cum, wall_cum) = cost;
@@ -570,6 +824,8 @@ fn score_row(
         rel_mse: m.rel_mse,
         smape: m.smape,
         flip,
+        flicker: None,
+        flicker_reference: None,
         passes: report
             .gpu_ms_by_pass
             .iter()

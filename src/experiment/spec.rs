@@ -3,7 +3,9 @@
 //! summarises. The runs are the preset's `[[techniques]]` entries expanded by the sweeps and
 //! seeds, in a fixed order, so `--shard i/n` picks the same runs on every machine.
 
-pub use crate::preset::experiment::{Event, ExperimentSettings, Metric, Sweep};
+pub use crate::preset::experiment::{
+    camera_on_path, CameraKey, Event, ExperimentSettings, Metric, Mode, Sweep,
+};
 use crate::preset::LoadedPreset;
 use anyhow::{bail, ensure, Result};
 use serde::{Deserialize, Serialize};
@@ -22,6 +24,9 @@ pub struct RunSpec {
     /// Rays per pixel per frame asked for (mapped to parameters by the technique).
     pub budget: Option<f64>,
     pub seed: u32,
+    /// The entry's `denoise`: the shared denoiser runs after every frame.
+    #[serde(default)]
+    pub denoise: bool,
 }
 
 fn value_text(v: &toml::Value) -> String {
@@ -137,6 +142,7 @@ pub fn expand_runs(p: &LoadedPreset) -> Result<Vec<RunSpec>> {
                     params,
                     budget,
                     seed,
+                    denoise: entry.denoise,
                 });
             }
         }

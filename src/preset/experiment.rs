@@ -51,6 +51,26 @@ pub struct ExperimentSettings {
     /// switched on, where the error before the event is not a fair target.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub settle_error: Option<f64>,
+    /// `accumulate` (default): runs average frames as the viewer shows them and are scored as
+    /// they converge. `real-time`: every displayed frame is scored on its own against the
+    /// reference of that frame; every technique runs with `accumulate = false` (the reference
+    /// traces `samples_per_frame` fresh paths per pixel per frame and keeps nothing).
+    #[serde(default)]
+    pub mode: Mode,
+    /// Real-time mode: score every N-th frame (frames N-1, 2N-1, ...) against a reference
+    /// rendered for that frame; the frame before each scored one gets a reference too, for the
+    /// flicker measure. 1 scores every frame.
+    #[serde(default = "default_error_every")]
+    pub reference_every: u32,
+    /// Real-time mode: frame-time budgets in GPU ms for the report's main table: per budget
+    /// and technique entry, the sweep value whose median ms/frame fits and whose median
+    /// per-frame error is lowest.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub frame_ms: Vec<f64>,
+    /// Camera path keyframes (`[[experiment.camera]]`), interpolated per frame (Catmull-Rom
+    /// through the keys' positions and targets, linear field of view).
+    #[serde(default, rename = "camera", skip_serializing_if = "Vec::is_empty")]
+    pub camera_path: Vec<CameraKey>,
     #[serde(default, rename = "sweep", skip_serializing_if = "Vec::is_empty")]
     pub sweeps: Vec<Sweep>,
     #[serde(default, rename = "event", skip_serializing_if = "Vec::is_empty")]
@@ -65,6 +85,75 @@ fn default_error_every() -> u32 {
 }
 fn default_settle_factor() -> f64 {
     1.1
+}
+
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum Mode {
+    #[default]
+    Accumulate,
+    RealTime,
+}
+
+/// A camera path keyframe: where the camera is at the start of `frame`.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct CameraKey {
+    pub frame: u32,
+    pub position: [f32; 3],
+    pub target: [f32; 3],
+    /// Vertical field of view in degrees (default: the preset camera's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fov: Option<f32>,
+}
+
+/// The camera of `frame` on a path of keys sorted by frame: Catmull-Rom through positions and
+/// targets (end keys repeated), so an orbit given by a ring of keys stays round; the field of
+/// view is interpolated linearly. Before the first key and after the last the camera stands.
+pub fn camera_on_path(keys: &[CameraKey], frame: u32, base: &Camera) -> Camera {
+    let cam = |k: &CameraKey| Camera {
+        position: Vec3::from(k.position),
+        target: Vec3::from(k.target),
+        up: base.up,
+        fov_y: k.fov.unwrap_or(base.fov_y),
+    };
+    let Some(first) = keys.first() else {
+        return *base;
+    };
+    let last = keys.last().expect("not empty");
+    if frame <= first.frame {
+        return cam(first);
+    }
+    if frame >= last.frame {
+        return cam(last);
+    }
+    let i = keys
+        .windows(2)
+        .position(|w| frame >= w[0].frame && frame < w[1].frame)
+        .expect("frame within the keys");
+    let at = |j: isize| &keys[j.clamp(0, keys.len() as isize - 1) as usize];
+    let (k0, k1, k2, k3) = (
+        at(i as isize - 1),
+        at(i as isize),
+        at(i as isize + 1),
+        at(i as isize + 2),
+    );
+    let t = (frame - k1.frame) as f32 / (k2.frame - k1.frame) as f32;
+    let spline = |a: [f32; 3], b: [f32; 3], c: [f32; 3], d: [f32; 3]| {
+        let (a, b, c, d) = (Vec3::from(a), Vec3::from(b), Vec3::from(c), Vec3::from(d));
+        let (t2, t3) = (t * t, t * t * t);
+        0.5 * ((2.0 * b)
+            + (c - a) * t
+            + (2.0 * a - 5.0 * b + 4.0 * c - d) * t2
+            + (3.0 * b - a - 3.0 * c + d) * t3)
+    };
+    let fov = |k: &CameraKey| k.fov.unwrap_or(base.fov_y);
+    Camera {
+        position: spline(k0.position, k1.position, k2.position, k3.position),
+        target: spline(k0.target, k1.target, k2.target, k3.target),
+        up: base.up,
+        fov_y: fov(k1) + (fov(k2) - fov(k1)) * t,
+    }
 }
 
 #[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq, Eq)]

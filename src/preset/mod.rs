@@ -206,6 +206,10 @@ pub struct TechniqueEntry {
     /// Ray budget in rays per pixel per frame the viewer's slider last asked for.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub budget: Option<f64>,
+    /// Run the shared SVGF-style denoiser (src/render/denoise.rs) on the technique's output
+    /// after every frame; its GPU time counts in the technique's frame time.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub denoise: bool,
 }
 
 impl TechniqueEntry {
@@ -215,6 +219,7 @@ impl TechniqueEntry {
             label: None,
             params: toml::Table::new(),
             budget: None,
+            denoise: false,
         }
     }
     pub fn display_name(&self) -> &str {

@@ -2,8 +2,8 @@
 //! back and accounts rays and GPU time. The CLI, the tests and (later) the viewer all use it.
 
 use super::{
-    gbuffer::GBuffer, pipelines, primary, FrameUniforms, PassInfo, RayCounts, RenderContext,
-    Technique, COUNTER_SLOTS,
+    denoise::Denoiser, gbuffer::GBuffer, pipelines, primary, FrameUniforms, PassInfo, RayCounts,
+    RenderContext, Technique, COUNTER_SLOTS,
 };
 use crate::compare::Image;
 use crate::gpu::{readback, shaders::ShaderLibrary, timing::PassTimer, Gpu};
@@ -95,7 +95,8 @@ pub struct Engine {
     /// Bind group 1 of every pass: frame uniforms, ray counters, primary surfaces.
     frame_layout: wgpu::BindGroupLayout,
     frame_bind_group: wgpu::BindGroup,
-    /// The primary-surface pass, when the technique needs it (`Technique::inputs`).
+    /// The primary-surface pass, when the technique needs it (`Technique::inputs`) or the
+    /// denoiser runs (its G-buffer).
     primary: Option<wgpu::ComputePipeline>,
     /// Its output (a 16-byte placeholder when no pass runs).
     surfaces: wgpu::Buffer,
@@ -103,6 +104,8 @@ pub struct Engine {
     accum_mean: wgpu::Buffer,
     accum_m2: wgpu::Buffer,
     gbuffer: Option<GBuffer>,
+    /// The shared denoiser, when on (`set_denoise`): runs after the technique every frame.
+    denoiser: Option<Denoiser>,
     timer: PassTimer,
     /// Staging slots of the frames in flight (timestamps, then ray counters).
     slots: Vec<readback::StagingRead>,
@@ -201,6 +204,7 @@ impl Engine {
             &frame_layout,
             &[&uniforms, &counters, &surfaces, &accum_mean, &accum_m2],
         );
+        // (`set_denoise` rebuilds this bind group when it adds or drops the surfaces.)
         let primary = if inputs.primary_surfaces {
             Some(primary::pipeline(
                 &gpu,
@@ -236,6 +240,7 @@ impl Engine {
             accum_mean,
             accum_m2,
             gbuffer: None,
+            denoiser: None,
             timer,
             slots,
             in_flight: Default::default(),
@@ -262,14 +267,87 @@ impl Engine {
     pub fn passes(&self) -> Vec<PassInfo> {
         let mut v = Vec::new();
         if self.primary.is_some() {
+            let why = if self.technique.inputs().primary_surfaces {
+                "shared primary surfaces: jittered camera rays, as the reference"
+            } else {
+                "shared primary surfaces for the denoiser's G-buffer: jittered camera rays, as \
+                 the reference"
+            };
             v.push(PassInfo {
                 name: primary::PASS,
                 runs: true,
-                why: "shared primary surfaces: jittered camera rays, as the reference".into(),
+                why: why.into(),
             });
         }
         v.extend(self.technique.passes(&self.gpu_scene.data.features));
+        if let Some(d) = &self.denoiser {
+            v.extend(d.passes());
+        }
         v
+    }
+
+    /// Whether the shared denoiser runs after the technique.
+    pub fn denoise(&self) -> bool {
+        self.denoiser.is_some()
+    }
+
+    /// Turns the shared SVGF-style denoiser (`render::denoise`) on or off. On: the engine runs
+    /// the primary-surface pass (the denoiser's G-buffer; its camera rays are counted like any
+    /// pass's) even where the technique does not need it, and after every frame the denoised
+    /// radiance replaces the output (`read_output`, output copies, the viewer's display); its
+    /// passes are timed in the frame. Off: the engine is as it was without it. History and
+    /// accumulation restart. On error nothing changes.
+    pub fn set_denoise(&mut self, on: bool) -> Result<()> {
+        if on == self.denoise() {
+            return Ok(());
+        }
+        self.finish_frames()?;
+        if on {
+            // Everything that can fail first, so an error leaves the engine as it was.
+            let denoiser = Denoiser::new(&self.gpu, &self.shaders, &self.frame_layout, self.extent)
+                .context("building the denoiser")?;
+            if self.primary.is_none() {
+                let pipeline = primary::pipeline(
+                    &self.gpu,
+                    &self.shaders,
+                    &self.gpu_scene,
+                    &self.frame_layout,
+                )?;
+                self.gpu.check_errors()?;
+                self.primary = Some(pipeline);
+                self.surfaces = primary::surfaces_buffer(&self.gpu, self.extent);
+                self.rebuild_frame_bind_group();
+            }
+            self.gpu.check_errors()?;
+            self.denoiser = Some(denoiser);
+        } else {
+            self.denoiser = None;
+            if !self.technique.inputs().primary_surfaces && self.primary.is_some() {
+                self.primary = None;
+                self.surfaces = pipelines::storage_buffer(&self.gpu, "no primary surfaces", 16);
+                self.rebuild_frame_bind_group();
+            }
+        }
+        // Techniques bind the frame bind group from the RenderContext each frame (none keeps
+        // its own copy), so they need no rebuild for the new one.
+        self.reset();
+        Ok(())
+    }
+
+    /// Bind group 1 from the current buffers (after the surfaces buffer changed).
+    fn rebuild_frame_bind_group(&mut self) {
+        self.frame_bind_group = pipelines::buffers_bind_group(
+            &self.gpu,
+            "frame",
+            &self.frame_layout,
+            &[
+                &self.uniforms,
+                &self.counters,
+                &self.surfaces,
+                &self.accum_mean,
+                &self.accum_m2,
+            ],
+        );
     }
 
     /// Builds the primary-surface pass again (new shaders or scene); on error the old one stays.
@@ -293,6 +371,9 @@ impl Engine {
         }
         self.completed.clear();
         self.technique.reset_history(&self.gpu);
+        if let Some(d) = &self.denoiser {
+            d.reset(&self.gpu);
+        }
         self.restart_accumulation();
         self.gpu.queue.write_buffer(
             &self.counters,
@@ -311,6 +392,9 @@ impl Engine {
         let mut enc = self.gpu.device.create_command_encoder(&Default::default());
         enc.clear_buffer(&self.accum_mean, 0, None);
         enc.clear_buffer(&self.accum_m2, 0, None);
+        if let Some(d) = &self.denoiser {
+            d.restart_accumulation(&mut enc);
+        }
         self.gpu.queue.submit([enc.finish()]);
     }
 
@@ -395,6 +479,9 @@ impl Engine {
     /// On error the previous pipelines keep running and history is kept.
     pub fn rebuild(&mut self) -> Result<()> {
         self.rebuild_primary()?;
+        if let Some(d) = &mut self.denoiser {
+            d.rebuild(&self.gpu, &self.shaders, &self.frame_layout)?;
+        }
         self.technique.build(&render_context!(self))?;
         self.gpu.check_errors()?;
         self.reset();
@@ -404,11 +491,17 @@ impl Engine {
     /// Whether a change to these entry files affects this engine's technique.
     pub fn uses_any_shader(&self, entries: &[String]) -> bool {
         let primary = self.primary.is_some().then_some(primary::ENTRY);
+        let denoise: &[&str] = if self.denoise() {
+            &super::denoise::SHADER_FILES
+        } else {
+            &[]
+        };
         self.technique
             .shader_files()
             .iter()
             .copied()
             .chain(primary)
+            .chain(denoise.iter().copied())
             .any(|f| entries.iter().any(|e| e == f))
     }
 
@@ -497,8 +590,21 @@ impl Engine {
                 self.extent,
             );
         }
+        // With the denoiser the output holds last frame's denoised image: the technique's own
+        // output goes back first, so an accumulating technique averages its own samples.
+        if let Some(d) = &self.denoiser {
+            d.restore_noisy(&mut enc, &self.accum_mean);
+        }
         self.technique
             .render(&render_context!(self), &mut enc, &mut self.timer);
+        if let Some(d) = &self.denoiser {
+            d.record(
+                &mut enc,
+                &mut self.timer,
+                &self.frame_bind_group,
+                &self.accum_mean,
+            );
+        }
         let staging = self.slots[slot].buffer();
         self.timer.resolve_to(&mut enc, staging, 0);
         enc.copy_buffer_to_buffer(&self.counters, 0, staging, TIMESTAMP_BYTES, COUNTER_BYTES);
@@ -630,7 +736,19 @@ impl Engine {
         (&self.accum_mean, &self.accum_m2)
     }
 
-    /// Linear HDR radiance of the technique's output.
+    /// The technique's output before the denoiser filtered it (None with the denoiser off,
+    /// where `read_output` is that already).
+    pub fn read_noisy_output(&self) -> Result<Option<Image>> {
+        let Some(d) = &self.denoiser else {
+            return Ok(None);
+        };
+        let [w, h] = self.extent;
+        let px: Vec<[f32; 4]> =
+            readback::read_buffer(&self.gpu, d.noisy_buffer(), (w * h) as usize)?;
+        Ok(Some(Image::from_rgba(w, h, &px)))
+    }
+
+    /// Linear HDR radiance of the technique's output (denoised when the denoiser is on).
     pub fn read_output(&self) -> Result<Image> {
         let [w, h] = self.extent;
         let px: Vec<[f32; 4]> =
@@ -662,7 +780,8 @@ impl Engine {
         Ok((image, Some(Image::from_rgba(w, h, &var))))
     }
 
-    /// The primary surfaces of the last rendered frame, when the technique uses them.
+    /// The primary surfaces of the last rendered frame, when the technique (or the denoiser)
+    /// uses them.
     pub fn read_primary_surfaces(&self) -> Result<Option<Vec<primary::PrimarySurface>>> {
         if self.primary.is_none() || self.frame_index == 0 {
             return Ok(None);

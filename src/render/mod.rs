@@ -1,6 +1,7 @@
 //! Shared per-frame inputs (FrameUniforms, G-buffer), the Technique interface and registry,
 //! ray accounting, and the headless engine that drives them.
 
+pub mod denoise;
 pub mod engine;
 pub mod gbuffer;
 pub mod params;

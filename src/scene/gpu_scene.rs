@@ -81,11 +81,7 @@ pub struct SceneData {
 
 impl SceneData {
     pub fn new(scene: &Scene) -> SceneData {
-        let tris: Vec<[Vec3; 3]> = scene
-            .triangles
-            .iter()
-            .map(|t| t.map(|i| scene.positions[i as usize]))
-            .collect();
+        let tris = scene.triangle_positions();
         let bvh = Bvh::build(&tris);
         let features = SceneFeatures::compute(scene, &bvh, &tris);
 

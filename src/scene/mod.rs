@@ -189,6 +189,13 @@ impl Scene {
         self.add_quad(b3, b0, t0, t3, material);
     }
 
+    /// Every triangle's three positions (the soup the BVH is built over).
+    pub fn triangle_positions(&self) -> Vec<[Vec3; 3]> {
+        self.triangles
+            .iter()
+            .map(|t| t.map(|i| self.positions[i as usize]))
+            .collect()
+    }
     pub fn bounds(&self) -> (Vec3, Vec3) {
         let mut lo = Vec3::splat(f32::MAX);
         let mut hi = Vec3::splat(f32::MIN);

@@ -21,6 +21,8 @@ pub struct ReferencePathTracer {
     /// `samples_per_frame` and `max_depth` of the table, typed.
     samples_per_frame: u32,
     max_depth: u32,
+    /// false: each frame shows only its own `samples_per_frame` paths (real-time experiments).
+    accumulate: bool,
     pipeline: Option<wgpu::ComputePipeline>,
     bind_group: Option<wgpu::BindGroup>,
     /// One 256-byte slot per sample of a frame, bound with a dynamic offset per dispatch.
@@ -53,6 +55,14 @@ pub const PARAMS: &[ParamSpec] = &[
         kind: ParamKind::Int { min: 0, max: 1024 },
         default: 0.0,
     },
+    ParamSpec {
+        name: "accumulate",
+        what: "average every frame since the last reset (off: each frame shows only its own samples_per_frame paths, fresh every frame: the reference at a real-time budget)",
+        higher: "on: converges to the ground truth",
+        lower: "off: one frame's noise, for per-frame real-time comparisons",
+        kind: ParamKind::Bool,
+        default: 1.0,
+    },
 ];
 const SLOT_BYTES: u64 = 256;
 /// Rays one path costs before anything is measured (camera + a few bounces with shadow rays).
@@ -64,6 +74,7 @@ impl Default for ReferencePathTracer {
             params: Params::new("reference", PARAMS),
             samples_per_frame: 1,
             max_depth: 0,
+            accumulate: true,
             pipeline: None,
             bind_group: None,
             sample_slots: None,
@@ -196,13 +207,15 @@ impl Technique for ReferencePathTracer {
         self.apply_params(ctx)
     }
 
-    /// `max_depth` travels in the technique's own uniform; `samples_per_frame` is the number of
+    /// `max_depth` and `accumulate` travel in the technique's own uniform; `samples_per_frame` is the number of
     /// dispatches, so neither needs more than a uniform write.
     fn apply_params(&mut self, ctx: &RenderContext) -> Result<()> {
         if let Some(b) = &self.settings_buffer {
-            ctx.gpu
-                .queue
-                .write_buffer(b, 0, bytemuck::cast_slice(&[self.max_depth, 0, 0, 0]));
+            ctx.gpu.queue.write_buffer(
+                b,
+                0,
+                bytemuck::cast_slice(&[self.max_depth, self.accumulate as u32, 0, 0]),
+            );
         }
         Ok(())
     }
@@ -244,6 +257,7 @@ impl Technique for ReferencePathTracer {
         self.params.set("reference", params)?;
         self.samples_per_frame = self.params.u32("samples_per_frame");
         self.max_depth = self.params.u32("max_depth");
+        self.accumulate = self.params.bool("accumulate");
         Ok(())
     }
 
