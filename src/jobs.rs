@@ -193,12 +193,7 @@ pub fn write_outputs(
     p: &LoadedPreset,
 ) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    io::write_png(
-        &dir.join(format!("{stem}.png")),
-        image,
-        p.preset.tonemap.operator,
-        p.preset.tonemap.exposure,
-    )?;
+    io::write_png(&dir.join(format!("{stem}.png")), image, &p.preset.tonemap)?;
     io::write_exr(&dir.join(format!("{stem}.exr")), image)?;
     std::fs::write(
         dir.join(format!("{stem}.json")),
@@ -213,6 +208,10 @@ pub fn shot(gpu: Arc<Gpu>, p: &LoadedPreset, out: &Path, verbose: bool) -> Resul
         let (image, meta) = render_technique(gpu.clone(), p, i, false)?;
         if verbose && i == 0 {
             println!("scene '{}': {}", meta.scene, meta.scene_features.summary());
+            println!(
+                "shading: {} (every technique; [shading] brdf)",
+                p.preset.shading.brdf.name()
+            );
         }
         if verbose {
             for pass in &meta.passes {

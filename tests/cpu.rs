@@ -761,3 +761,78 @@ fn entry_files_are_the_files_without_an_import_path() {
         "modules listed as entry files: {entries:?}"
     );
 }
+
+/// Callisto parameters come from a glTF material's extras (`gilab_callisto`); a bad key or an
+/// out-of-range value is refused naming the material; the preset's [shading] overrides them.
+#[test]
+fn callisto_parameters_from_gltf_extras_and_presets() {
+    let dir = std::env::temp_dir().join(format!("gilab-extras-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let text = std::fs::read_to_string("scenes/box-room/box-room.gltf").unwrap();
+    let doc: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let name = doc["materials"][0]["name"].as_str().unwrap().to_string();
+    let write = |extras: serde_json::Value, file: &str| {
+        let mut d = doc.clone();
+        d["materials"][0]["extras"] = extras;
+        let p = dir.join(file);
+        std::fs::write(&p, d.to_string()).unwrap();
+        p
+    };
+    let good = write(
+        serde_json::json!({"gilab_callisto": {"retroreflection": 3.0, "diffuse_fresnel_tint": [1.0, 0.8, 0.7]}, "other_tool": 1}),
+        "extras.gltf",
+    );
+    let scene = gltf_load::load(&good).unwrap();
+    let m = scene.materials.iter().find(|m| m.name == name).unwrap();
+    assert_eq!(m.callisto.retroreflection, 3.0);
+    assert_eq!(m.callisto.diffuse_fresnel_tint, [1.0, 0.8, 0.7]);
+    assert_eq!(m.callisto.smooth_terminator, 0.0);
+
+    let typo = write(
+        serde_json::json!({"gilab_callisto": {"retro": 3.0}}),
+        "typo.gltf",
+    );
+    let err = format!("{:#}", gltf_load::load(&typo).unwrap_err());
+    assert!(err.contains(&name) && err.contains("retro"), "{err}");
+    let range = write(
+        serde_json::json!({"gilab_callisto": {"smooth_terminator": 3.0}}),
+        "range.gltf",
+    );
+    let err = format!("{:#}", gltf_load::load(&range).unwrap_err());
+    assert!(
+        err.contains("smooth_terminator") && err.contains("[-1, 1]"),
+        "{err}"
+    );
+
+    // A preset's [shading] sets the model everywhere and overrides per material.
+    let preset_file = dir.join("p.toml");
+    std::fs::write(
+        &preset_file,
+        format!(
+            "[scene]\nsource = \"{}\"\n[shading]\nbrdf = \"callisto-proxima\"\n[shading.materials.\"{name}\"]\nretroreflection = 5.0\n",
+            good.display()
+        ),
+    )
+    .unwrap();
+    let p = gilab::preset::LoadedPreset::load(&preset_file).unwrap();
+    let scene = p.load_scene().unwrap();
+    let m = scene.materials.iter().find(|m| m.name == name).unwrap();
+    assert_eq!(m.brdf, gilab::scene::shading::BrdfModel::CallistoProxima);
+    assert_eq!(m.callisto.retroreflection, 5.0);
+    assert_eq!(m.callisto.diffuse_fresnel_tint, [1.0, 0.8, 0.7]);
+    std::fs::write(
+        &preset_file,
+        format!(
+            "[scene]\nsource = \"{}\"\n[shading.materials.nope]\nretroreflection = 5.0\n",
+            good.display()
+        ),
+    )
+    .unwrap();
+    let err = format!(
+        "{:#}",
+        gilab::preset::LoadedPreset::load(&preset_file)
+            .and_then(|p| p.load_scene())
+            .unwrap_err()
+    );
+    assert!(err.contains("nope") && err.contains(&name), "{err}");
+}

@@ -651,3 +651,42 @@ fn viewer_frame_timings_are_plausible_or_marked() {
     }
     assert!(seen > 0);
 }
+
+/// The BRDF slice window picks the material under the pointer (a CPU ray through the hovered
+/// pixel) and draws its slices under the three models.
+#[test]
+fn brdf_slice_window_shows_the_material_under_the_cursor() {
+    let f = fixture("brdf-slice");
+    let mut h = viewer(&f, false);
+    // Below the fold of the side panel: an accessibility click.
+    h.get_by_label("BRDF slice under the cursor")
+        .click_accesskit();
+    h.run_steps(2);
+    assert!(h.state().brdf_window.open);
+    // Sweep the pointer over the central area until it is over a pane.
+    let mut picked = None;
+    'sweep: for y in [200.0f32, 300.0, 400.0, 500.0] {
+        for x in [500.0f32, 700.0, 900.0, 1100.0] {
+            h.event(egui::Event::PointerMoved(egui::pos2(x, y)));
+            h.run_steps(2);
+            if let Some(m) = h.state().brdf_window.shown_material() {
+                picked = Some((m, x, y));
+                break 'sweep;
+            }
+        }
+    }
+    let (m, x, y) = picked.expect("no material picked anywhere over the panes");
+    let (px, py) = h.state().panels.inspected.expect("a hovered pixel");
+    let name = session(&h).scene.materials[m].name.clone();
+    eprintln!("pointer ({x}, {y}) -> pixel ({px}, {py}) -> material '{name}'");
+    // The window names it.
+    h.get_by_label_contains(&format!("material '{name}'"));
+    // For looking at it: GILAB_TEST_SCREENSHOTS=DIR saves the rendered window.
+    if let Some(dir) = std::env::var_os("GILAB_TEST_SCREENSHOTS") {
+        h.run_steps(2);
+        let image = h.render().expect("wgpu render of the window");
+        image
+            .save(Path::new(&dir).join("brdf-slice-window.png"))
+            .unwrap();
+    }
+}

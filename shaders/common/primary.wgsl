@@ -6,6 +6,7 @@
 
 #import gilab::frame::frame
 #import gilab::brdf::Surface
+#import gilab::scene::materials
 
 struct GSurface {
     // xyz: position, w: 1 valid / 0 miss.
@@ -64,7 +65,8 @@ fn reproject(p: vec3<f32>) -> i32 {
     return i32(u32(f.y) * frame.size.x + u32(f.x));
 }
 
-// The surface's BRDF parameters (alpha already squared).
+// The surface's BRDF parameters (alpha already squared; the model and Callisto's parameters
+// from its material).
 fn surface_material(s: GSurface) -> Surface {
-    return Surface(s.base_metal.xyz, s.base_metal.w, s.normal_alpha.w, s.geo_specular.w);
+    return Surface(s.base_metal.xyz, s.base_metal.w, s.normal_alpha.w, s.geo_specular.w, materials[s.material].shading);
 }

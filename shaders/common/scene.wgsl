@@ -2,6 +2,8 @@
 // Layouts must match src/scene/gpu_scene.rs (checked by a size test).
 #define_import_path gilab::scene
 
+#import gilab::brdf::Shading
+
 // Depth-first order: a hit on an interior node continues at the next node, a miss or a
 // finished leaf at `skip` (the node count at the end).
 struct BvhNode {
@@ -40,6 +42,8 @@ struct Material {
     params: vec4<f32>,
     // x: first texel, y: width, z: height, w: 1 if a base-colour texture is bound.
     base_tex: vec4<u32>,
+    // The BRDF model and Callisto's parameters.
+    shading: Shading,
 }
 
 const LIGHT_TRIANGLE: u32 = 0u;

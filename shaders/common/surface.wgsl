@@ -2,7 +2,7 @@
 #define_import_path gilab::surface
 
 #import gilab::scene::{tri_geom, tri_attr, materials, tri_material, base_color}
-#import gilab::brdf::{Surface, make_surface}
+#import gilab::brdf::{Surface, make_shaded_surface}
 #import gilab::bvh::Hit
 
 struct HitSurface {
@@ -45,6 +45,6 @@ fn hit_surface(origin: vec3<f32>, dir: vec3<f32>, hit: Hit) -> HitSurface {
     let mi = tri_material(hit.tri);
     let m = materials[mi];
     let base = base_color(m, uv);
-    let surf = make_surface(base.xyz, m.params.x, m.params.y, m.params.z);
+    let surf = make_shaded_surface(base.xyz, m.params.x, m.params.y, m.params.z, m.shading);
     return HitSurface(position, ng, ns, front, surf, mi);
 }

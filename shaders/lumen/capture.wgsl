@@ -3,7 +3,7 @@
 // box depth range clips), writing albedo, normal, emission and depth. `vs_clear` first marks
 // the whole rectangle invalid (depth 2), so a recapture leaves nothing stale behind.
 #import gilab::scene::{materials, base_color}
-#import gilab::brdf::{make_surface, diffuse_color}
+#import gilab::brdf::{make_shaded_surface, diffuse_color}
 #import gilab::lumen_card::{Card, card_uv, card_depth, card_dir}
 
 @group(1) @binding(0) var<storage, read> capture_cards: array<Card>;
@@ -63,7 +63,7 @@ fn fs_main(in: VertexOut, @builtin(front_facing) front_facing: bool) -> CaptureO
     n = select(dir, n / max(len, 1e-20), len > 1e-6);
     n = select(-n, n, dot(n, dir) >= 0.0);
     let base = base_color(m, in.uv);
-    let albedo = diffuse_color(make_surface(base.xyz, m.params.x, m.params.y, m.params.z), 1.0);
+    let albedo = diffuse_color(make_shaded_surface(base.xyz, m.params.x, m.params.y, m.params.z, m.shading), 1.0);
     var o: CaptureOut;
     o.albedo = vec4<f32>(albedo, 1.0);
     o.normal = vec4<f32>(n, 1.0);

@@ -1,7 +1,7 @@
 // Test harness for tests/brdf.rs: histograms of bsdf_sample's directions and bsdf_eval's pdf and
 // f·cos integrated over the same (theta, phi) bins, for chi-square tests of sampling against evaluation.
 #import gilab::math::PI
-#import gilab::brdf::{make_surface, bsdf_eval, bsdf_sample}
+#import gilab::brdf::{Shading, make_shaded_surface, bsdf_eval, bsdf_sample}
 #import gilab::rng::{rng_init, rand, rand_pair, STREAM_TEST}
 
 struct Params {
@@ -21,6 +21,8 @@ struct Case {
     base_metal: vec4<f32>,
     // x: roughness, y: specular factor, z: theta of wo (radians).
     misc: vec4<f32>,
+    // The BRDF model and Callisto's parameters.
+    shading: Shading,
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
@@ -51,7 +53,7 @@ fn sample_directions(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let c = cases[ci];
-    let s = make_surface(c.base_metal.xyz, c.base_metal.w, c.misc.x, c.misc.y);
+    let s = make_shaded_surface(c.base_metal.xyz, c.base_metal.w, c.misc.x, c.misc.y, c.shading);
     let wo = wo_of(c);
     var rng = rng_init(vec2<u32>(thread, ci), 0u, STREAM_TEST, params.seed);
     var sum = vec4<f32>(0.0);
@@ -88,7 +90,7 @@ fn integrate_bins(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let c = cases[ci];
-    let s = make_surface(c.base_metal.xyz, c.base_metal.w, c.misc.x, c.misc.y);
+    let s = make_shaded_surface(c.base_metal.xyz, c.base_metal.w, c.misc.x, c.misc.y, c.shading);
     let wo = wo_of(c);
     let ti = bin / params.phi_bins;
     let pi = bin % params.phi_bins;

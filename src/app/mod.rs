@@ -10,6 +10,7 @@
 //! is spent (at least one), so the UI stays interactive on slow adapters while every visible
 //! technique and the background reference make progress.
 
+pub mod brdf_window;
 pub mod camera;
 pub mod headless;
 pub mod panels;
@@ -81,6 +82,8 @@ pub struct ViewerApp {
     pub ui_frame_ms: f64,
     /// egui's wgpu renderer, to draw the panes' GPU textures (None: CPU upload path).
     pub egui_renderer: Option<views::EguiRenderer>,
+    /// The BRDF slice of the material under the cursor (opened from the side panel).
+    pub brdf_window: brdf_window::BrdfWindow,
 }
 
 impl ViewerApp {
@@ -154,6 +157,7 @@ impl ViewerApp {
             last_screenshot: None,
             ui_frame_ms: 0.0,
             egui_renderer: None,
+            brdf_window: Default::default(),
         }
     }
 
@@ -240,6 +244,9 @@ impl ViewerApp {
         panels::side_panel(self, ui);
         panels::bottom_panel(self, ui);
         views::central_panel(self, ui);
+        if let Some(s) = &self.session {
+            self.brdf_window.show(ui.ctx(), s, self.panels.inspected);
+        }
         self.ui_frame_ms = start.elapsed().as_secs_f64() * 1e3;
         if self.session.as_ref().is_some_and(|s| !s.paused) {
             ui.ctx().request_repaint();

@@ -3,7 +3,7 @@
 //! timings, rays/s).
 
 use super::{ViewerApp, ViewerOptions};
-use crate::compare::tonemap::Operator;
+use crate::compare::tonemap::{GtParams, Operator, View};
 use crate::preset::{DisplayMode, Layout};
 use crate::render::{engine::TimingSource, params::ParamKind};
 use crate::techniques::REGISTRY;
@@ -165,13 +165,28 @@ fn side_contents(app: &mut ViewerApp, ui: &mut egui::Ui) {
     ui.heading("Display");
     let tm = &mut s.preset.preset.tonemap;
     egui::ComboBox::from_label("Tonemapper")
-        .selected_text(format!("{:?}", tm.operator))
+        .selected_text(tm.operator.label())
         .show_ui(ui, |ui| {
-            for op in [Operator::Aces, Operator::Reinhard, Operator::Linear] {
-                ui.selectable_value(&mut tm.operator, op, format!("{op:?}"));
+            for op in Operator::ALL {
+                ui.selectable_value(&mut tm.operator, op, op.label());
             }
         });
     ui.add(egui::Slider::new(&mut tm.exposure, -10.0..=10.0).text("Exposure (EV)"));
+    if tm.operator == Operator::Gt {
+        gt_sliders(ui, &mut tm.gt);
+    }
+    egui::ComboBox::from_label("Zone view")
+        .selected_text(tm.view.label())
+        .show_ui(ui, |ui| {
+            for v in View::ALL {
+                ui.selectable_value(&mut tm.view, v, v.label());
+            }
+        })
+        .response
+        .on_hover_text(
+            "17 zones one stop apart, labelled by EV from zone 8, which is 18% grey after exposure. \
+             Regions: toe blue, linear grey, shoulder red.",
+        );
 
     ui.separator();
     ui.heading("Techniques");
@@ -335,6 +350,12 @@ fn side_contents(app: &mut ViewerApp, ui: &mut egui::Ui) {
     ui.separator();
     ui.heading("Scene");
     ui.label(format!("{}: {}", s.scene.name, features.summary()));
+    ui.label(format!(
+        "shading: {} (preset [shading] brdf)",
+        s.preset.preset.shading.brdf.name()
+    ));
+    ui.checkbox(&mut app.brdf_window.open, "BRDF slice under the cursor")
+        .on_hover_text("the material's (theta_h, theta_d) slice under lambert-ggx, callisto and callisto-proxima");
 
     ui.separator();
     ui.heading("Render");
@@ -497,4 +518,35 @@ fn bottom_contents(app: &mut ViewerApp, ui: &mut egui::Ui) {
                 });
             });
     });
+}
+
+/// Sliders for the GT curve's parameters. Values a preset set outside the sliders' ranges stay
+/// as they are until edited; an edit that breaks `GtParams::check` (P below m) pulls m and b
+/// back inside.
+fn gt_sliders(ui: &mut egui::Ui, g: &mut GtParams) {
+    gt_slider(ui, &mut g.max_brightness, 0.25..=4.0, "GT P max brightness");
+    gt_slider(ui, &mut g.contrast, 0.1..=3.0, "GT a contrast");
+    let m_max = 0.95 * g.max_brightness;
+    gt_slider(ui, &mut g.linear_start, 0.01..=m_max, "GT m linear start");
+    gt_slider(ui, &mut g.linear_length, 0.0..=0.95, "GT l linear length");
+    gt_slider(
+        ui,
+        &mut g.black_tightness,
+        0.1..=3.0,
+        "GT c black tightness",
+    );
+    let b_max = 0.5 * g.linear_start;
+    gt_slider(ui, &mut g.pedestal, 0.0..=b_max, "GT b pedestal");
+    if g.check().is_err() {
+        g.linear_start = g.linear_start.clamp(0.01, m_max);
+        g.pedestal = g.pedestal.clamp(0.0, 0.5 * g.linear_start);
+    }
+    if ui.button("GT defaults (Uchimura)").clicked() {
+        *g = GtParams::default();
+    }
+}
+
+fn gt_slider(ui: &mut egui::Ui, v: &mut f32, range: std::ops::RangeInclusive<f32>, text: &str) {
+    let slider = egui::Slider::new(v, range).clamping(egui::SliderClamping::Edits);
+    ui.add(slider.text(text));
 }

@@ -871,8 +871,7 @@ impl Session {
         let images = run.cpu_images(pane.display == DisplayMode::Debug).ok()?;
         if pane.display == DisplayMode::Radiance {
             let tonemap = &self.preset.preset.tonemap;
-            let rgba =
-                compare::tonemap::to_srgb8(&images.radiance, tonemap.operator, tonemap.exposure);
+            let rgba = compare::tonemap::to_srgb8(&images.radiance, tonemap);
             return Some((rgba, images.radiance, None));
         }
         let values = self.values_of(pane, &images)?;
@@ -928,8 +927,7 @@ impl Session {
         };
         Some(DisplaySettings {
             kind,
-            operator: tonemap.operator,
-            exposure_ev: tonemap.exposure,
+            tonemap: *tonemap,
             channel,
             range: None,
         })

@@ -42,7 +42,7 @@ struct TextureKey {
     display: DisplayMode,
     debug: usize,
     version: u64,
-    tonemap: (u32, u32),
+    tonemap: crate::compare::tonemap::Settings,
     /// The histogram range the GPU display uses (a new one displays again).
     range: Option<(u32, u32)>,
     reference: bool,
@@ -109,7 +109,7 @@ impl PaneTextures {
                     display: p.display,
                     debug: p.debug,
                     version: run.version,
-                    tonemap: (tm.operator as u32, tm.exposure.to_bits()),
+                    tonemap: *tm,
                     range: target.range.map(|(a, b)| (a.to_bits(), b.to_bits())),
                     reference: s.reference.on_gpu,
                 };
@@ -135,7 +135,7 @@ impl PaneTextures {
                     display: p.display,
                     debug: p.debug,
                     version: run.version,
-                    tonemap: (tm.operator as u32, tm.exposure.to_bits()),
+                    tonemap: *tm,
                     range: None,
                     reference: s.reference.on_gpu,
                 };

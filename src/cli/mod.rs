@@ -3,6 +3,7 @@
 //! takes a preset (optional: the built-in default is the Cornell box) and overrides for it.
 
 pub mod bench;
+pub mod brdf_slice;
 
 use crate::compare::{io, metrics};
 use crate::gpu::{BackendChoice, Gpu};
@@ -88,6 +89,9 @@ pub enum Command {
     /// Error of image A against reference B (linear HDR): MSE, relMSE, SMAPE, and LDR-FLIP
     /// after the default display transform (ACES, 0 EV).
     Compare { image: PathBuf, reference: PathBuf },
+    /// BRDF slice images (θh across, θd down) of the shading models: PNG and EXR (f·π) per
+    /// model and a side-by-side PNG, from the WGSL every technique shades with.
+    BrdfSlice(brdf_slice::SliceArgs),
     /// Print every technique's parameters (name, what it does, higher/lower, range, default) as
     /// the Markdown tables of the README's "Technique parameters" section.
     Params,
@@ -180,8 +184,7 @@ pub fn run(cli: Cli) -> Result<()> {
             let flip = crate::compare::flip::ldr_flip(
                 &a,
                 &b,
-                crate::compare::tonemap::Operator::Aces,
-                0.0,
+                &crate::compare::tonemap::Settings::default(),
             )?;
             println!(
                 "MSE {:.6e}  relMSE {:.6e}  SMAPE {:.6e}  FLIP {:.6e}",
@@ -224,6 +227,7 @@ pub fn run(cli: Cli) -> Result<()> {
             println!("report: {}", out.join("report.md").display());
             Ok(())
         }
+        Some(Command::BrdfSlice(args)) => brdf_slice::run(&args, cli.backend),
         Some(Command::Params) => {
             print!("{}", crate::techniques::params_markdown());
             Ok(())

@@ -6,7 +6,7 @@
 //! a test renders both and compares them.
 
 use super::heatmap::{self, HIST_BINS};
-use super::tonemap::Operator;
+use super::tonemap;
 use super::Metrics;
 use crate::gpu::{readback::StagingRead, shaders::ShaderLibrary, Gpu};
 use crate::render::pipelines;
@@ -22,6 +22,9 @@ pub enum DisplayKind {
     Samples = 3,
     DebugValue = 4,
     DebugId = 5,
+    /// Test probe: the tone curve of the red channel (after exposure) as f32 bits per pixel
+    /// instead of RGBA8, so tests can compare the GPU curve with `tonemap::curve` in float.
+    ToneCurve = 6,
 }
 
 impl DisplayKind {
@@ -47,8 +50,8 @@ pub struct DisplaySource<'a> {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DisplaySettings {
     pub kind: DisplayKind,
-    pub operator: Operator,
-    pub exposure_ev: f32,
+    /// Tone curve, exposure and zone view (Radiance, ToneCurve).
+    pub tonemap: tonemap::Settings,
     /// Debug channel (DebugValue, DebugId).
     pub channel: usize,
     /// log10 range of a heatmap; None: the target's last histogram range (or a default).
@@ -67,7 +70,11 @@ struct DisplayParams {
     channel: u32,
     samples: f32,
     row_words: u32,
-    pad: [u32; 2],
+    /// tonemap::View as u32.
+    view: u32,
+    /// GT curve: P, a, m, l, c, b.
+    gt: [f32; 6],
+    pad: [u32; 3],
 }
 
 #[repr(C)]
@@ -316,14 +323,26 @@ impl GpuCompare {
         let params = DisplayParams {
             size: src.extent,
             mode: kind as u32,
-            operator: settings.operator as u32,
-            exposure_scale: 2f32.powf(settings.exposure_ev),
+            operator: settings.tonemap.operator as u32,
+            exposure_scale: 2f32.powf(settings.tonemap.exposure),
             range_lo: range.0,
             range_hi: range.1,
             channel: settings.channel as u32,
             samples: src.samples as f32,
             row_words: row_words(w),
-            pad: [0; 2],
+            view: settings.tonemap.view.index(),
+            gt: {
+                let g = &settings.tonemap.gt;
+                [
+                    g.max_brightness,
+                    g.contrast,
+                    g.linear_start,
+                    g.linear_length,
+                    g.black_tightness,
+                    g.pedestal,
+                ]
+            },
+            pad: [0; 3],
         };
         let uniforms = gpu
             .device
@@ -375,8 +394,11 @@ impl GpuCompare {
                 depth_or_array_layers: 1,
             },
         );
-        target.shown_range =
-            (kind != DisplayKind::Radiance && kind != DisplayKind::DebugId).then_some(range);
+        let has_range = !matches!(
+            kind,
+            DisplayKind::Radiance | DisplayKind::DebugId | DisplayKind::ToneCurve
+        );
+        target.shown_range = has_range.then_some(range);
         true
     }
 

@@ -34,18 +34,14 @@ pub fn ldr_flip_srgb8(test: &[u8], reference: &[u8], width: u32, height: u32) ->
 }
 
 /// Mean LDR-FLIP of `image` against `reference` after the display transform.
-pub fn ldr_flip(
-    image: &Image,
-    reference: &Image,
-    op: tonemap::Operator,
-    exposure_ev: f32,
-) -> Result<f64> {
+pub fn ldr_flip(image: &Image, reference: &Image, tm: &tonemap::Settings) -> Result<f64> {
     ensure!(
         image.width == reference.width && image.height == reference.height,
         "image sizes differ"
     );
     let rgb = |img: &Image| -> Vec<u8> {
-        tonemap::to_srgb8(img, op, exposure_ev)
+        // The curve and exposure only: a zone view is for looking, not for scoring.
+        tonemap::to_srgb8(img, &tm.normal())
             .chunks_exact(4)
             .flat_map(|p| [p[0], p[1], p[2]])
             .collect()

@@ -30,13 +30,8 @@ pub fn read_exr(path: &Path) -> Result<HdrImage> {
     Ok(image.layer_data.channel_data.pixels)
 }
 
-pub fn write_png(
-    path: &Path,
-    img: &HdrImage,
-    op: tonemap::Operator,
-    exposure_ev: f32,
-) -> Result<()> {
-    let rgba = tonemap::to_srgb8(img, op, exposure_ev);
+pub fn write_png(path: &Path, img: &HdrImage, tm: &tonemap::Settings) -> Result<()> {
+    let rgba = tonemap::to_srgb8(img, tm);
     write_png_rgba(path, img.width, img.height, rgba)
 }
 

@@ -1,5 +1,6 @@
 //! Images, error metrics against a reference, tonemapping and image files.
 
+pub mod brdf_probe;
 pub mod display;
 pub mod flip;
 pub mod heatmap;

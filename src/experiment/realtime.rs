@@ -115,6 +115,15 @@ impl CpuScene {
         CpuScene { tris, bvh }
     }
 
+    /// Original index of the triangle seen through a pixel position (in pixels), if any: the
+    /// viewer's "material under the cursor".
+    pub fn pick(&self, camera: &Camera, extent: [u32; 2], px: f32, py: f32) -> Option<u32> {
+        let dir = ray_dir(camera, extent, px, py);
+        self.bvh
+            .closest_hit(&self.tris, camera.position, dir, f32::MAX)
+            .map(|(_, tri)| tri)
+    }
+
     fn closest(&self, origin: Vec3, dir: Vec3, t_max: f32) -> Option<f32> {
         self.bvh
             .closest_hit(&self.tris, origin, dir, t_max)
@@ -191,8 +200,8 @@ pub fn reprojection_map(
 /// Per pixel luminance of the displayed image (the preset's exposure and tone curve, sRGB
 /// encoded): flicker is judged on what the screen shows, so a firefly counts as far as it
 /// changes the displayed pixel.
-pub fn display_luminance(image: &Image, op: tonemap::Operator, exposure: f32) -> Vec<f32> {
-    let scale = 2f32.powf(exposure);
+pub fn display_luminance(image: &Image, tm: &tonemap::Settings) -> Vec<f32> {
+    let scale = 2f32.powf(tm.exposure);
     image
         .rgb
         .chunks_exact(3)
@@ -201,7 +210,7 @@ pub fn display_luminance(image: &Image, op: tonemap::Operator, exposure: f32) ->
                 .iter()
                 .map(|v| {
                     let v = if v.is_finite() { *v } else { 0.0 };
-                    tonemap::linear_to_srgb(tonemap::curve(op, v * scale))
+                    tonemap::linear_to_srgb(tm.curve(v * scale))
                 })
                 .collect();
             0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]

@@ -220,8 +220,7 @@ pub fn converge(gpu: Arc<Gpu>, p: &LoadedPreset, opts: &ConvergeOptions) -> Resu
         io::write_png(
             &opts.out.join("runs").join(format!("{name}.png")),
             reference,
-            p.preset.tonemap.operator,
-            p.preset.tonemap.exposure,
+            &p.preset.tonemap,
         )?;
     }
     let mine: Vec<&RunSpec> = runs
@@ -270,7 +269,7 @@ pub fn converge(gpu: Arc<Gpu>, p: &LoadedPreset, opts: &ConvergeOptions) -> Resu
             .collect::<std::collections::BTreeSet<_>>()
             .into_iter()
             .collect(),
-        tonemap: p.preset.tonemap.clone(),
+        tonemap: p.preset.tonemap,
         settings: exp.clone(),
         total_runs: runs.len(),
         shards: opts.shard.into_iter().collect(),
@@ -418,14 +417,14 @@ fn real_time_plan(
     bar.finish_and_clear();
     let reprojection =
         realtime::reprojection_maps(&states[0].scene, &cameras, every, p.preset.render.size);
-    let (op, ev) = (p.preset.tonemap.operator, p.preset.tonemap.exposure);
+    let tm = p.preset.tonemap;
     let mut reference_flicker = BTreeMap::new();
     for (f, map) in &reprojection {
         let (Some(cur), Some(prev)) = (references.get(f), references.get(&(f - 1))) else {
             continue;
         };
-        let cur = realtime::display_luminance(cur, op, ev);
-        let prev = realtime::display_luminance(prev, op, ev);
+        let cur = realtime::display_luminance(cur, &tm);
+        let prev = realtime::display_luminance(prev, &tm);
         if let Some(v) = realtime::flicker(&cur, &prev, map.as_deref()) {
             reference_flicker.insert(*f, v);
         }
@@ -475,7 +474,7 @@ fn run_one(
         settings,
     )?;
     let pixels = (engine.extent[0] * engine.extent[1]) as f64;
-    let (op, ev) = (p.preset.tonemap.operator, p.preset.tonemap.exposure);
+    let tonemap = p.preset.tonemap;
     let image_bytes = engine.output_buffers().0.size();
     let every = exp.error_every.max(1);
     // Frames whose image is copied for scoring (real-time mode: also the frame before each
@@ -541,7 +540,8 @@ fn run_one(
         } else if exp.seconds > 0.0 {
             // A time budget may end the run on any frame: keep the last few frames too.
             let slot = f as usize % (crate::render::engine::FRAMES_IN_FLIGHT + 1);
-            if recent.len() <= slot {
+            // Scored frames skip slots (error_every > 1): fill every slot up to this one.
+            while recent.len() <= slot {
                 recent.push((None, copy_buffer("recent frame")));
             }
             recent[slot].0 = Some((f, state));
@@ -571,7 +571,7 @@ fn run_one(
         if chunk_full && stop_at.is_none() && f < exp.frames {
             evaluate(
                 gpu,
-                (op, ev),
+                tonemap,
                 &mut copies,
                 &costs,
                 (states, plan),
@@ -620,7 +620,7 @@ fn run_one(
     }
     evaluate(
         gpu,
-        (op, ev),
+        tonemap,
         &mut copies,
         &costs,
         (states, plan),
@@ -722,7 +722,7 @@ const CHUNK_BYTES: u64 = 512 << 20;
 #[allow(clippy::too_many_arguments)]
 fn evaluate(
     gpu: &Gpu,
-    tonemap: (crate::compare::tonemap::Operator, f32),
+    tonemap: crate::compare::tonemap::Settings,
     copies: &mut Vec<(u32, usize, wgpu::Buffer)>,
     costs: &[(crate::render::engine::FrameResult, f64, f64)],
     (states, plan): (&[SceneState], Option<&RealTimePlan>),
@@ -751,7 +751,7 @@ fn evaluate(
             *last_image = Some(image);
             continue;
         };
-        let luminance = realtime::display_luminance(&image, tonemap.0, tonemap.1);
+        let luminance = realtime::display_luminance(&image, &tonemap);
         if plan.frame_use(frame) == FrameUse::Scored {
             let reference = plan
                 .references
@@ -775,13 +775,13 @@ fn evaluate(
 fn score_row(
     image: &Image,
     reference: &Image,
-    tonemap: (crate::compare::tonemap::Operator, f32),
+    tonemap: crate::compare::tonemap::Settings,
     state: usize,
     frame: u32,
     cost: &(crate::render::engine::FrameResult, f64, f64),
 ) -> Result<Row> {
     let m = metrics::compare(image, reference)?;
-    let flip = flip::ldr_flip(image, reference, tonemap.0, tonemap.1)?;
+    let flip = flip::ldr_flip(image, reference, &tonemap)?;
     let (done, gpu_cum, wall_cum) = cost;
     let rays = &done.rays;
     let pixels = (image.width * image.height) as f64;

@@ -5,7 +5,7 @@
 
 pub mod experiment;
 
-use crate::compare::tonemap::Operator;
+use crate::scene::shading::ShadingSettings;
 use crate::scene::{builtin, gltf_load, Camera, Scene};
 use anyhow::{anyhow, bail, Context, Result};
 use serde::{Deserialize, Serialize};
@@ -22,6 +22,9 @@ pub struct Preset {
     pub render: RenderSettings,
     #[serde(default)]
     pub tonemap: TonemapSettings,
+    /// The BRDF every technique shades with, and Callisto parameter overrides.
+    #[serde(default, skip_serializing_if = "ShadingSettings::is_default")]
+    pub shading: ShadingSettings,
     #[serde(default = "default_techniques")]
     pub techniques: Vec<TechniqueEntry>,
     /// How the viewer shows the techniques (ignored by headless commands).
@@ -183,15 +186,9 @@ pub struct RenderSettings {
     pub reference_spp: u32,
 }
 
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields)]
-pub struct TonemapSettings {
-    #[serde(default)]
-    pub operator: Operator,
-    /// Exposure in EV stops (+1 doubles the brightness).
-    #[serde(default)]
-    pub exposure: f32,
-}
+/// `[tonemap]`: operator, exposure, the GT curve's parameters and the zone view (defined
+/// beside the display transform in compare/tonemap.rs).
+pub use crate::compare::tonemap::Settings as TonemapSettings;
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -254,15 +251,6 @@ impl Default for RenderSettings {
     }
 }
 
-impl Default for TonemapSettings {
-    fn default() -> Self {
-        TonemapSettings {
-            operator: Operator::Aces,
-            exposure: 0.0,
-        }
-    }
-}
-
 /// Command-line overrides of a preset.
 #[derive(Clone, Debug, Default, clap::Args)]
 pub struct Overrides {
@@ -280,7 +268,8 @@ pub struct Overrides {
     pub spp: Option<u32>,
     #[arg(long)]
     pub seed: Option<u32>,
-    /// Set any preset key: `render.seed=3`, `scene.params.albedo=0.5`, `tonemap.exposure=1`;
+    /// Set any preset key: `render.seed=3`, `scene.params.albedo=0.5`, `tonemap.exposure=1`,
+    /// `shading.brdf="callisto"`;
     /// a key without a section (`max_depth=4`) sets that parameter on every technique.
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
@@ -398,6 +387,7 @@ impl LoadedPreset {
                 "camera",
                 "render",
                 "tonemap",
+                "shading",
                 "techniques",
                 "view",
                 "experiment",
@@ -441,8 +431,14 @@ impl LoadedPreset {
         })
     }
 
-    /// Builds the scene the preset names.
+    /// Builds the scene the preset names, with the preset's shading model applied.
     pub fn load_scene(&self) -> Result<Scene> {
+        let mut scene = self.load_scene_as_authored()?;
+        self.preset.shading.apply(&mut scene)?;
+        Ok(scene)
+    }
+
+    fn load_scene_as_authored(&self) -> Result<Scene> {
         let src = &self.preset.scene.source;
         let Some(path) = self.scene_path() else {
             return builtin::build(src, &self.preset.scene.params);

@@ -12,6 +12,7 @@ pub const NAMES: &[(&str, &str)] = &[
     ("thin-wall", "a sunlit exterior and a closed room of zero-thickness walls; `interior_light` 0 makes any light inside a leak"),
     ("glossy", "metal spheres of roughness 0, 0.1, 0.3, 0.7 before a mirror wall, under an area light"),
     ("courtyard", "an open porch beside a sunlit yard under a blue sky: the roof shadows the porch from the sun, wall lamps of radiance `lamp` (15) and a lantern light it; every light class (local, directional, sky); `sun` and `sky` scale the sun and the sky (1)"),
+    ("material-balls", "the Callisto talk's fitted materials (black soft plastic, blue fabric, yellow phenolic, yellow plastic, gold metallic paint, light red paint) as spheres under a grazing key light and a back light: the BRDF models' differences (diffuse Fresnel, retroreflection, terminator) where they show"),
     ("hard-cases", "degenerate triangles, zero normals, roughness 0/1, metallic 1, a light inside a box, emission `emission` (1e6), grazing camera"),
 ];
 
@@ -97,6 +98,7 @@ pub fn build(name: &str, params: &toml::Table) -> Result<Scene> {
         }
         "thin-wall" => thin_wall(p.f32("interior_light", 0.6)?),
         "glossy" => glossy(),
+        "material-balls" => material_balls(),
         "hard-cases" => hard_cases(p.f32("emission", 1e6)?),
         "courtyard" => courtyard(p.f32("lamp", 15.0)?, p.f32("sun", 1.0)?, p.f32("sky", 1.0)?),
         other => {
@@ -793,6 +795,68 @@ pub fn courtyard(lamp: f32, sun: f32, sky: f32) -> Scene {
         target: v(0.0, 1.4, -2.0),
         up: Vec3::Y,
         fov_y: 55.0,
+    });
+    s
+}
+
+/// Six spheres with the talk's Callisto fits (each material named after its fit, with its
+/// parameters: they apply under `[shading] brdf = "callisto"` or "callisto-proxima", and
+/// lambert-ggx ignores them), a grey floor and back wall, a key light from the side at a
+/// grazing angle (terminators), a back light (Fresnel) and a dim sky.
+pub fn material_balls() -> Scene {
+    use super::shading::{callisto_fit, CALLISTO_FITS};
+    let mut s = Scene::new("material-balls");
+    let v = Vec3::new;
+    let grey = s.add_material(Material::lambert("floor", Vec3::splat(0.35)));
+    s.add_quad(
+        v(-8.0, 0.0, -4.0),
+        v(-8.0, 0.0, 6.0),
+        v(8.0, 0.0, 6.0),
+        v(8.0, 0.0, -4.0),
+        grey,
+    );
+    s.add_quad(
+        v(-8.0, 0.0, -3.0),
+        v(8.0, 0.0, -3.0),
+        v(8.0, 5.0, -3.0),
+        v(-8.0, 5.0, -3.0),
+        grey,
+    );
+    for (i, name) in CALLISTO_FITS.iter().enumerate() {
+        let f = callisto_fit(name).expect("fit table");
+        let m = s.add_material(Material {
+            metallic: f.metallic,
+            roughness: f.roughness,
+            specular: f.specular,
+            callisto: f.callisto,
+            ..Material::lambert(name, f.base)
+        });
+        add_uv_sphere(&mut s, v(-5.0 + 2.0 * i as f32, 0.8, 0.0), 0.8, m, 32, 64);
+    }
+    // Key light low on the left: the terminator runs down the middle of each ball.
+    s.lights.push(PunctualLight {
+        kind: PunctualKind::Directional,
+        position: Vec3::ZERO,
+        direction: v(1.0, -0.35, -0.25).normalize(),
+        intensity: Vec3::splat(3.0),
+        inner_cone: 0.0,
+        outer_cone: 0.0,
+    });
+    // Back light above and behind the balls: grazing light towards the camera (Fresnel).
+    s.lights.push(PunctualLight {
+        kind: PunctualKind::Point,
+        position: v(0.0, 3.0, -2.5),
+        direction: Vec3::NEG_Y,
+        intensity: Vec3::splat(25.0),
+        inner_cone: 0.0,
+        outer_cone: 0.0,
+    });
+    s.sky = Vec3::splat(0.1);
+    s.camera = Some(Camera {
+        position: v(0.0, 1.6, 7.5),
+        target: v(0.0, 0.8, 0.0),
+        up: Vec3::Y,
+        fov_y: 45.0,
     });
     s
 }

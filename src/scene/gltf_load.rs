@@ -42,6 +42,8 @@ fn load_inner(path: &Path) -> Result<Scene> {
         emissive: Vec3::ZERO,
         specular: 1.0,
         double_sided: false,
+        brdf: Default::default(),
+        callisto: Default::default(),
     });
 
     let gltf_scene = doc
@@ -113,6 +115,7 @@ fn read_material(m: &gltf::Material, image_count: usize) -> Result<Material> {
             m.name().unwrap_or("?")
         );
     }
+    let callisto = read_callisto_extras(m)?;
     Ok(Material {
         name: m.name().unwrap_or("unnamed").to_string(),
         base_color: Vec4::from_array(pbr.base_color_factor()),
@@ -122,7 +125,29 @@ fn read_material(m: &gltf::Material, image_count: usize) -> Result<Material> {
         emissive,
         specular,
         double_sided: m.double_sided(),
+        brdf: Default::default(),
+        callisto,
     })
+}
+
+/// Callisto parameters from the material's extras: `"extras": {"gilab_callisto": {...}}` with the
+/// preset's key names (`retroreflection`, `diffuse_fresnel_tint`, ...); other extras are ignored.
+fn read_callisto_extras(m: &gltf::Material) -> Result<crate::scene::shading::CallistoParams> {
+    let mut p = crate::scene::shading::CallistoParams::default();
+    let Some(raw) = m.extras() else {
+        return Ok(p);
+    };
+    let name = m.name().unwrap_or("?");
+    let extras: serde_json::Value = serde_json::from_str(raw.get())
+        .map_err(|e| anyhow::anyhow!("material '{name}': extras are not JSON: {e}"))?;
+    if let Some(c) = extras.get("gilab_callisto") {
+        let o: crate::scene::shading::CallistoOverrides = serde_json::from_value(c.clone())
+            .map_err(|e| anyhow::anyhow!("material '{name}': extras.gilab_callisto: {e}"))?;
+        o.apply(&mut p);
+        p.check()
+            .map_err(|e| anyhow::anyhow!("material '{name}': extras.gilab_callisto: {e}"))?;
+    }
+    Ok(p)
 }
 
 fn add_mesh(

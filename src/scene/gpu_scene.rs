@@ -30,6 +30,8 @@ pub struct GpuMaterial {
     pub emissive: [f32; 4],
     pub params: [f32; 4],
     pub base_tex: [u32; 4],
+    /// Callisto parameters and the BRDF model (layout: shaders/common/brdf.wgsl `Shading`).
+    pub shading: [[f32; 4]; 5],
 }
 
 pub const LIGHT_TRIANGLE: u32 = 0;
@@ -125,6 +127,7 @@ impl SceneData {
                         0.0,
                     ],
                     base_tex,
+                    shading: m.callisto.gpu_words(m.brdf),
                 }
             })
             .collect();

@@ -6,6 +6,7 @@ pub mod bvh;
 pub mod features;
 pub mod gltf_load;
 pub mod gpu_scene;
+pub mod shading;
 
 use anyhow::Result;
 use glam::{Vec2, Vec3, Vec4};
@@ -25,6 +26,10 @@ pub struct Material {
     pub specular: f32,
     /// Emission goes both ways only when the material is double-sided.
     pub double_sided: bool,
+    /// The BRDF model (set for all materials by the preset's `[shading] brdf`).
+    pub brdf: shading::BrdfModel,
+    /// Callisto parameters (glTF extras `gilab_callisto`, preset `[shading]` overrides).
+    pub callisto: shading::CallistoParams,
 }
 
 impl Material {
@@ -38,6 +43,8 @@ impl Material {
             emissive: Vec3::ZERO,
             specular: 0.0,
             double_sided: false,
+            brdf: shading::BrdfModel::default(),
+            callisto: shading::CallistoParams::default(),
         }
     }
     pub fn emitter(name: &str, radiance: Vec3) -> Material {

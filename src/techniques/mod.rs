@@ -2,6 +2,7 @@
 //! the shared inputs (scene, frame uniforms and counters, primary surfaces) and at their linear
 //! HDR output. The registry below is the one table a new technique is added to.
 
+pub mod callisto_shadows;
 pub mod lumen;
 pub mod reference;
 pub mod restir;
@@ -37,6 +38,11 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         id: "lumen",
         what: "Lumen-style GI: global distance field clipmaps and surface cache cards (direct + multi-bounce indirect through feedback), rays traced through the SDF or the BVH; final gather by screen probes (screen traces first, world radiance cache optional) or per pixel",
         create: || Box::new(lumen::Lumen::default()),
+    },
+    TechniqueInfo {
+        id: "callisto-shadows",
+        what: "Callisto Protocol ray-traced shadows: one shadow ray per light per pixel from 16x16 tile light lists (depth-bounds and cone culling), variable rate per light and 2x2 quad with bilateral reconstruction, power-sampled tail rays for the lights outside the list, temporally accumulated shadow mask of the punctual lights; optional ReSTIR GI for indirect light",
+        create: || Box::new(callisto_shadows::CallistoShadows::default()),
     },
 ];
 

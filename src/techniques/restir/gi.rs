@@ -44,7 +44,7 @@ impl Gi {
 }
 
 impl RestirLighting {
-    pub(super) fn gi_passes(&self) -> [PassInfo; 2] {
+    pub fn gi_passes(&self) -> [PassInfo; 2] {
         let s = &self.settings;
         [
             PassInfo {

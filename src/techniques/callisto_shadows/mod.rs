@@ -1,0 +1,472 @@
+//! # Callisto shadows (`callisto-shadows`)
+//!
+//! Direct light with one shadow ray per light per pixel, the pure ray-traced shadows of "The
+//! Rendering of The Callisto Protocol" (SIGGRAPH 2023, shared/seeds/002: RAYTRACED SHADOWS,
+//! variable rate, culling, denoising), on the engine's primary surfaces. Per frame:
+//!
+//! 1. `cull` (one workgroup per 16×16 tile): the tile's depth bounds, point box and normal
+//!    cone; every light of the pool is tested (its range sphere against the tile frustum cut to
+//!    the depth bounds and against the box, then cone culling) and the survivors written as the
+//!    tile's compacted list, sorted by light index; a list that would overflow keeps the
+//!    lights with the highest bound on their irradiance at the tile. Lights are the scene's light pool: point,
+//!    spot and directional lights and emissive triangles (one area sample per light per pixel).
+//!    Ranges come from `range_cutoff`: range = sqrt(intensity / cutoff).
+//! 2. `shadows` (one workgroup per tile): per light of the list, the rate of each 2×2 quad
+//!    chosen last frame (quarter / half / full), the traced pixels' shadow rays, the bilateral
+//!    reconstruction of the skipped ones, the unshadowed contribution times visibility, and the
+//!    rates for next frame from the shadow variance weighted by perceptual importance; then
+//!    `tail_samples` power-sampled shadow rays for the lights outside the list (list + tail is
+//!    unbiased whatever the ranges).
+//! 3. `luminance_mean`: the mean scene luminance the next frame's weighting uses.
+//! 4. `resolve` (per pixel): the punctual lights' shadow mask, the ratio of their shadowed and
+//!    unshadowed direct light each averaged over frames, with a disocclusion blur that shrinks
+//!    with the frames since, times this frame's (exact) unshadowed light, plus the sampled
+//!    lights (emissive triangles, tail) as traced; with `gi`, ReSTIR GI's sample adds indirect light; the engine's
+//!    progressive average.
+//!
+//! Shaders: shaders/callisto_shadows/*.wgsl, shared state in shared.wgsl (group 3; group 2 is
+//! ReSTIR's for `resolve`, empty for the others).
+
+mod params;
+
+pub use params::{CallistoParamsGpu, CallistoSettings, MAX_LIGHTS_PER_TILE, PARAMS, RATES};
+
+use crate::gpu::{timing::PassTimer, Gpu};
+use crate::render::params::Params;
+use crate::render::primary::FrameInputs;
+use crate::render::{pipelines, DebugView, PassInfo, RenderContext, Technique};
+use crate::scene::features::SceneFeatures;
+use crate::techniques::restir::{self, RestirLighting, RestirSettings};
+use anyhow::Result;
+
+/// Screen tile edge in pixels (`TILE` in shared.wgsl).
+pub const TILE: u32 = 16;
+const CULL: &str = "callisto_shadows/cull.wgsl";
+const SHADOWS: &str = "callisto_shadows/shadows.wgsl";
+const MEAN: &str = "callisto_shadows/luminance_mean.wgsl";
+const RESOLVE: &str = "callisto_shadows/resolve.wgsl";
+
+struct Pipelines {
+    cull: wgpu::ComputePipeline,
+    shadows: wgpu::ComputePipeline,
+    mean: wgpu::ComputePipeline,
+    resolve: wgpu::ComputePipeline,
+}
+
+struct Resources {
+    bind_group: wgpu::BindGroup,
+    /// Cleared on a history reset: tile lists, rates, stats, shadow-mask history.
+    clear_on_reset: Vec<wgpu::Buffer>,
+    debug: wgpu::Buffer,
+    tiles: [u32; 2],
+}
+
+pub struct CallistoShadows {
+    params: Params,
+    pub settings: CallistoSettings,
+    /// ReSTIR GI for `gi` (pipelines built the first time it is on; its resources always, for
+    /// `resolve`'s group 2).
+    restir: RestirLighting,
+    restir_built: bool,
+    layout: Option<wgpu::BindGroupLayout>,
+    empty: Option<(wgpu::BindGroupLayout, wgpu::BindGroup)>,
+    pipelines: Option<Pipelines>,
+    res: Option<Resources>,
+    /// Lights in the scene's pool, for the pass list.
+    lights: usize,
+}
+
+impl Default for CallistoShadows {
+    fn default() -> Self {
+        let params = Params::new("callisto-shadows", PARAMS);
+        let settings = CallistoSettings::from_params(&params);
+        CallistoShadows {
+            restir: RestirLighting::new(restir_gi_settings(settings.gi)),
+            restir_built: false,
+            settings,
+            params,
+            layout: None,
+            empty: None,
+            pipelines: None,
+            res: None,
+            lights: 0,
+        }
+    }
+}
+
+/// ReSTIR with GI only: no DI candidates of any class (no DI passes run), no ReGIR.
+fn restir_gi_settings(gi: bool) -> RestirSettings {
+    let mut s = RestirSettings::from_params(&Params::new("restir", restir::PARAMS));
+    s.candidates = 0;
+    s.directional_candidates = 0;
+    s.sky_candidates = 0;
+    s.regir = false;
+    s.gi = gi;
+    s
+}
+
+impl CallistoShadows {
+    fn layout(&mut self, gpu: &Gpu) -> wgpu::BindGroupLayout {
+        self.layout
+            .get_or_insert_with(|| {
+                let mut entries = vec![pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE)];
+                for b in 1..=6 {
+                    entries.push(pipelines::storage_entry(b, false));
+                }
+                pipelines::layout(gpu, "callisto", &entries)
+            })
+            .clone()
+    }
+
+    fn empty(&mut self, gpu: &Gpu) -> (wgpu::BindGroupLayout, wgpu::BindGroup) {
+        self.empty
+            .get_or_insert_with(|| {
+                let layout = pipelines::layout(gpu, "callisto empty", &[]);
+                let bg = pipelines::buffers_bind_group(gpu, "callisto empty", &layout, &[]);
+                (layout, bg)
+            })
+            .clone()
+    }
+
+    /// Builds ReSTIR GI's pipelines when `gi` is on and they are not built yet; its resources
+    /// (the bind group `resolve` needs) in any case.
+    fn ensure_restir(&mut self, ctx: &RenderContext) -> Result<()> {
+        self.restir.settings = restir_gi_settings(self.settings.gi);
+        if self.settings.gi && !self.restir_built {
+            self.restir.build(ctx)?;
+            self.restir_built = true;
+        } else {
+            self.restir.build_resources(ctx);
+        }
+        Ok(())
+    }
+
+    /// Light slots per tile: the setting, or fewer where the rate buffer (2 x tiles x slots x
+    /// 16 B) would pass a 128 MiB binding (above 1080p with 512 slots).
+    fn slots(&self, tiles: [u32; 2]) -> u32 {
+        let tile_count = (tiles[0] as u64 * tiles[1] as u64).max(1);
+        let fit = (128u64 << 20) / (2 * tile_count * 16);
+        (self.settings.max_lights_per_tile as u64).min(fit).max(1) as u32
+    }
+
+    fn gpu_params(&self, tiles: [u32; 2], pixels: u32) -> CallistoParamsGpu {
+        let s = &self.settings;
+        CallistoParamsGpu {
+            tiles_x: tiles[0],
+            tiles_y: tiles[1],
+            max_lights: self.slots(tiles),
+            rate_mode: s.rate,
+            range_cutoff: s.range_cutoff,
+            cone_culling: s.cone_culling as u32,
+            half_threshold: s.half_threshold,
+            full_threshold: s.full_threshold,
+            perceptual: s.perceptual,
+            border_depth: s.border_depth,
+            denoise: s.denoise as u32,
+            max_history: s.max_history,
+            blur_radius: s.blur_radius,
+            accumulate: s.accumulate as u32,
+            gi: s.gi as u32,
+            pixels,
+            tail_samples: s.tail_samples,
+            pad: [0; 3],
+        }
+    }
+
+    fn build_resources(&mut self, ctx: &RenderContext) {
+        let gpu = ctx.gpu;
+        self.lights = ctx.scene.data.features.light_count();
+        let [w, h] = ctx.extent;
+        let tiles = [w.div_ceil(TILE), h.div_ceil(TILE)];
+        let tile_count = tiles[0] as u64 * tiles[1] as u64;
+        let px = w as u64 * h as u64;
+        let slots = self.slots(tiles) as u64;
+        let buf = |label, size| pipelines::storage_buffer(gpu, label, size);
+        let lists = buf("callisto tile lists", 2 * tile_count * (slots + 1) * 4);
+        let rates = buf("callisto rates", 2 * tile_count * slots * 16);
+        let stats = buf("callisto stats", (1 + tile_count) * 4);
+        let current = buf("callisto current", 3 * px * 16);
+        let history = buf("callisto history", 2 * px * 32);
+        let debug = buf("callisto debug", 2 * px * 16);
+        let uniform = wgpu::util::DeviceExt::create_buffer_init(
+            &gpu.device,
+            &wgpu::util::BufferInitDescriptor {
+                label: Some("callisto params"),
+                contents: bytemuck::bytes_of(&self.gpu_params(tiles, px as u32)),
+                usage: wgpu::BufferUsages::UNIFORM,
+            },
+        );
+        let layout = self.layout(gpu);
+        let bind_group = pipelines::buffers_bind_group(
+            gpu,
+            "callisto",
+            &layout,
+            &[&uniform, &lists, &rates, &stats, &current, &history, &debug],
+        );
+        self.res = Some(Resources {
+            bind_group,
+            clear_on_reset: vec![lists, rates, stats, history],
+            debug,
+            tiles,
+        });
+    }
+
+    /// Whether next frame's rates use the mean scene luminance (the `luminance_mean` pass).
+    fn weighting(&self) -> bool {
+        self.settings.rate == 0 && self.settings.perceptual > 0.0
+    }
+}
+
+impl Technique for CallistoShadows {
+    fn id(&self) -> &'static str {
+        "callisto-shadows"
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+
+    fn inputs(&self) -> FrameInputs {
+        FrameInputs {
+            primary_surfaces: true,
+        }
+    }
+
+    fn passes(&self, f: &SceneFeatures) -> Vec<PassInfo> {
+        let s = &self.settings;
+        let lights = f.light_count();
+        let no_lights = || "no lights in the scene's pool".to_string();
+        let mut v = vec![
+            PassInfo {
+                name: "cull",
+                runs: lights > 0,
+                why: if lights > 0 {
+                    format!(
+                        "{lights} lights ({} emissive triangles, {} point, {} spot, {} directional) against 16x16 tiles: {}, depth bounds{}, at most {} per tile",
+                        f.emissive_triangle_count,
+                        f.point_lights,
+                        f.spot_lights,
+                        f.directional_lights,
+                        if s.range_cutoff > 0.0 {
+                            format!("ranges at {} W/m^2", s.range_cutoff)
+                        } else {
+                            "infinite ranges".into()
+                        },
+                        if s.cone_culling { ", normal cones" } else { "" },
+                        s.max_lights_per_tile
+                    )
+                } else {
+                    no_lights()
+                },
+            },
+            PassInfo {
+                name: "shadows",
+                runs: lights > 0,
+                why: if lights > 0 {
+                    format!(
+                        "one shadow ray per light per traced pixel, rate {} per 2x2 quad, bilateral reconstruction",
+                        RATES[s.rate as usize]
+                    )
+                } else {
+                    no_lights()
+                },
+            },
+            PassInfo {
+                name: "luminance_mean",
+                runs: lights > 0 && self.weighting(),
+                why: if self.weighting() {
+                    "mean scene luminance for next frame's perceptual weighting".into()
+                } else {
+                    "rates forced or perceptual = 0: no weighting".into()
+                },
+            },
+            PassInfo {
+                name: "resolve",
+                runs: true,
+                why: format!(
+                    "{}, emission{}, accumulation",
+                    if s.denoise {
+                        "shadow mask accumulated over frames (disocclusion blur)"
+                    } else {
+                        "shadow mask as traced (denoise = false)"
+                    },
+                    if s.gi { ", ReSTIR GI sample" } else { "" }
+                ),
+            },
+        ];
+        v.extend(self.restir.gi_passes());
+        v
+    }
+
+    fn build(&mut self, ctx: &RenderContext) -> Result<()> {
+        let mine = self.layout(ctx.gpu);
+        let (empty, _) = self.empty(ctx.gpu);
+        let restir_layout = self.restir.layout(ctx.gpu).clone();
+        let make = |entry: &str, group2: &wgpu::BindGroupLayout| {
+            pipelines::compute_pipeline(
+                ctx.gpu,
+                ctx.shaders,
+                entry,
+                &[&ctx.scene.layout, ctx.frame_layout, group2, &mine],
+            )
+        };
+        let built = Pipelines {
+            cull: make(CULL, &empty)?,
+            shadows: make(SHADOWS, &empty)?,
+            mean: make(MEAN, &empty)?,
+            resolve: make(RESOLVE, &restir_layout)?,
+        };
+        if self.settings.gi {
+            // Rebuild ReSTIR's pipelines too (hot reload of its shaders).
+            self.restir_built = false;
+        }
+        self.ensure_restir(ctx)?;
+        self.pipelines = Some(built);
+        self.build_resources(ctx);
+        Ok(())
+    }
+
+    fn apply_params(&mut self, ctx: &RenderContext) -> Result<()> {
+        self.ensure_restir(ctx)?;
+        self.build_resources(ctx);
+        Ok(())
+    }
+
+    fn reset_history(&mut self, gpu: &Gpu) {
+        self.restir.reset(gpu);
+        let Some(r) = &self.res else {
+            return;
+        };
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        for b in &r.clear_on_reset {
+            enc.clear_buffer(b, 0, None);
+        }
+        gpu.queue.submit([enc.finish()]);
+    }
+
+    /// Tile lists, rates and the shadow mask carry over, as they would in a game.
+    fn on_scene_change(&mut self, _gpu: &Gpu) {}
+
+    fn render(
+        &mut self,
+        ctx: &RenderContext,
+        enc: &mut wgpu::CommandEncoder,
+        timer: &mut PassTimer,
+    ) {
+        let (Some(p), Some(r), Some((_, empty)), Some(restir_bg)) = (
+            &self.pipelines,
+            &self.res,
+            &self.empty,
+            self.restir.bind_group(),
+        ) else {
+            return;
+        };
+        if self.settings.gi && self.restir_built {
+            self.restir.record(ctx, enc, timer);
+        }
+        let tiles = [r.tiles[0], r.tiles[1], 1];
+        let groups = &[empty, &r.bind_group];
+        if self.lights > 0 {
+            pipelines::technique_pass(ctx, enc, timer, "cull", &p.cull, groups, tiles);
+            pipelines::technique_pass(ctx, enc, timer, "shadows", &p.shadows, groups, tiles);
+            if self.weighting() {
+                pipelines::technique_pass(
+                    ctx,
+                    enc,
+                    timer,
+                    "luminance_mean",
+                    &p.mean,
+                    groups,
+                    [1, 1, 1],
+                );
+            }
+        }
+        let image = [ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1];
+        pipelines::technique_pass(
+            ctx,
+            enc,
+            timer,
+            "resolve",
+            &p.resolve,
+            &[restir_bg, &r.bind_group],
+            image,
+        );
+    }
+
+    fn debug_views(&self) -> Vec<DebugView> {
+        let view = |name, channel| DebugView {
+            name,
+            channel,
+            is_id: false,
+        };
+        vec![
+            view("rate per quad (1 quarter, 2 half, 3 full)", 0),
+            view("shadow rays per pixel", 1),
+            view("lights per tile", 2),
+            view("shadow-mask frames since disocclusion", 3),
+            view("lights left out of the tile's full list", 4),
+        ]
+    }
+
+    fn debug_buffer(&self) -> Option<&wgpu::Buffer> {
+        self.res.as_ref().map(|r| &r.debug)
+    }
+
+    fn param_set(&self) -> &Params {
+        &self.params
+    }
+
+    fn set_params(&mut self, params: &toml::Table) -> Result<()> {
+        self.params.set("callisto-shadows", params)?;
+        self.settings = CallistoSettings::from_params(&self.params);
+        // The pass list reads ReSTIR's settings before `apply_params` runs.
+        self.restir.settings = restir_gi_settings(self.settings.gi);
+        Ok(())
+    }
+
+    fn shader_files(&self) -> &'static [&'static str] {
+        &[
+            CULL,
+            SHADOWS,
+            MEAN,
+            RESOLVE,
+            "restir/regir_build.wgsl",
+            "restir/initial_temporal.wgsl",
+            "restir/spatial.wgsl",
+            "restir/gi_temporal.wgsl",
+            "restir/gi_spatial.wgsl",
+        ]
+    }
+
+    /// Variable rate settles after the first (full-rate) frame.
+    fn calibration_frames(&self) -> u32 {
+        4
+    }
+
+    /// The knob is the lights' range: lights per tile (so shadow rays) scale about inversely
+    /// with `range_cutoff` for lights spread over a plane (count within range ~ range^2 ~
+    /// 1 / cutoff). The camera ray, the tail samples and the GI path (when on) are fixed costs.
+    fn params_for_ray_budget(
+        &self,
+        rays_per_pixel: f64,
+        measured: Option<f64>,
+    ) -> Option<toml::Table> {
+        let measured = measured?;
+        // Camera ray, tail samples (at most one ray each), GI path (when on): not range-bound.
+        let fixed =
+            1.0 + self.settings.tail_samples as f64 + if self.settings.gi { 5.0 } else { 0.0 };
+        let shadow_now = (measured - fixed).max(0.05);
+        let shadow_want = (rays_per_pixel - fixed).max(0.05);
+        let cutoff = if self.settings.range_cutoff > 0.0 {
+            self.settings.range_cutoff as f64
+        } else {
+            0.01
+        };
+        let next = (cutoff * shadow_now / shadow_want).clamp(1e-6, 1e6);
+        ((next / self.settings.range_cutoff as f64 - 1.0).abs() > 0.01).then(|| {
+            let mut t = toml::Table::new();
+            t.insert("range_cutoff".into(), next.into());
+            t
+        })
+    }
+}

@@ -1,0 +1,330 @@
+//! Callisto shadows (`callisto-shadows`) on lavapipe, small images: forced full rate against the
+//! reference's direct light, variable rate against full rate (rays counted, relMSE reported), the
+//! culling and the debug views.
+
+mod common;
+
+use common::{engine, render_technique as render};
+use gilab::compare::{heatmap, io, metrics, Image};
+use gilab::render::{debug_channel, RayCounts, FLAG_NO_PRIMARY_EMISSION};
+use gilab::scene::{builtin, Scene};
+
+/// The reference path tracer's direct light: emission plus one bounce (NEE + MIS).
+fn direct_reference(scene: Scene, size: [u32; 2], spp: u32, seed: u32, flags: u32) -> Image {
+    let spf = spp.min(64);
+    let mut params: toml::Table = toml::toml! { max_depth = 1 };
+    params.insert("samples_per_frame".into(), (spf as i64).into());
+    render(
+        "reference",
+        params,
+        scene,
+        size,
+        spp.div_ceil(spf),
+        seed,
+        flags,
+    )
+    .0
+}
+
+fn callisto(
+    scene: Scene,
+    size: [u32; 2],
+    frames: u32,
+    params: toml::Table,
+    flags: u32,
+) -> (Image, RayCounts) {
+    render("callisto-shadows", params, scene, size, frames, 1, flags)
+}
+
+/// A scene of a comparison: name, constructor, range cutoff.
+type Case = (&'static str, fn() -> Scene, f64);
+
+fn energy(img: &Image) -> f64 {
+    common::luminance(img.mean())
+}
+
+/// Courtyard without its sky: every light of the scene is in the light pool (sun, point light,
+/// lamp triangles), which is all this technique lights with when `gi` is off.
+fn courtyard_no_sky() -> Scene {
+    builtin::courtyard(15.0, 1.0, 0.0)
+}
+
+/// With every rate forced to full, infinite ranges and no temporal filtering, each frame is an
+/// unbiased estimate of direct light (exact for punctual lights, one area sample per emissive
+/// triangle): 256 frames must match the reference's direct light.
+#[test]
+fn full_rate_equals_reference_direct_light() {
+    let size = [64, 64];
+    let params: toml::Table = toml::toml! { rate = "full"
+    range_cutoff = 0.0
+    denoise = false };
+    for (name, scene) in [
+        ("cornell", builtin::cornell as fn() -> Scene),
+        ("courtyard (sky 0)", courtyard_no_sky),
+    ] {
+        let truth = direct_reference(scene(), size, 1024, 7, 0);
+        let (img, rays) = callisto(scene(), size, 256, params.clone(), 0);
+        let ratio = energy(&img) / energy(&truth);
+        let m = metrics::compare(&img, &truth).unwrap();
+        let shadow = rays.by_kind[1] as f64 / (size[0] * size[1] * 256) as f64;
+        eprintln!(
+            "{name}: full rate, 256 frames: energy ratio {ratio:.4}, relMSE {:.2e}, {shadow:.2} shadow rays/px/frame",
+            m.rel_mse
+        );
+        assert!((ratio - 1.0).abs() < 0.02, "{name}: energy ratio {ratio}");
+        // Courtyard's per-pixel error is mostly the reference's own noise: its NEE picks lights
+        // by power, so the sun takes nearly every sample and the porch lamps get few.
+        let bound = if name == "cornell" { 0.01 } else { 0.05 };
+        assert!(m.rel_mse < bound, "{name}: relMSE {}", m.rel_mse);
+    }
+}
+
+/// Variable rate against full rate with the same settings: fewer shadow rays (counted by the
+/// shared counters), and the error the reconstruction adds, against the reference's direct
+/// light and against the converged full-rate image.
+#[test]
+fn variable_rate_traces_fewer_rays() {
+    let size = [64, 64];
+    let flags = FLAG_NO_PRIMARY_EMISSION;
+    let frames = 16;
+    let cases: [Case; 2] = [
+        ("many-lights (1024)", || builtin::many_lights(1024, 7), 0.01),
+        ("courtyard (sky 0)", courtyard_no_sky, 0.01),
+    ];
+    for (name, scene, cutoff) in cases {
+        let truth = direct_reference(scene(), size, 1024, 7, flags);
+        // No tail samples: their noise would hide the reconstruction's error (the tail has its
+        // own test); full and variable rate then see the same lights.
+        let mut full_params: toml::Table = toml::toml! { rate = "full"
+        tail_samples = 0 };
+        full_params.insert("range_cutoff".into(), cutoff.into());
+        let mut var_params = full_params.clone();
+        var_params.insert("rate".into(), "variable".into());
+        // The converged full-rate image at this cutoff: what reconstruction should reproduce.
+        let mut conv = full_params.clone();
+        conv.insert("denoise".into(), false.into());
+        let (full_truth, _) = callisto(scene(), size, 128, conv, flags);
+        let (full, full_rays) = callisto(scene(), size, frames, full_params, flags);
+        let (var, var_rays) = callisto(scene(), size, frames, var_params, flags);
+        let per = |r: &RayCounts| r.by_kind[1] as f64 / (size[0] * size[1] * frames) as f64;
+        let (f_rays, v_rays) = (per(&full_rays), per(&var_rays));
+        let e = |img: &Image, t: &Image| metrics::compare(img, t).unwrap().rel_mse;
+        eprintln!(
+            "{name}, {frames} frames, cutoff {cutoff}: shadow rays/px/frame full {f_rays:.2}, variable {v_rays:.2} ({:.0}% saved); \
+             relMSE vs reference direct: full {:.3e}, variable {:.3e}; vs converged full rate: full {:.3e}, variable {:.3e}; \
+             energy vs reference: full {:.3}, variable {:.3}, converged full {:.3}",
+            100.0 * (1.0 - v_rays / f_rays),
+            e(&full, &truth),
+            e(&var, &truth),
+            e(&full, &full_truth),
+            e(&var, &full_truth),
+            energy(&full) / energy(&truth),
+            energy(&var) / energy(&truth),
+            energy(&full_truth) / energy(&truth),
+        );
+        assert!(
+            v_rays < 0.7 * f_rays,
+            "{name}: variable rate traced {v_rays:.2} rays/px/frame, full {f_rays:.2}"
+        );
+        // The reconstruction's error must stay close to the error full rate has after the same
+        // frames (area-light sampling noise dominates both on courtyard).
+        assert!(
+            e(&var, &full_truth) < 1.5 * e(&full, &full_truth) + 1e-3,
+            "{name}: variable rate relMSE {} against converged full rate (full rate: {})",
+            e(&var, &full_truth),
+            e(&full, &full_truth)
+        );
+        assert!(
+            (energy(&var) / energy(&full_truth) - 1.0).abs() < 0.03,
+            "{name}: variable rate energy {} of full rate's",
+            energy(&var) / energy(&full_truth)
+        );
+    }
+}
+
+/// The debug views hold what they say: per-quad rates of every kind under variable rate, the
+/// per-pixel ray counts summing to the counted shadow rays, tile light counts below the pool
+/// (range culling) and fewer with cone culling on. Writes the views as PNGs under
+/// target/callisto-debug/ for inspection.
+#[test]
+fn debug_views_and_culling() {
+    let size = [128, 128];
+    let mut stats = Vec::new();
+    for cone in [true, false] {
+        let mut params: toml::Table = toml::toml! { rate = "variable" };
+        params.insert("cone_culling".into(), cone.into());
+        let mut e = engine(
+            "callisto-shadows",
+            params,
+            builtin::many_lights(256, 7),
+            size,
+            1,
+        );
+        e.reset();
+        for _ in 0..3 {
+            e.render_frame().unwrap();
+        }
+        let before = e.ray_counts().unwrap().by_kind[1];
+        e.render_frame().unwrap();
+        let frame_rays = e.ray_counts().unwrap().by_kind[1] - before;
+        let debug = e.read_debug().unwrap().unwrap();
+        let px = (size[0] * size[1]) as usize;
+        let rate = debug_channel(&debug, px, 0);
+        let rays = debug_channel(&debug, px, 1);
+        let lights = debug_channel(&debug, px, 2);
+        let ray_sum: f64 = rays.iter().map(|&r| r as f64).sum();
+        let mean_lights = lights.iter().map(|&l| l as f64).sum::<f64>() / px as f64;
+        let share = |k: f32| rate.iter().filter(|&&r| r == k).count() as f64 / px as f64;
+        eprintln!(
+            "cone culling {cone}: {frame_rays} shadow rays counted, {ray_sum} in the debug view; mean lights per tile {mean_lights:.1} of 512; \
+             pixels by highest quad rate: quarter {:.3}, half {:.3}, full {:.3}",
+            share(1.0),
+            share(2.0),
+            share(3.0)
+        );
+        assert_eq!(ray_sum as u64, frame_rays, "debug ray counts");
+        assert!(mean_lights > 0.0 && mean_lights < 512.0);
+        if cone {
+            assert!(share(1.0) > 0.0 && share(2.0) > 0.0 && share(3.0) > 0.0);
+            let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("callisto-debug");
+            std::fs::create_dir_all(&dir).unwrap();
+            for (i, v) in [&rate, &rays, &lights].iter().enumerate() {
+                let (lo, hi) = (0.0, v.iter().cloned().fold(1.0f32, f32::max).log10());
+                io::write_png_rgba(
+                    &dir.join(format!("channel{i}.png")),
+                    size[0],
+                    size[1],
+                    heatmap::to_rgba(v, lo, hi),
+                )
+                .unwrap();
+            }
+        }
+        stats.push(mean_lights);
+    }
+    assert!(
+        stats[0] < stats[1],
+        "cone culling kept {} lights per tile, without {}",
+        stats[0],
+        stats[1]
+    );
+}
+
+/// Without the tail samples the light beyond the derived ranges is lost, as with the seed's
+/// ranged lights: reported on many-lights, where it is most of the light.
+#[test]
+fn range_cutoff_without_tail_loses_light() {
+    let size = [64, 64];
+    let flags = FLAG_NO_PRIMARY_EMISSION;
+    let scene = || builtin::many_lights(1024, 7);
+    let truth = direct_reference(scene(), size, 1024, 7, flags);
+    let mut lost = Vec::new();
+    for tail in [1i64, 0] {
+        let mut params: toml::Table = toml::toml! { rate = "full"
+        range_cutoff = 0.01
+        denoise = false };
+        params.insert("tail_samples".into(), tail.into());
+        let (img, _) = callisto(scene(), size, 64, params, flags);
+        let ratio = energy(&img) / energy(&truth);
+        eprintln!(
+            "many-lights, cutoff 0.01, tail_samples {tail}, 64 frames: energy ratio {ratio:.3}"
+        );
+        lost.push(ratio);
+    }
+    assert!((lost[0] - 1.0).abs() < 0.03, "with the tail: {}", lost[0]);
+    assert!(lost[1] < 0.9, "without the tail: {}", lost[1]);
+}
+
+/// `gi = true`: ReSTIR GI's sample adds the indirect light; 256 frames on Cornell match the
+/// full reference.
+#[test]
+fn gi_adds_indirect_light() {
+    let size = [64, 64];
+    let truth = common::render_reference(builtin::cornell(), size, 1024, 64, 11, 0).image;
+    let params: toml::Table = toml::toml! { gi = true };
+    let (img, rays) = callisto(builtin::cornell(), size, 256, params, 0);
+    let ratio = energy(&img) / energy(&truth);
+    let m = metrics::compare(&img, &truth).unwrap();
+    let (direct, _) = callisto(builtin::cornell(), size, 16, toml::Table::new(), 0);
+    eprintln!(
+        "callisto + ReSTIR GI, 256 frames at 64²: energy ratio {ratio:.4}, relMSE {:.2e}, {:.2} rays/px/frame; direct only: energy ratio {:.3}",
+        m.rel_mse,
+        rays.total() as f64 / (64.0 * 64.0 * 256.0),
+        energy(&direct) / energy(&truth)
+    );
+    assert!((ratio - 1.0).abs() < 0.03, "energy ratio {ratio}");
+    assert!(m.rel_mse < 0.02, "relMSE {}", m.rel_mse);
+    assert!(energy(&direct) / energy(&truth) < 0.9);
+}
+
+/// The shadow mask's temporal accumulation: one real-time frame (no progressive average) after
+/// 16 frames has a lower error with it than without (against the converged image); after a camera move, pixels the old view
+/// did not see restart their history (frames since disocclusion 1) while the rest keep theirs.
+#[test]
+fn shadow_mask_accumulation_and_disocclusion() {
+    let size = [64, 64];
+    let flags = FLAG_NO_PRIMARY_EMISSION;
+    // Variable rate with accumulation over frames: the converged image the frames estimate.
+    let (truth, _) = callisto(
+        courtyard_no_sky(),
+        size,
+        256,
+        toml::toml! { denoise = false },
+        flags,
+    );
+    let mut errors = Vec::new();
+    for denoise in [true, false] {
+        let mut params: toml::Table = toml::toml! { accumulate = false };
+        params.insert("denoise".into(), denoise.into());
+        let (img, _) = callisto(courtyard_no_sky(), size, 16, params, flags);
+        errors.push(metrics::compare(&img, &truth).unwrap().rel_mse);
+    }
+    eprintln!(
+        "courtyard, one frame after 16: relMSE {:.3e} with the shadow-mask accumulation, {:.3e} without",
+        errors[0], errors[1]
+    );
+    // Only the punctual lights' (sun, point light) visibility is filtered; the lamps' sampling
+    // noise is the same in both.
+    assert!(errors[0] < 0.75 * errors[1], "{errors:?}");
+
+    let mut e = engine(
+        "callisto-shadows",
+        toml::toml! { accumulate = false },
+        courtyard_no_sky(),
+        size,
+        1,
+    );
+    e.reset();
+    for _ in 0..8 {
+        e.render_frame().unwrap();
+    }
+    let mut cam = e.camera;
+    cam.position += glam::Vec3::new(1.5, 0.0, 0.0);
+    cam.target += glam::Vec3::new(1.5, 0.0, 0.0);
+    e.move_camera(cam);
+    e.render_frame().unwrap();
+    let px = (size[0] * size[1]) as usize;
+    let frames = debug_channel(&e.read_debug().unwrap().unwrap(), px, 3);
+    let surfaces = frames.iter().filter(|&&t| t > 0.0).count() as f64;
+    let fresh = frames.iter().filter(|&&t| t == 1.0).count() as f64 / surfaces;
+    let kept = frames.iter().filter(|&&t| t >= 9.0).count() as f64 / surfaces;
+    eprintln!(
+        "after a 1.5 m camera move: {:.1}% of surface pixels restart their shadow mask, {:.1}% keep 9+ frames",
+        100.0 * fresh,
+        100.0 * kept
+    );
+    assert!(fresh > 0.005 && fresh < 0.5, "fresh {fresh}");
+    assert!(kept > 0.5, "kept {kept}");
+}
+
+/// The ray-budget mapping scales the lights' range: fewer rays than measured raise the cutoff.
+#[test]
+fn ray_budget_maps_to_range_cutoff() {
+    let t = gilab::techniques::create_technique("callisto-shadows").unwrap();
+    let lower = t.params_for_ray_budget(10.0, Some(40.0)).unwrap();
+    let cutoff = lower["range_cutoff"].as_float().unwrap();
+    assert!(cutoff > 0.01 * 3.0, "cutoff {cutoff}");
+    let higher = t.params_for_ray_budget(80.0, Some(40.0)).unwrap();
+    assert!(higher["range_cutoff"].as_float().unwrap() < 0.01);
+    assert!(t.params_for_ray_budget(40.0, Some(40.0)).is_none());
+    assert!(t.params_for_ray_budget(40.0, None).is_none());
+}
