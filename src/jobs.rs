@@ -26,6 +26,8 @@ pub struct ShotMetadata {
     pub adapter: crate::gpu::AdapterSummary,
     pub scene: String,
     pub scene_features: SceneFeatures,
+    /// Scene set-up wall times: load, BVH build, preparation, GPU upload.
+    pub scene_timings: crate::scene::gpu_scene::SceneTimings,
     pub passes: Vec<PassInfo>,
     pub camera: crate::scene::Camera,
     pub size: [u32; 2],
@@ -78,9 +80,13 @@ impl Engine {
 /// An engine for the preset's technique entry `index`: its scene (loaded and uploaded here),
 /// camera, size, seed and ray budget.
 pub fn engine_for_entry(gpu: Arc<Gpu>, p: &LoadedPreset, index: usize) -> Result<Engine> {
+    let start = std::time::Instant::now();
     let scene = p.load_scene()?;
+    let load_ms = start.elapsed().as_secs_f64() * 1e3;
     let camera = p.camera(&scene);
-    let gpu_scene = Arc::new(GpuScene::upload(&gpu, &scene));
+    let mut gpu_scene = GpuScene::upload(&gpu, &scene);
+    gpu_scene.data.timings.load_ms = load_ms;
+    let gpu_scene = Arc::new(gpu_scene);
     let settings = EngineSettings {
         extent: p.preset.render.size,
         seed: p.preset.render.seed,
@@ -155,6 +161,7 @@ pub fn metadata(
         adapter: engine.gpu.summary.clone(),
         scene: engine.scene.name.clone(),
         scene_features: engine.gpu_scene.data.features.clone(),
+        scene_timings: engine.gpu_scene.data.timings,
         passes: engine.passes(),
         camera: engine.camera,
         size: engine.extent,
@@ -211,6 +218,17 @@ pub fn shot(gpu: Arc<Gpu>, p: &LoadedPreset, out: &Path, verbose: bool) -> Resul
             println!(
                 "shading: {} (every technique; [shading] brdf)",
                 p.preset.shading.brdf.name()
+            );
+            let t = &meta.scene_timings;
+            println!(
+                "scene set-up: load {:.1} ms, BVH build {:.1} ms ({} triangles, depth {}, {} threads), preparation {:.1} ms in all, GPU upload {:.1} ms",
+                t.load_ms,
+                t.bvh_build_ms,
+                meta.scene_features.triangle_count,
+                meta.scene_features.bvh_depth,
+                t.threads,
+                t.prepare_ms,
+                t.upload_ms
             );
         }
         if verbose {

@@ -575,3 +575,17 @@ fn list_pass_visits_each_element_once() {
         }
     }
 }
+
+/// The large generated scene at a small setting (CI): the reference renders it finite and lit.
+#[test]
+fn atrium_at_low_detail_renders() {
+    let mut params = toml::Table::new();
+    params.insert("detail".into(), 0.05.into());
+    let scene = builtin::build("atrium", &params).unwrap();
+    let tris = scene.triangles.len();
+    let r = render_reference(scene, [48, 32], 4, 2, 3, 0);
+    let mean = r.image.mean();
+    eprintln!("atrium detail 0.05: {tris} triangles, mean radiance {mean:?}");
+    assert_stable("atrium detail 0.05", &r, 1e4);
+    assert!(common::luminance(mean) > 0.05, "{mean:?}");
+}

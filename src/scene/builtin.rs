@@ -13,6 +13,7 @@ pub const NAMES: &[(&str, &str)] = &[
     ("glossy", "metal spheres of roughness 0, 0.1, 0.3, 0.7 before a mirror wall, under an area light"),
     ("courtyard", "an open porch beside a sunlit yard under a blue sky: the roof shadows the porch from the sun, wall lamps of radiance `lamp` (15) and a lantern light it; every light class (local, directional, sky); `sun` and `sky` scale the sun and the sky (1)"),
     ("material-balls", "the Callisto talk's fitted materials (black soft plastic, blue fabric, yellow phenolic, yellow plastic, gold metallic paint, light red paint) as spheres under a grazing key light and a back light: the BRDF models' differences (diffuse Fresnel, retroreflection, terminator) where they show"),
+    ("atrium", "a Sponza-like atrium for scale: two storeys of arcades (fluted columns, round arches, galleries), tiled floor, hanging cloth, a vase on every pier, 64 lamps, sun and sky; `detail` (1.0: about 1.1 million triangles) scales the tessellation"),
     ("hard-cases", "degenerate triangles, zero normals, roughness 0/1, metallic 1, a light inside a box, emission `emission` (1e6), grazing camera"),
 ];
 
@@ -99,6 +100,7 @@ pub fn build(name: &str, params: &toml::Table) -> Result<Scene> {
         "thin-wall" => thin_wall(p.f32("interior_light", 0.6)?),
         "glossy" => glossy(),
         "material-balls" => material_balls(),
+        "atrium" => super::atrium::atrium(p.f32("detail", 1.0)?),
         "hard-cases" => hard_cases(p.f32("emission", 1e6)?),
         "courtyard" => courtyard(p.f32("lamp", 15.0)?, p.f32("sun", 1.0)?, p.f32("sky", 1.0)?),
         other => {

@@ -5,7 +5,8 @@
 //! arrays are gather/scatter on CPU rasterisers such as lavapipe and ran ~10x slower; triangles
 //! re-ordered into leaf order so shading attributes are fetched without indirection), and the
 //! build must be deterministic for bit-identical renders. A binned SAH builder (Wald 2007) in
-//! ~200 lines gives both; tests compare it with brute force.
+//! ~300 lines gives both, built in parallel with rayon (bit for bit the sequential result);
+//! tests compare it with brute force and with the sequential build.
 
 use glam::Vec3;
 
@@ -45,6 +46,140 @@ struct BuildNode {
     count: u32,
 }
 
+impl BuildNode {
+    /// The node of a subtree whose local nodes 1.. are appended at `base` (leaves unchanged:
+    /// their triangle ranges are global).
+    fn moved_to(self, base: u32) -> BuildNode {
+        let mut b = self;
+        if b.count == 0 {
+            b.left_or_first = base + b.left_or_first - 1;
+        }
+        b
+    }
+}
+
+/// Subtrees of at most this many triangles are built as independent parallel jobs.
+const SUBTREE: usize = 16 * 1024;
+/// Ranges at least this large reduce their bounds and SAH bins in parallel.
+const PARALLEL_REDUCE: usize = 32 * 1024;
+
+/// A range left for a parallel job: its node, triangles `order[first..first + count]`, depth.
+struct Job {
+    node: usize,
+    first: usize,
+    count: usize,
+    depth: usize,
+}
+
+/// Nodes built over one range (root at 0, children adjacent), and the ranges left as jobs.
+struct Subtree {
+    nodes: Vec<BuildNode>,
+    jobs: Vec<Job>,
+    max_depth: usize,
+}
+
+struct BuildContext<'a> {
+    boxes: &'a [Aabb],
+    centroids: &'a [Vec3],
+    parallel: bool,
+}
+
+impl BuildContext<'_> {
+    /// Bounds of the triangles and of their centroids.
+    fn bounds(&self, refs: &[u32]) -> (Aabb, Aabb) {
+        let fold = |(mut b, mut c): (Aabb, Aabb), &t: &u32| {
+            b.merge(&self.boxes[t as usize]);
+            c.grow(self.centroids[t as usize]);
+            (b, c)
+        };
+        if self.parallel && refs.len() >= PARALLEL_REDUCE {
+            use rayon::prelude::*;
+            refs.par_chunks(4096)
+                .map(|c| c.iter().fold((Aabb::EMPTY, Aabb::EMPTY), fold))
+                .reduce(
+                    || (Aabb::EMPTY, Aabb::EMPTY),
+                    |(mut a, mut b), (c, d)| {
+                        a.merge(&c);
+                        b.merge(&d);
+                        (a, b)
+                    },
+                )
+        } else {
+            refs.iter().fold((Aabb::EMPTY, Aabb::EMPTY), fold)
+        }
+    }
+
+    /// Builds the tree over `order` (global triangle offset `offset`, root depth `depth`);
+    /// ranges of at most `stop` triangles that would be split are left as jobs instead.
+    fn build_range(&self, order: &mut [u32], offset: usize, depth: usize, stop: usize) -> Subtree {
+        let mut nodes = vec![BuildNode::default()];
+        let mut jobs = Vec::new();
+        let mut max_depth = depth;
+        // (node index, first, count, depth), `first` relative to `order`.
+        let mut work = vec![(0usize, 0usize, order.len(), depth)];
+        while let Some((ni, first, count, depth)) = work.pop() {
+            max_depth = max_depth.max(depth);
+            if count <= stop && count > 1 {
+                jobs.push(Job {
+                    node: ni,
+                    first: offset + first,
+                    count,
+                    depth,
+                });
+                continue;
+            }
+            let range = &mut order[first..first + count];
+            let (bounds, cbounds) = self.bounds(range);
+            let leaf = |nodes: &mut Vec<BuildNode>| {
+                nodes[ni] = BuildNode {
+                    min: bounds.min.to_array(),
+                    max: bounds.max.to_array(),
+                    left_or_first: (offset + first) as u32,
+                    count: count as u32,
+                };
+            };
+            if count <= 1 {
+                leaf(&mut nodes);
+                continue;
+            }
+            let split = best_split(range, self, &bounds, &cbounds);
+            let leaf_cost = count as f32;
+            let mid = match split {
+                Some((axis, pos, cost)) if cost < leaf_cost || count > MAX_LEAF => {
+                    partition(range, |t| self.centroids[t as usize][axis] < pos)
+                }
+                _ if count <= MAX_LEAF => {
+                    leaf(&mut nodes);
+                    continue;
+                }
+                _ => 0,
+            };
+            // Degenerate split (all centroids equal): halve the range so the tree still shrinks.
+            let mid = if mid == 0 || mid == count {
+                count / 2
+            } else {
+                mid
+            };
+            let left = nodes.len();
+            nodes.push(BuildNode::default());
+            nodes.push(BuildNode::default());
+            nodes[ni] = BuildNode {
+                min: bounds.min.to_array(),
+                max: bounds.max.to_array(),
+                left_or_first: left as u32,
+                count: 0,
+            };
+            work.push((left + 1, first + mid, count - mid, depth + 1));
+            work.push((left, first, mid, depth + 1));
+        }
+        Subtree {
+            nodes,
+            jobs,
+            max_depth,
+        }
+    }
+}
+
 #[derive(Clone, Debug, Default)]
 pub struct Bvh {
     pub nodes: Vec<BvhNode>,
@@ -82,74 +217,36 @@ impl Aabb {
 }
 
 impl Bvh {
+    /// Parallel build (rayon): bit for bit the same BVH as `build_sequential`.
     pub fn build(tris: &[[Vec3; 3]]) -> Bvh {
+        Self::build_with(tris, true)
+    }
+
+    /// Single-threaded build (the reference the parallel build is tested against).
+    pub fn build_sequential(tris: &[[Vec3; 3]]) -> Bvh {
+        Self::build_with(tris, false)
+    }
+
+    /// Top-down binned SAH. Parallel without changing the result: the top of the tree is split
+    /// on one thread with parallel reductions (bounds and SAH bins are min/max and integer
+    /// sums, exact in any order), down to subtrees of at most `SUBTREE` triangles; those are
+    /// built independently on disjoint ranges of `order` and stitched in. Every split decision
+    /// is the same function of its range's contents as in the sequential build.
+    fn build_with(tris: &[[Vec3; 3]], parallel: bool) -> Bvh {
+        use rayon::prelude::*;
         let n = tris.len();
-        let boxes: Vec<Aabb> = tris
-            .iter()
-            .map(|t| {
-                let mut b = Aabb::EMPTY;
-                t.iter().for_each(|p| b.grow(*p));
-                b
-            })
-            .collect();
+        let bbox = |t: &[Vec3; 3]| {
+            let mut b = Aabb::EMPTY;
+            t.iter().for_each(|p| b.grow(*p));
+            b
+        };
+        let boxes: Vec<Aabb> = if parallel {
+            tris.par_iter().map(bbox).collect()
+        } else {
+            tris.iter().map(bbox).collect()
+        };
         let centroids: Vec<Vec3> = boxes.iter().map(|b| (b.min + b.max) * 0.5).collect();
         let mut order: Vec<u32> = (0..n as u32).collect();
-        let mut nodes = vec![BuildNode::default()];
-        let mut max_depth = 0;
-        // (node index, first, count, depth)
-        let mut work = vec![(0usize, 0usize, n, 0usize)];
-        while let Some((ni, first, count, depth)) = work.pop() {
-            max_depth = max_depth.max(depth);
-            let mut bounds = Aabb::EMPTY;
-            let mut cbounds = Aabb::EMPTY;
-            for &t in &order[first..first + count] {
-                bounds.merge(&boxes[t as usize]);
-                cbounds.grow(centroids[t as usize]);
-            }
-            let leaf = |nodes: &mut Vec<BuildNode>| {
-                nodes[ni] = BuildNode {
-                    min: bounds.min.to_array(),
-                    max: bounds.max.to_array(),
-                    left_or_first: first as u32,
-                    count: count as u32,
-                };
-            };
-            if count <= 1 {
-                leaf(&mut nodes);
-                continue;
-            }
-            let split = best_split(&order[first..first + count], &boxes, &centroids, &cbounds);
-            let leaf_cost = count as f32;
-            let mid = match split {
-                Some((axis, pos, cost)) if cost < leaf_cost || count > MAX_LEAF => {
-                    partition(&mut order[first..first + count], |t| {
-                        centroids[t as usize][axis] < pos
-                    })
-                }
-                _ if count <= MAX_LEAF => {
-                    leaf(&mut nodes);
-                    continue;
-                }
-                _ => 0,
-            };
-            // Degenerate split (all centroids equal): halve the range so the tree still shrinks.
-            let mid = if mid == 0 || mid == count {
-                count / 2
-            } else {
-                mid
-            };
-            let left = nodes.len();
-            nodes.push(BuildNode::default());
-            nodes.push(BuildNode::default());
-            nodes[ni] = BuildNode {
-                min: bounds.min.to_array(),
-                max: bounds.max.to_array(),
-                left_or_first: left as u32,
-                count: 0,
-            };
-            work.push((left + 1, first + mid, count - mid, depth + 1));
-            work.push((left, first, mid, depth + 1));
-        }
         if n == 0 {
             // Nothing to hit: no nodes at all, traversal ends at once.
             return Bvh {
@@ -157,6 +254,41 @@ impl Bvh {
                 order,
                 depth: 0,
             };
+        }
+        let ctx = BuildContext {
+            boxes: &boxes,
+            centroids: &centroids,
+            parallel,
+        };
+        // The top of the tree; ranges of at most SUBTREE triangles come back as jobs.
+        let stop = if parallel { SUBTREE } else { 0 };
+        let top = ctx.build_range(&mut order, 0, 0, stop);
+        let mut nodes = top.nodes;
+        let mut max_depth = top.max_depth;
+        // Subtrees on disjoint slices of `order`, in parallel, then stitched in job order.
+        let mut jobs = top.jobs;
+        jobs.sort_by_key(|j| j.first);
+        let mut slices = Vec::with_capacity(jobs.len());
+        let mut rest: &mut [u32] = &mut order;
+        let mut at = 0;
+        for j in &jobs {
+            let (_, tail) = rest.split_at_mut(j.first - at);
+            let (mine, tail) = tail.split_at_mut(j.count);
+            slices.push(mine);
+            rest = tail;
+            at = j.first + j.count;
+        }
+        let subtrees: Vec<Subtree> = slices
+            .into_par_iter()
+            .zip(jobs.par_iter())
+            .map(|(slice, j)| ctx.build_range(slice, j.first, j.depth, 0))
+            .collect();
+        for (j, sub) in jobs.iter().zip(subtrees) {
+            max_depth = max_depth.max(sub.max_depth);
+            // Local node k >= 1 goes to base + k - 1; local 0 replaces the job's node.
+            let base = nodes.len() as u32;
+            nodes[j.node] = sub.nodes[0].moved_to(base);
+            nodes.extend(sub.nodes[1..].iter().map(|b| b.moved_to(base)));
         }
         Bvh {
             nodes: flatten_depth_first(&nodes),
@@ -245,16 +377,17 @@ fn flatten_depth_first(build: &[BuildNode]) -> Vec<BvhNode> {
     out
 }
 
+/// The SAH bins of one axis: (bounds, count) per bin.
+type Bins = [(Aabb, usize); BINS];
+
 #[allow(clippy::needless_range_loop)] // `axis` indexes vectors, not one array.
 fn best_split(
     refs: &[u32],
-    boxes: &[Aabb],
-    centroids: &[Vec3],
+    ctx: &BuildContext,
+    parent: &Aabb,
     cbounds: &Aabb,
 ) -> Option<(usize, f32, f32)> {
     let mut best: Option<(usize, f32, f32)> = None;
-    let mut parent = Aabb::EMPTY;
-    refs.iter().for_each(|&t| parent.merge(&boxes[t as usize]));
     let parent_area = parent.area().max(1e-30);
     for axis in 0..3 {
         let lo = cbounds.min[axis];
@@ -262,13 +395,32 @@ fn best_split(
         if extent <= 1e-12 {
             continue;
         }
-        let mut bins = [(Aabb::EMPTY, 0usize); BINS];
         let scale = BINS as f32 / extent;
-        for &t in refs {
-            let b = (((centroids[t as usize][axis] - lo) * scale) as usize).min(BINS - 1);
-            bins[b].0.merge(&boxes[t as usize]);
+        let fill = |mut bins: Bins, &t: &u32| {
+            let b = (((ctx.centroids[t as usize][axis] - lo) * scale) as usize).min(BINS - 1);
+            bins[b].0.merge(&ctx.boxes[t as usize]);
             bins[b].1 += 1;
-        }
+            bins
+        };
+        let empty: Bins = [(Aabb::EMPTY, 0usize); BINS];
+        let bins = if ctx.parallel && refs.len() >= PARALLEL_REDUCE {
+            use rayon::prelude::*;
+            // Bin bounds merge by min/max and counts add: exact in any order.
+            refs.par_chunks(4096)
+                .map(|c| c.iter().fold(empty, fill))
+                .reduce(
+                    || empty,
+                    |mut a, b| {
+                        for i in 0..BINS {
+                            a[i].0.merge(&b[i].0);
+                            a[i].1 += b[i].1;
+                        }
+                        a
+                    },
+                )
+        } else {
+            refs.iter().fold(empty, fill)
+        };
         // Sweep from the right to get right-side areas, then from the left.
         let mut right_area = [0.0f32; BINS];
         let mut right_count = [0usize; BINS];

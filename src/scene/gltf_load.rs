@@ -6,6 +6,8 @@
 //! doubleSided, KHR_lights_punctual and the first perspective camera.
 //! Not read (left out on purpose, listed in the README): metallic-roughness/normal/occlusion/
 //! emissive textures, texture transforms, UV sets other than 0, alpha modes, skins, morph targets.
+//! Lenient where a part is optional: an unreadable image or an unknown extension that is not
+//! required is skipped with a warning; a file with no light at all gets a default sky.
 
 use super::{Camera, Material, PunctualKind, PunctualLight, Scene, Texture};
 use anyhow::{anyhow, bail, Context, Result};
@@ -16,8 +18,33 @@ pub fn load(path: &Path) -> Result<Scene> {
     load_inner(path).with_context(|| format!("cannot load glTF scene {}", path.display()))
 }
 
+/// Extensions read (others in `extensionsUsed` are ignored with a warning; the gltf crate
+/// refuses a file that *requires* one it does not know).
+const SUPPORTED_EXTENSIONS: [&str; 3] = [
+    "KHR_lights_punctual",
+    "KHR_materials_emissive_strength",
+    "KHR_materials_specular",
+];
+
 fn load_inner(path: &Path) -> Result<Scene> {
-    let (doc, buffers, images) = gltf::import(path).map_err(|e| anyhow!("{e}"))?;
+    let gltf::Gltf {
+        document: doc,
+        blob,
+    } = gltf::Gltf::open(path).map_err(|e| anyhow!("{e}"))?;
+    for ext in doc.extensions_used() {
+        if !SUPPORTED_EXTENSIONS.contains(&ext) {
+            let required = doc.extensions_required().any(|r| r == ext);
+            if required {
+                bail!("extension {ext} is required by the file but not supported");
+            }
+            log::warn!(
+                "{}: extension {ext} is not supported: ignored",
+                path.display()
+            );
+        }
+    }
+    let base = path.parent();
+    let buffers = gltf::import_buffers(&doc, base, blob).map_err(|e| anyhow!("{e}"))?;
     let mut scene = Scene::new(
         &path
             .file_stem()
@@ -25,11 +52,37 @@ fn load_inner(path: &Path) -> Result<Scene> {
             .unwrap_or_default(),
     );
 
-    for img in &images {
-        scene.textures.push(to_rgba8(img)?);
+    // Lenient: an image that cannot be read is skipped (its textures fall back to the factors)
+    // with a warning naming it, instead of refusing the whole scene.
+    let mut texture_of_image = Vec::new();
+    for image in doc.images() {
+        let loaded = gltf::image::Data::from_source(image.source(), base, &buffers)
+            .map_err(|e| anyhow!("{e}"))
+            .and_then(|img| to_rgba8(&img));
+        match loaded {
+            Ok(t) => {
+                texture_of_image.push(Some(scene.textures.len()));
+                scene.textures.push(t);
+            }
+            Err(e) => {
+                let from = match image.source() {
+                    gltf::image::Source::Uri { uri, .. } if !uri.starts_with("data:") => {
+                        format!(" from '{uri}'")
+                    }
+                    _ => String::new(),
+                };
+                log::warn!(
+                    "{}: image {} ('{}'){from} skipped: {e:#}; textures using it fall back to their factors",
+                    path.display(),
+                    image.index(),
+                    image.name().unwrap_or("unnamed")
+                );
+                texture_of_image.push(None);
+            }
+        }
     }
     for m in doc.materials() {
-        scene.materials.push(read_material(&m, images.len())?);
+        scene.materials.push(read_material(&m, &texture_of_image)?);
     }
     // Primitives without a material get glTF's default material (appended last).
     let default_material = scene.materials.len() as u32;
@@ -87,22 +140,39 @@ fn load_inner(path: &Path) -> Result<Scene> {
     if scene.triangles.is_empty() {
         bail!("file has no triangle geometry");
     }
+    // Public samples made for viewers with image-based lighting often have no light at all: a
+    // black image would say nothing, so they get a uniform default sky, and the user is told.
+    let emits = scene
+        .triangle_material
+        .iter()
+        .any(|&m| scene.materials[m as usize].emissive.max_element() > 0.0);
+    if !emits && scene.lights.is_empty() && scene.sky.max_element() <= 0.0 {
+        scene.sky = Vec3::splat(DEFAULT_SKY);
+        log::warn!(
+            "{}: no light source (no emissive material, no KHR_lights_punctual): lit by a default uniform sky of radiance {DEFAULT_SKY}",
+            path.display()
+        );
+    }
     scene.validate()?;
     Ok(scene)
 }
 
-fn read_material(m: &gltf::Material, image_count: usize) -> Result<Material> {
+/// Radiance of the sky a glTF without any light source gets.
+pub const DEFAULT_SKY: f32 = 1.0;
+
+fn read_material(m: &gltf::Material, texture_of_image: &[Option<usize>]) -> Result<Material> {
     let pbr = m.pbr_metallic_roughness();
     let tex = match pbr.base_color_texture() {
         Some(info) => {
             let idx = info.texture().source().index();
-            if idx >= image_count {
-                bail!(
+            match texture_of_image.get(idx) {
+                Some(Some(t)) => Some(*t),
+                Some(None) => None, // unreadable image: warned about above
+                None => bail!(
                     "material '{}' references missing image {idx}",
                     m.name().unwrap_or("?")
-                );
+                ),
             }
-            Some(idx)
         }
         None => None,
     };

@@ -79,12 +79,30 @@ pub struct SceneData {
     pub lights: Vec<GpuLight>,
     pub vertices: Vec<RasterVertex>,
     pub features: SceneFeatures,
+    pub timings: SceneTimings,
+}
+
+/// Where a scene's set-up time goes (wall ms on the CPU), printed by `shot --verbose` and
+/// recorded in the shot JSON.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct SceneTimings {
+    /// Reading the file or building the built-in scene (set by the caller that loaded it).
+    pub load_ms: f64,
+    /// BVH build alone (parallel, rayon's thread pool).
+    pub bvh_build_ms: f64,
+    /// Everything SceneData does: BVH, scene features, triangle and material arrays, lights.
+    pub prepare_ms: f64,
+    /// Creating and filling the GPU buffers (CPU side of the upload).
+    pub upload_ms: f64,
+    pub threads: usize,
 }
 
 impl SceneData {
     pub fn new(scene: &Scene) -> SceneData {
+        let start = std::time::Instant::now();
         let tris = scene.triangle_positions();
         let bvh = Bvh::build(&tris);
+        let bvh_build_ms = start.elapsed().as_secs_f64() * 1e3;
         let features = SceneFeatures::compute(scene, &bvh, &tris);
 
         // Textures packed into one texel array (sRGB RGBA8 words).
@@ -239,6 +257,11 @@ impl SceneData {
             }
         }
         SceneData {
+            timings: SceneTimings {
+                bvh_build_ms,
+                prepare_ms: start.elapsed().as_secs_f64() * 1e3,
+                ..SceneTimings::default()
+            },
             tris,
             bvh,
             tri_geom,
@@ -297,7 +320,8 @@ impl GpuScene {
     }
 
     pub fn upload(gpu: &Gpu, scene: &Scene) -> GpuScene {
-        let data = SceneData::new(scene);
+        let mut data = SceneData::new(scene);
+        let upload_start = std::time::Instant::now();
         let storage = |label: &str, bytes: &[u8]| {
             // Bindings may not be empty: pad to at least 16 bytes.
             let mut v = bytes.to_vec();
@@ -358,6 +382,8 @@ impl GpuScene {
                 usage: wgpu::BufferUsages::VERTEX,
             });
         let vertex_count = data.vertices.len() as u32;
+        data.timings.upload_ms = upload_start.elapsed().as_secs_f64() * 1e3;
+        data.timings.threads = rayon::current_num_threads();
         GpuScene {
             data,
             sky: scene.sky,

@@ -1,6 +1,7 @@
 //! Scenes: the CPU-side triangle soup every technique renders (world space, one material per
 //! triangle), loaded from glTF or built procedurally, plus its BVH, features and GPU upload.
 
+pub mod atrium;
 pub mod builtin;
 pub mod bvh;
 pub mod features;
