@@ -10,35 +10,15 @@ use gilab::preset::LoadedPreset;
 use std::path::{Path, PathBuf};
 
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("gilab-converge-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    common::tmp_dir("converge", name)
 }
 
-/// One cache for the whole test binary: references are rendered once.
 fn cache() -> PathBuf {
-    let d = std::env::temp_dir().join(format!("gilab-converge-{}-cache", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-/// One GPU test at a time in this binary: lavapipe shares the two CPU cores, and the timing
-/// test would measure the other tests' load.
-static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
-fn serial() -> std::sync::MutexGuard<'static, ()> {
-    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
+    common::reference_cache("converge")
 }
 
 fn converge(p: &LoadedPreset, out: &Path, shard: Option<Shard>) -> (Summary, Vec<Row>) {
-    let opts = ConvergeOptions {
-        out: out.to_path_buf(),
-        cache: cache(),
-        shard,
-        quiet: true,
-    };
-    run::converge(common::gpu(), p, &opts).unwrap();
-    run::read_output_dir(out).unwrap()
+    common::converge_into("converge", p, out, shard).unwrap()
 }
 
 /// The error columns (and rays) of every row: what must not change between identical runs.
@@ -81,7 +61,7 @@ fn flip_pair() -> (Vec<u8>, Vec<u8>) {
 
 #[test]
 fn flip_matches_nvidias_published_tool() {
-    let _serial = serial();
+    let _serial = common::serial();
     let (reference, test) = flip_pair();
     let flip = gilab::compare::flip::ldr_flip_srgb8(&test, &reference, 64, 64).unwrap();
     eprintln!("FLIP {flip:.6} against flip-evaluator 1.7's 0.099458");
@@ -138,7 +118,7 @@ fn gilab_compare(image: &Path, reference: &Path) -> (f64, f64) {
 
 #[test]
 fn converge_columns_match_compare_are_deterministic_and_shards_merge() {
-    let _serial = serial();
+    let _serial = common::serial();
     let p = LoadedPreset::from_text(SMALL, None).unwrap();
     let a_dir = tmp("a");
     let (a, a_rows) = converge(&p, &a_dir, None);
@@ -220,7 +200,7 @@ fn converge_columns_match_compare_are_deterministic_and_shards_merge() {
 /// reference: its expected value is 1/N up to the reference's own noise (4,096 spp here).
 #[test]
 fn reference_error_falls_as_one_over_n() {
-    let _serial = serial();
+    let _serial = common::serial();
     let text = r#"
 [scene]
 source = "cornell"
@@ -262,7 +242,7 @@ seeds = [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16]
 
 #[test]
 fn lag_experiment_settles_for_every_technique() {
-    let _serial = serial();
+    let _serial = common::serial();
     let mut p = LoadedPreset::load(Path::new("presets/experiments/lag-light-on.toml")).unwrap();
     // The shipped experiment, smaller: 32², event at frame 12 of 40.
     p.preset.render.size = [32, 32];
@@ -288,7 +268,7 @@ fn lag_experiment_settles_for_every_technique() {
 
 #[test]
 fn bad_experiments_fail_with_clear_errors() {
-    let _serial = serial();
+    let _serial = common::serial();
     let bad_material = SMALL.replace("material = \"lamp\"", "material = \"lmap\"");
     let p = LoadedPreset::from_text(&bad_material, None).unwrap();
     let opts = ConvergeOptions {
@@ -327,7 +307,7 @@ fn bad_experiments_fail_with_clear_errors() {
 /// within 10%, and every run carries its clock check (calibration kernel before and after).
 #[test]
 fn scoring_every_frame_or_every_eighth_gives_the_same_errors_and_times() {
-    let _serial = serial();
+    let _serial = common::serial();
     let text = r#"
 [scene]
 source = "cornell"
@@ -415,7 +395,7 @@ frames = 32
 /// ring whose slots are reached out of order; this combination used to index past the ring.
 #[test]
 fn time_budget_with_sparse_scoring_runs() {
-    let _serial = serial();
+    let _serial = common::serial();
     let text = r#"
 [scene]
 source = "cornell"

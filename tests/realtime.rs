@@ -5,39 +5,12 @@
 
 mod common;
 
-use gilab::experiment::run::{self, ConvergeOptions, Row, Summary};
+use gilab::experiment::run::{Row, Summary};
 use gilab::preset::LoadedPreset;
-use std::path::PathBuf;
-
-fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("gilab-realtime-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-fn cache() -> PathBuf {
-    let d = std::env::temp_dir().join(format!("gilab-realtime-{}-cache", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
-fn serial() -> std::sync::MutexGuard<'static, ()> {
-    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
-}
 
 fn converge(text: &str, name: &str) -> anyhow::Result<(Summary, Vec<Row>)> {
     let p = LoadedPreset::from_text(text, None)?;
-    let out = tmp(name);
-    let opts = ConvergeOptions {
-        out: out.clone(),
-        cache: cache(),
-        shard: None,
-        quiet: true,
-    };
-    run::converge(common::gpu(), &p, &opts)?;
-    run::read_output_dir(&out)
+    common::converge_into("realtime", &p, &common::tmp_dir("realtime", name), None)
 }
 
 /// A short orbit of the Cornell box (camera keys every 4 frames).
@@ -60,7 +33,7 @@ target = [2.78, 2.73, 2.8]
 
 #[test]
 fn still_camera_reference_error_is_steady_and_falls_as_one_over_k() {
-    let _g = serial();
+    let _g = common::serial();
     let text = r#"
 [scene]
 source = "cornell"
@@ -119,7 +92,7 @@ values = [1, 4, 16]
 
 #[test]
 fn camera_path_scored_every_fourth_frame_gives_the_same_errors() {
-    let _g = serial();
+    let _g = common::serial();
     let base = |every: u32| {
         format!(
             r#"
@@ -173,7 +146,7 @@ reference_every = {every}
 
 #[test]
 fn reference_flickers_like_its_references() {
-    let _g = serial();
+    let _g = common::serial();
     // The run is the reference path tracer at the references' own sample count, with another
     // seed: the same process as the references, so its flicker must read as theirs.
     let text = format!(
@@ -212,7 +185,7 @@ frames = 8
 
 #[test]
 fn contradicting_real_time_settings_are_refused() {
-    let _g = serial();
+    let _g = common::serial();
     let head = r#"
 [scene]
 source = "cornell"

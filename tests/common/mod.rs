@@ -108,3 +108,47 @@ pub fn corner_form_factor(a: f64, b: f64, h: f64) -> f64 {
     let f = (x / sx * (y / sx).atan() + y / sy * (x / sy).atan()) / (2.0 * std::f64::consts::PI);
     f * a.signum() * b.signum()
 }
+
+/// A fresh folder for one test's outputs: `gilab-<binary>-<pid>-<name>` in the temp dir.
+pub fn tmp_dir(binary: &str, name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("gilab-{binary}-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// One reference cache per test binary: references are rendered once.
+pub fn reference_cache(binary: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("gilab-{binary}-{}-cache", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// One GPU experiment at a time in a binary: lavapipe shares the two CPU cores, and timing
+/// checks would measure the other tests' load.
+pub fn serial() -> std::sync::MutexGuard<'static, ()> {
+    static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Runs `gilab converge` on a preset into `out` (quiet, the binary's reference cache) and
+/// reads back its summary and rows.
+pub fn converge_into(
+    binary: &str,
+    p: &gilab::preset::LoadedPreset,
+    out: &std::path::Path,
+    shard: Option<gilab::experiment::Shard>,
+) -> anyhow::Result<(
+    gilab::experiment::run::Summary,
+    Vec<gilab::experiment::run::Row>,
+)> {
+    use gilab::experiment::run;
+    let opts = run::ConvergeOptions {
+        out: out.to_path_buf(),
+        cache: reference_cache(binary),
+        shard,
+        quiet: true,
+    };
+    run::converge(gpu(), p, &opts)?;
+    run::read_output_dir(out)
+}
