@@ -300,7 +300,7 @@ pub fn reference_key(p: &LoadedPreset) -> Result<String> {
 pub fn reference_key_for_camera(p: &LoadedPreset, camera: &crate::scene::Camera) -> String {
     use std::hash::Hasher;
     let setup = reference_setup(p);
-    let canonical = serde_json::json!({
+    let mut canonical = serde_json::json!({
         "scene": p.preset.scene.source,
         "scene_params": p.preset.scene.params,
         "camera": camera,
@@ -309,6 +309,14 @@ pub fn reference_key_for_camera(p: &LoadedPreset, camera: &crate::scene::Camera)
         "seed": setup.seed,
         "reference": setup.params,
     });
+    // Only with an environment map, so that the keys of every other preset stay as they were.
+    if let Some(env) = &p.preset.scene.environment {
+        canonical["environment"] = serde_json::json!([
+            env,
+            p.preset.scene.environment_rotation,
+            p.preset.scene.environment_intensity
+        ]);
+    }
     let mut h = fnv::FnvHasher::default();
     h.write(canonical.to_string().as_bytes());
     format!("{:016x}", h.finish())

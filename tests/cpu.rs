@@ -155,6 +155,30 @@ fn gpu_struct_members_match_rust_fields() {
             pad,
         ]
     );
+    use gilab::scene::gpu_scene::{GpuMaterial, GpuTriAttr};
+    assert_same_members!(
+        "reference/path_trace.wgsl",
+        "TriAttr",
+        GpuTriAttr,
+        [
+            normals,
+            light_pmf,
+            tangents,
+            material,
+            uv0_ab,
+            uv0_c_uv1_a,
+            uv1_bc,
+            scene_tri,
+            flags,
+            pad
+        ]
+    );
+    assert_same_members!(
+        "reference/path_trace.wgsl",
+        "Material",
+        GpuMaterial,
+        [base_color, emissive, params, extra, tex, shading]
+    );
     assert_same_members!(
         "frame/primary_surfaces.wgsl",
         "GSurface",
@@ -209,6 +233,8 @@ fn gpu_struct_layouts_match_rust() {
     assert_eq!(size_of("TriGeom"), std::mem::size_of::<GpuTriGeom>());
     assert_eq!(size_of("TriAttr"), std::mem::size_of::<GpuTriAttr>());
     assert_eq!(size_of("Material"), std::mem::size_of::<GpuMaterial>());
+    assert_eq!(size_of("TexSlot"), std::mem::size_of::<GpuTexSlot>());
+    assert_eq!(size_of("TextureInfo"), std::mem::size_of::<GpuTexture>());
     assert_eq!(size_of("Light"), std::mem::size_of::<GpuLight>());
     assert_eq!(
         size_of("FrameUniforms"),
@@ -399,7 +425,10 @@ fn gltf_scene_loads_with_extensions() {
             .find(|m| m.name == "lambert cube")
             .unwrap();
         assert_eq!(cube.specular, 0.0);
-        assert!(s.materials.iter().any(|m| m.base_color_texture == Some(0)));
+        assert!(s
+            .materials
+            .iter()
+            .any(|m| m.base_color_texture.map(|t| t.texture) == Some(0)));
         assert_eq!((s.textures[0].width, s.textures[0].height), (8, 8));
         assert_eq!(s.lights.len(), 1);
         assert!((s.lights[0].position - Vec3::new(-1.5, 1.5, 1.0)).length() < 1e-5);
@@ -954,8 +983,11 @@ fn gltf_optional_parts_are_skipped_with_warnings() {
 
 /// The large scene: at its default detail at least a million triangles (with 64 local lights,
 /// a sun and a sky); its parallel BVH equals the sequential one bit for bit and finds what brute
-/// force finds on random rays. A low-detail atrium renders finite on the GPU elsewhere (CI runs
-/// the generator at a small setting there).
+/// force finds on random rays. Its procedural textures (issue 19): count, size, valid normal
+/// maps, the cloth alpha-masked and double-sided with holes, a tangent on every normal-mapped
+/// vertex (agreeing with MikkTSpace), the same bytes on every generation and through PNG; its
+/// repeated meshes are recorded as exact instances. A low-detail atrium renders finite on the
+/// GPU elsewhere (CI runs the generator at a small setting there).
 #[test]
 fn atrium_has_a_million_triangles_and_its_bvh_is_exact() {
     let scene = builtin::build("atrium", &toml::Table::new()).unwrap();
@@ -1029,4 +1061,191 @@ fn atrium_has_a_million_triangles_and_its_bvh_is_exact() {
         }
     }
     assert!(hits > 100, "only {hits} of 200 rays hit");
+
+    // Issue 19: textured, alpha-masked cloth, instanced details.
+    use gilab::scene::{atrium, AlphaMode};
+    assert_eq!(scene.textures.len(), atrium::TEXTURES.len());
+    assert_eq!(atrium::texture_size(1.0), 512);
+    assert_eq!(atrium::texture_size(0.05), 64);
+    for (t, name) in scene.textures.iter().zip(atrium::TEXTURES) {
+        assert_eq!((t.width, t.height), (512, 512), "{name}");
+        assert_eq!(t.rgba8.len(), 512 * 512 * 4, "{name}");
+        // Not flat: every texture varies in some channel.
+        let (lo, hi) = t
+            .rgba8
+            .iter()
+            .fold((255u8, 0u8), |(l, h), &b| (l.min(b), h.max(b)));
+        assert!(hi - lo > 20, "{name}: values {lo}..{hi}");
+    }
+    let texture = |name: &str| {
+        let i = atrium::TEXTURES.iter().position(|n| *n == name).unwrap();
+        &scene.textures[i]
+    };
+    // Normal maps: unit vectors (to 8-bit rounding) facing out, bumpy somewhere.
+    for name in atrium::TEXTURES.iter().filter(|n| n.ends_with("_normal")) {
+        let mut tilted = 0;
+        for px in texture(name).rgba8.chunks_exact(4) {
+            let n = Vec3::new(px[0] as f32, px[1] as f32, px[2] as f32) / 127.5 - Vec3::ONE;
+            assert!((n.length() - 1.0).abs() < 0.02 && n.z > 0.2, "{name}: {n}");
+            tilted += (n.z < 0.995) as usize;
+        }
+        assert!(tilted > 100, "{name}: only {tilted} tilted texels");
+    }
+    // Cloth: alpha-masked, double-sided, with holes (and a fringe) covering a fair share.
+    let cloths: Vec<_> = scene
+        .materials
+        .iter()
+        .filter(|m| m.name.starts_with("cloth"))
+        .collect();
+    assert_eq!(cloths.len(), 3);
+    for m in &cloths {
+        assert_eq!(m.alpha_mode, AlphaMode::Mask, "{}", m.name);
+        assert!(m.double_sided && m.alpha_tested(), "{}", m.name);
+        let t = &scene.textures[m.base_color_texture.unwrap().texture];
+        let holes = t.rgba8.chunks_exact(4).filter(|p| p[3] < 128).count();
+        let share = holes as f64 / (t.width * t.height) as f64;
+        assert!(
+            (0.03..0.2).contains(&share),
+            "{}: {share:.3} of the cloth is holes",
+            m.name
+        );
+    }
+    // Every other material is opaque, and every textured material's texture exists.
+    for m in &scene.materials {
+        if !m.name.starts_with("cloth") {
+            assert_eq!(m.alpha_mode, AlphaMode::Opaque, "{}", m.name);
+        }
+    }
+    let textured = scene
+        .materials
+        .iter()
+        .filter(|m| m.base_color_texture.is_some())
+        .count();
+    assert_eq!(
+        textured,
+        scene.materials.len() - 1,
+        "all but the lamp are textured"
+    );
+    // Tangents: every vertex of a normal-mapped triangle has a unit one with a sign.
+    assert_eq!(scene.tangents.len(), scene.positions.len());
+    let mut mapped = 0;
+    for (t, &m) in scene.triangles.iter().zip(&scene.triangle_material) {
+        if scene.materials[m as usize].normal_texture.is_some() {
+            mapped += 1;
+            for &v in t {
+                let tg = scene.tangents[v as usize];
+                assert!(
+                    (tg.truncate().length() - 1.0).abs() < 1e-3 && tg.w.abs() == 1.0,
+                    "vertex {v} of a {} triangle: tangent {tg}",
+                    scene.materials[m as usize].name
+                );
+            }
+        }
+    }
+    assert!(
+        mapped > scene.triangles.len() / 2,
+        "{mapped} normal-mapped triangles"
+    );
+    // The floor's UVs are world x, z: tangent +X, bitangent (w N x T) towards -v (-Z).
+    let floor = scene
+        .materials
+        .iter()
+        .position(|m| m.name == "floor tiles")
+        .unwrap();
+    let fv = scene.triangles[scene
+        .triangle_material
+        .iter()
+        .position(|&m| m as usize == floor)
+        .unwrap()][0];
+    let ft = scene.tangents[fv as usize];
+    assert!(
+        (ft.truncate() - Vec3::X).length() < 1e-3 && ft.w == 1.0,
+        "floor tangent {ft}"
+    );
+    // Deterministic textures: the same bytes generated again, and through PNG and back.
+    let again = atrium::textures(1.0);
+    for ((a, b), name) in scene.textures.iter().zip(&again).zip(atrium::TEXTURES) {
+        assert!(a.rgba8 == b.rgba8, "{name} differs between two generations");
+    }
+    let dir = std::env::temp_dir().join(format!("gilab-atrium-{}", std::process::id()));
+    let paths = atrium::write_textures(&dir).unwrap();
+    assert_eq!(paths.len(), atrium::TEXTURES.len());
+    for (p, t) in paths.iter().zip(&again) {
+        let png = image::open(p).unwrap().to_rgba8();
+        assert_eq!(png.dimensions(), (t.width, t.height));
+        assert!(png.as_raw() == &t.rgba8, "{}", p.display());
+    }
+    std::fs::remove_dir_all(&dir).ok();
+    // Instances: each repeat is its prototype moved (vertices, UVs, normals, materials, indices).
+    let low = atrium::build(0.05);
+    assert_eq!(low.scene.textures[0].width, 64);
+    let count = |p: &str| low.instances.iter().filter(|i| i.prototype == p).count();
+    assert_eq!(
+        ["column lower", "column upper", "arch", "vase", "lamp"].map(count),
+        [26, 26, 48, 52, 32]
+    );
+    let s = &low.scene;
+    for i in &low.instances {
+        let p = low
+            .instances
+            .iter()
+            .find(|j| j.prototype == i.prototype)
+            .unwrap();
+        assert_eq!(
+            (i.triangle_count, i.vertex_count),
+            (p.triangle_count, p.vertex_count)
+        );
+        for k in 0..i.vertex_count as usize {
+            let (a, b) = (i.first_vertex as usize + k, p.first_vertex as usize + k);
+            let (la, lb) = (
+                s.positions[a] - i.translation,
+                s.positions[b] - p.translation,
+            );
+            assert!(
+                (la - lb).length() < 1e-4,
+                "{}: vertex {k}: {la} vs {lb}",
+                i.prototype
+            );
+            assert!((s.normals[a] - s.normals[b]).length() < 1e-5);
+            assert_eq!(s.uvs[a], s.uvs[b]);
+        }
+        for k in 0..i.triangle_count as usize {
+            let (a, b) = (i.first_triangle as usize + k, p.first_triangle as usize + k);
+            let shift = i.first_vertex - p.first_vertex;
+            assert_eq!(s.triangles[a], s.triangles[b].map(|v| v + shift));
+            assert_eq!(s.triangle_material[a], s.triangle_material[b]);
+        }
+    }
+    // The atrium's analytic tangents agree with MikkTSpace's.
+    let mapped: Vec<[u32; 3]> = s
+        .triangles
+        .iter()
+        .zip(&s.triangle_material)
+        .filter(|(_, &m)| s.materials[m as usize].normal_texture.is_some())
+        .map(|(t, _)| *t)
+        .collect();
+    let mikk = gilab::scene::tangents::generate(&s.positions, &s.normals, &s.uvs, &mapped);
+    let (mut worst, mut signs, mut sum, mut count) = (1.0f32, 0, 0.0f64, 0);
+    for &v in mapped.iter().flatten() {
+        let (a, b) = (s.tangents[v as usize], mikk[v as usize]);
+        let cos = a.truncate().dot(b.truncate());
+        worst = worst.min(cos);
+        sum += cos.clamp(-1.0, 1.0).acos().to_degrees() as f64;
+        count += 1;
+        signs += (a.w != b.w) as usize;
+    }
+    eprintln!(
+        "atrium tangents vs MikkTSpace: mean {:.3} deg, worst {:.2} deg, {signs} signs differ",
+        sum / count as f64,
+        worst.clamp(-1.0, 1.0).acos().to_degrees()
+    );
+    assert_eq!(signs, 0);
+    assert!(worst > 0.9998, "worst cosine {worst}");
+    let instanced: u32 = low.instances.iter().map(|i| i.triangle_count).sum();
+    eprintln!(
+        "atrium detail 0.05: {} triangles, {} in {} instances",
+        s.triangles.len(),
+        instanced,
+        low.instances.len()
+    );
 }

@@ -576,16 +576,71 @@ fn list_pass_visits_each_element_once() {
     }
 }
 
-/// The large generated scene at a small setting (CI): the reference renders it finite and lit.
+/// The large generated scene at a small setting (CI): the reference renders it finite and lit,
+/// its textures change the image, and its cloth's alpha-masked holes and fringe are seen through.
 #[test]
 fn atrium_at_low_detail_renders() {
     let mut params = toml::Table::new();
     params.insert("detail".into(), 0.05.into());
     let scene = builtin::build("atrium", &params).unwrap();
     let tris = scene.triangles.len();
-    let r = render_reference(scene, [48, 32], 4, 2, 3, 0);
+    let r = render_reference(scene.clone(), [48, 32], 4, 2, 3, 0);
     let mean = r.image.mean();
     eprintln!("atrium detail 0.05: {tris} triangles, mean radiance {mean:?}");
     assert_stable("atrium detail 0.05", &r, 1e4);
     assert!(common::luminance(mean) > 0.05, "{mean:?}");
+
+    // The textures reach the image: without them (white factors, no normal maps, opaque
+    // cloth) the same render (same seed) differs clearly.
+    let mut plain = scene.clone();
+    for m in &mut plain.materials {
+        m.base_color_texture = None;
+        m.metallic_roughness_texture = None;
+        m.normal_texture = None;
+        m.alpha_mode = gilab::scene::AlphaMode::Opaque;
+    }
+    let u = render_reference(plain, [48, 32], 4, 2, 3, 0);
+    assert_stable("atrium detail 0.05, untextured", &u, 1e4);
+    let diff = metrics::compare(&r.image, &u.image).unwrap();
+    eprintln!(
+        "textured vs untextured: {diff:?}, untextured mean {:?}",
+        u.image.mean()
+    );
+    assert!(diff.smape > 0.05, "{diff:?}");
+
+    // The cloth's holes let the view (and light) through: close up on an upper cloth panel,
+    // the masked cloth differs from the same cloth made opaque where its holes and fringe are.
+    let mut close = scene.clone();
+    close.camera = Some(Camera {
+        position: Vec3::new(-1.33, 6.5, 1.5),
+        target: Vec3::new(-1.33, 6.5, 5.5),
+        up: Vec3::Y,
+        fov_y: 40.0,
+    });
+    let mut opaque = close.clone();
+    for m in &mut opaque.materials {
+        m.alpha_mode = gilab::scene::AlphaMode::Opaque;
+    }
+    let masked = render_reference(close, [48, 48], 4, 2, 3, 0);
+    let solid = render_reference(opaque, [48, 48], 4, 2, 3, 0);
+    assert_stable("atrium cloth close-up", &masked, 1e4);
+    let changed = masked
+        .image
+        .rgb
+        .chunks_exact(3)
+        .zip(solid.image.rgb.chunks_exact(3))
+        .filter(|(a, b)| {
+            let (la, lb) = (
+                common::luminance([a[0] as f64, a[1] as f64, a[2] as f64]),
+                common::luminance([b[0] as f64, b[1] as f64, b[2] as f64]),
+            );
+            (la - lb).abs() > 0.25 * (la + lb).max(0.02)
+        })
+        .count();
+    let share = changed as f64 / (48.0 * 48.0);
+    eprintln!(
+        "cloth close-up: {:.1}% of pixels see through holes or fringe",
+        share * 100.0
+    );
+    assert!((0.02..0.6).contains(&share), "{share}");
 }

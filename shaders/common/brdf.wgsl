@@ -32,7 +32,8 @@ struct Shading {
     // x: n_r, y: m_r (retroreflection falloffs), z: p, terminator length, w: n_s, specular
     // Fresnel falloff.
     falloffs: vec4<f32>,
-    // x: dual specular roughness scale, y: dual specular opacity, z: model, w: unused.
+    // x: dual specular roughness scale, y: dual specular opacity, z: model, w: dielectric F0
+    // from KHR_materials_ior (0: 0.04, IOR 1.5).
     dual: vec4<f32>,
 }
 
@@ -112,10 +113,11 @@ fn schlick_falloff(f_zero: vec3<f32>, c: f32, n_s: f32) -> vec3<f32> {
 }
 
 fn dielectric_fresnel(s: Surface, c: f32) -> vec3<f32> {
+    let f_zero = vec3<f32>(select(0.04, s.shading.dual.w, s.shading.dual.w > 0.0));
     if brdf_model(s) == BRDF_LAMBERT_GGX {
-        return schlick(vec3<f32>(0.04), c);
+        return schlick(f_zero, c);
     }
-    return schlick_falloff(vec3<f32>(0.04), c, s.shading.falloffs.w);
+    return schlick_falloff(f_zero, c, s.shading.falloffs.w);
 }
 
 // Fresnel of the whole specular layer: the dielectric part is scaled by the specular factor.

@@ -1,10 +1,11 @@
-// BVH traversal: closest hit and any hit over the binned-SAH BVH built in src/scene/bvh.rs.
+// BVH traversal: closest hit and any hit over the binned-SAH BVH built in src/scene/bvh.rs,
+// with the alpha test of alpha-masked materials (finest texture level) on every candidate.
 // Stackless: nodes are in depth-first order with skip pointers (a hit on an interior node goes
 // to the next node, a miss or a finished leaf to `skip`), so no per-lane stack is needed; on
 // CPU rasterisers such as lavapipe private-array stacks are gather/scatter and far slower.
 #define_import_path gilab::bvh
 
-#import gilab::scene::{bvh_nodes, tri_geom}
+#import gilab::scene::{bvh_nodes, tri_geom, alpha_hole}
 
 const NO_HIT: u32 = 0xffffffffu;
 
@@ -74,7 +75,8 @@ fn traverse(origin: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32, any_hit: 
         let first = node.tris >> 8u;
         for (var k = 0u; k < count; k++) {
             let r = intersect_tri(origin, dir, first + k);
-            if r.x > t_min && r.x < hit.t {
+            // Any-hit: holes of alpha-tested triangles let the ray through.
+            if r.x > t_min && r.x < hit.t && !alpha_hole(first + k, r.yz) {
                 hit = Hit(r.x, first + k, r.yz);
                 if any_hit {
                     return hit;

@@ -2,7 +2,7 @@
 // over emissive triangles and punctual lights, then a point on it (area) or its position (delta).
 #define_import_path gilab::lights
 
-#import gilab::scene::{light_pool, Light, tri_geom, tri_attr, materials, tri_material, LIGHT_TRIANGLE, LIGHT_POINT, LIGHT_SPOT, LIGHT_DIRECTIONAL}
+#import gilab::scene::{light_pool, Light, tri_geom, tri_light_pmf, tri_uvs, material_emission, materials, tri_material, LIGHT_TRIANGLE, LIGHT_POINT, LIGHT_SPOT, LIGHT_DIRECTIONAL}
 #import gilab::sampling::sample_triangle
 #import gilab::ray::{RaySegment, spawn_ray_to, spawn_ray_to_infinity, INFINITE_DISTANCE}
 
@@ -77,21 +77,23 @@ fn class_pdf_scale(light_index: u32) -> f32 {
     return l.class_pmf / l.pmf;
 }
 
-// Emitted radiance of a triangle towards direction `to_viewer` (single-sided unless the material says so).
-fn triangle_emission(tri: u32, to_viewer: vec3<f32>) -> vec3<f32> {
+// Emitted radiance of a triangle at barycentrics `bary` towards direction `to_viewer`
+// (single-sided unless the material says so): the emissive factor x its texture, read at the
+// finest level so that light sampling and hits see the same emission.
+fn triangle_emission(tri: u32, bary: vec2<f32>, to_viewer: vec3<f32>) -> vec3<f32> {
     let m = materials[tri_material(tri)];
     let g = tri_geom[tri];
     let ng = cross(g.edge_b.xyz, g.edge_c.xyz);
     if m.emissive.w < 0.5 && dot(ng, to_viewer) <= 0.0 {
         return vec3<f32>(0.0);
     }
-    return m.emissive.xyz;
+    return material_emission(m, tri_uvs(tri, bary));
 }
 
 // Solid-angle pdf with which sample_light would have produced a hit on emissive triangle `tri`
 // at distance `dist` along direction `wi`: used for MIS when a BSDF-sampled ray hits a light.
 fn triangle_light_pdf(tri: u32, wi: vec3<f32>, dist: f32) -> f32 {
-    let pmf = tri_attr[tri].normal_a.w;
+    let pmf = tri_light_pmf(tri);
     if pmf <= 0.0 {
         return 0.0;
     }
@@ -138,7 +140,7 @@ fn eval_light_point(light_index: u32, b: vec2<f32>, p: vec3<f32>) -> LightSample
             let dist = sqrt(dist_sq);
             s.wi = d / dist;
             s.dist = dist;
-            s.radiance = triangle_emission(light.tri, -s.wi);
+            s.radiance = triangle_emission(light.tri, b, -s.wi);
             let cos_l = abs(dot(c / len, s.wi));
             if cos_l <= 1e-8 {
                 return s;

@@ -1,5 +1,9 @@
 // Path tracing shared by the reference and by ReSTIR GI's sample paths: NEE of one light
 // (power heuristic against BSDF sampling), GGX/Lambert BSDF sampling, Russian roulette.
+// With an environment map as the sky, NEE picks the map (luminance importance sampling) with
+// probability SKY_NEE_SHARE, the light pool otherwise (the map alone when the pool is empty);
+// both sides of the power heuristic use that combined NEE pdf. A constant sky is reached by
+// BSDF sampling only, as before.
 #define_import_path gilab::path
 
 #import gilab::math::max_component
@@ -10,13 +14,17 @@
 #import gilab::bvh::{trace_closest, NO_HIT}
 #import gilab::surface::hit_surface
 #import gilab::brdf::{bsdf_eval, bsdf_sample}
-#import gilab::lights::{sample_light, light_shadow_ray, triangle_emission, triangle_light_pdf}
+#import gilab::lights::{LightSample, no_light_sample, sample_light, light_shadow_ray, triangle_emission, triangle_light_pdf}
+#import gilab::ray::INFINITE_DISTANCE
+#import gilab::sky::{sky_radiance, sample_sky, sky_pdf, sky_nee}
 #import gilab::sampling::power_heuristic
 
 // Hard safety cap on path length. With Russian roulette survival <= 0.95 the chance of
 // reaching it is below 0.95^1021 ~ 1e-23, so "unbounded" stays unbiased in practice.
 const SAFETY_MAX_BOUNCES: u32 = 1024u;
 const RR_START_DEPTH: u32 = 3u;
+// Probability that NEE samples the environment map rather than the light pool when both exist.
+const SKY_NEE_SHARE: f32 = 0.5;
 
 struct PathResult {
     // Radiance arriving at the origin along the first direction.
@@ -40,6 +48,11 @@ fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, 
     var prev_pdf = 0.0;
     var prev_delta = true;
     let max_bounces = select(SAFETY_MAX_BOUNCES, max_depth, max_depth > 0u);
+    // Probability that NEE samples the sky (0: light pool only, as without an environment map).
+    var p_sky = 0.0;
+    if sky_nee() {
+        p_sky = select(1.0, SKY_NEE_SHARE, light_pool.count > 0u);
+    }
     for (var depth = 0u; depth <= max_bounces; depth++) {
         let hit = trace_closest(origin, dir, 0.0, 1e30);
         if depth == 0u {
@@ -48,7 +61,11 @@ fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, 
             out.indirect_rays += 1u;
         }
         if hit.tri == NO_HIT {
-            out.radiance += throughput * frame.sky.xyz;
+            var w = 1.0;
+            if !prev_delta && p_sky > 0.0 {
+                w = power_heuristic(prev_pdf, p_sky * sky_pdf(dir));
+            }
+            out.radiance += throughput * sky_radiance(dir) * w;
             break;
         }
         let surf = hit_surface(origin, dir, hit);
@@ -56,11 +73,11 @@ fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, 
             out.first_hit = vec4<f32>(surf.position, 1.0);
             out.first_normal = surf.geo_normal;
         }
-        let le = triangle_emission(hit.tri, -dir);
+        let le = triangle_emission(hit.tri, hit.bary, -dir);
         if any(le > vec3<f32>(0.0)) && !(depth == 0u && skip_first_emission) {
             var w = 1.0;
             if !prev_delta {
-                w = power_heuristic(prev_pdf, triangle_light_pdf(hit.tri, dir, hit.t));
+                w = power_heuristic(prev_pdf, (1.0 - p_sky) * triangle_light_pdf(hit.tri, dir, hit.t));
             }
             out.radiance += throughput * le * w;
         }
@@ -69,19 +86,26 @@ fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, 
         }
         let wo = -dir;
         let m = surf.material;
-        // Next-event estimation (a pure mirror evaluates to 0 and traces no shadow ray).
+        // Next-event estimation (a pure mirror evaluates to 0 and traces no shadow ray): the
+        // sky with probability p_sky, else one light of the pool; ls.pdf includes that choice.
         let u_sel = rand(rng);
         let u_light = rand_pair(rng);
-        if light_pool.count > 0u {
-            let ls = sample_light(surf.position, u_sel, u_light);
-            if ls.valid && ls.pdf > 0.0 && dot(ls.wi, surf.geo_normal) > 0.0 {
-                let e = bsdf_eval(m, surf.normal, wo, ls.wi);
-                if any(e.f > vec3<f32>(0.0)) {
-                    out.shadow_rays += 1u;
-                    if unoccluded(light_shadow_ray(surf.position, surf.geo_normal, ls)) {
-                        let w = select(power_heuristic(ls.pdf, e.pdf), 1.0, ls.is_delta);
-                        out.radiance += throughput * e.f * dot(surf.normal, ls.wi) * ls.radiance * (w / ls.pdf);
-                    }
+        var ls = no_light_sample();
+        if u_sel < p_sky {
+            let ss = sample_sky(u_light);
+            let le_sky = sky_radiance(ss.dir);
+            ls = LightSample(ss.dir, INFINITE_DISTANCE, le_sky, p_sky * ss.pdf, p_sky * ss.pdf, 1.0, false, ss.pdf > 0.0 && any(le_sky > vec3<f32>(0.0)), vec3<f32>(0.0));
+        } else if light_pool.count > 0u {
+            ls = sample_light(surf.position, (u_sel - p_sky) / (1.0 - p_sky), u_light);
+            ls.pdf *= 1.0 - p_sky;
+        }
+        if ls.valid && ls.pdf > 0.0 && dot(ls.wi, surf.geo_normal) > 0.0 {
+            let e = bsdf_eval(m, surf.normal, wo, ls.wi);
+            if any(e.f > vec3<f32>(0.0)) {
+                out.shadow_rays += 1u;
+                if unoccluded(light_shadow_ray(surf.position, surf.geo_normal, ls)) {
+                    let w = select(power_heuristic(ls.pdf, e.pdf), 1.0, ls.is_delta);
+                    out.radiance += throughput * e.f * dot(surf.normal, ls.wi) * ls.radiance * (w / ls.pdf);
                 }
             }
         }

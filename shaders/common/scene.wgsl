@@ -21,29 +21,68 @@ struct TriGeom {
     edge_c: vec4<f32>,
 }
 
-// Shading attributes, same order as TriGeom.
+// Shading attributes, same order as TriGeom (96 bytes: see GpuTriAttr).
 struct TriAttr {
-    // xyz: vertex normal 0, w: probability of picking this triangle as a light (0 if not emissive).
-    normal_a: vec4<f32>,
-    // xyz: vertex normal 1, w: material index (bitcast).
-    normal_b: vec4<f32>,
-    // xyz: vertex normal 2, w: the triangle's index in the scene (bitcast; the arrays here are in
-    // BVH order), the object id primary surfaces report.
-    normal_c: vec4<f32>,
-    uv_ab: vec4<f32>,
-    uv_c: vec4<f32>,
+    // Oct-encoded vertex normals (oct_decode_packed); valid when flags has TRI_HAS_NORMALS.
+    normals: vec3<u32>,
+    // Probability of picking this triangle as a light (0 if not emissive).
+    light_pmf: f32,
+    // Oct-encoded vertex tangents; valid when flags has TRI_HAS_TANGENTS.
+    tangents: vec3<u32>,
+    material: u32,
+    uv0_ab: vec4<f32>,
+    // xy: UV set 0 of vertex c, zw: UV set 1 of vertex a.
+    uv0_c_uv1_a: vec4<f32>,
+    uv1_bc: vec4<f32>,
+    // The triangle's index in the scene (the arrays here are in BVH order), the object id
+    // primary surfaces report.
+    scene_tri: u32,
+    flags: u32,
+    pad: vec2<u32>,
 }
+
+const TRI_HAS_NORMALS: u32 = 1u;
+const TRI_HAS_TANGENTS: u32 = 2u;
+// Bit 2 + k: vertex k's bitangent sign is negative.
+const TRI_BITANGENT_NEG_SHIFT: u32 = 2u;
+
+// A material's use of a texture: rows of the KHR_texture_transform matrix,
+// uv' = (dot(transform_u.xy, uv) + transform_u.z, dot(transform_v.xy, uv) + transform_v.z); transform_u.w: texture index
+// (bitcast, NO_TEXTURE when unused), transform_v.w: UV set (bitcast, 0 or 1).
+struct TexSlot {
+    transform_u: vec4<f32>,
+    transform_v: vec4<f32>,
+}
+
+const NO_TEXTURE: u32 = 0xffffffffu;
+const SLOT_BASE_COLOR: u32 = 0u;
+const SLOT_METALLIC_ROUGHNESS: u32 = 1u;
+const SLOT_NORMAL: u32 = 2u;
+const SLOT_EMISSIVE: u32 = 3u;
+const SLOT_OCCLUSION: u32 = 4u;
 
 struct Material {
     base_color: vec4<f32>,
     // rgb: emitted radiance (factor x strength), w: 1 if double-sided.
     emissive: vec4<f32>,
-    // x: metallic, y: roughness, z: specular factor (0 = pure Lambert), w: unused.
+    // x: metallic, y: roughness, z: specular factor (0 = pure Lambert), w: unused. The
+    // dielectric F0 from the IOR travels in shading.dual.w.
     params: vec4<f32>,
-    // x: first texel, y: width, z: height, w: 1 if a base-colour texture is bound.
-    base_tex: vec4<u32>,
+    // x: normal scale, y: occlusion strength, z: alpha cutoff, w: 1 if alpha-tested (mask; blend traced as mask).
+    extra: vec4<f32>,
+    // Base colour, metallic-roughness, normal, emissive, occlusion.
+    tex: array<TexSlot, 5>,
     // The BRDF model and Callisto's parameters.
     shading: Shading,
+}
+
+// Where a texture's mip chain lies in `texels`: `first` holds `levels` words, the offset of
+// each level's texels; level k is (width >> k) x (height >> k), at least 1 x 1.
+struct TextureInfo {
+    first: u32,
+    width: u32,
+    height: u32,
+    levels: u32,
 }
 
 const LIGHT_TRIANGLE: u32 = 0u;
@@ -84,16 +123,49 @@ struct LightPool {
 @group(0) @binding(1) var<storage, read> tri_geom: array<TriGeom>;
 @group(0) @binding(2) var<storage, read> tri_attr: array<TriAttr>;
 @group(0) @binding(3) var<storage, read> materials: array<Material>;
+// RGBA8 words of every texture and mip level (see TextureInfo).
 @group(0) @binding(4) var<storage, read> texels: array<u32>;
 @group(0) @binding(5) var<storage, read> light_pool: LightPool;
+// Binding 6: the environment map (gilab::sky).
+@group(0) @binding(7) var<storage, read> textures: array<TextureInfo>;
 
 // The triangle's index in the scene (before BVH ordering).
 fn scene_triangle(tri: u32) -> u32 {
-    return bitcast<u32>(tri_attr[tri].normal_c.w);
+    return tri_attr[tri].scene_tri;
 }
 
 fn tri_material(tri: u32) -> u32 {
-    return bitcast<u32>(tri_attr[tri].normal_b.w);
+    return tri_attr[tri].material;
+}
+
+// Probability that light sampling picks triangle `tri` (0 if it does not emit).
+fn tri_light_pmf(tri: u32) -> f32 {
+    return tri_attr[tri].light_pmf;
+}
+
+// Material index + 1 of a triangle rays may pass through (alpha-tested), else 0.
+fn tri_alpha_tag(tri: u32) -> u32 {
+    return bitcast<u32>(tri_geom[tri].vertex_a.w);
+}
+
+// Unit vector from two snorm16 octahedral coordinates (src/scene/gpu_scene.rs oct_encode_packed).
+fn oct_decode_packed(packed: u32) -> vec3<f32> {
+    let e = unpack2x16snorm(packed);
+    var v = vec3<f32>(e.x, e.y, 1.0 - abs(e.x) - abs(e.y));
+    if v.z < 0.0 {
+        let s = select(vec2<f32>(-1.0), vec2<f32>(1.0), v.xy >= vec2<f32>(0.0));
+        v = vec3<f32>((1.0 - abs(v.yx)) * s, v.z);
+    }
+    return normalize(v);
+}
+
+// UV sets 0 and 1 at barycentrics (b, c) of triangle `tri`: xy set 0, zw set 1.
+fn tri_uvs(tri: u32, bary: vec2<f32>) -> vec4<f32> {
+    let a = tri_attr[tri];
+    let w = 1.0 - bary.x - bary.y;
+    let uv0 = w * a.uv0_ab.xy + bary.x * a.uv0_ab.zw + bary.y * a.uv0_c_uv1_a.xy;
+    let uv1 = w * a.uv0_c_uv1_a.zw + bary.x * a.uv1_bc.xy + bary.y * a.uv1_bc.zw;
+    return vec4<f32>(uv0, uv1);
 }
 
 fn srgb_to_linear(c: f32) -> f32 {
@@ -103,27 +175,87 @@ fn srgb_to_linear(c: f32) -> f32 {
     return pow((c + 0.055) / 1.055, 2.4);
 }
 
-fn texel(m: Material, x: i32, y: i32) -> vec4<f32> {
-    let w = i32(m.base_tex.y);
-    let h = i32(m.base_tex.z);
-    let xx = ((x % w) + w) % w;
-    let yy = ((y % h) + h) % h;
-    let packed = texels[m.base_tex.x + u32(yy * w + xx)];
-    let c = unpack4x8unorm(packed);
-    return vec4<f32>(srgb_to_linear(c.x), srgb_to_linear(c.y), srgb_to_linear(c.z), c.w);
+fn slot_used(slot: TexSlot) -> bool {
+    return bitcast<u32>(slot.transform_u.w) != NO_TEXTURE;
 }
 
-// Bilinear, repeat-wrapped base colour (texture x factor).
-fn base_color(m: Material, uv: vec2<f32>) -> vec4<f32> {
-    if m.base_tex.w == 0u {
-        return m.base_color;
+// The slot's texture coordinates: its UV set through its transform.
+fn slot_uv(slot: TexSlot, uvs: vec4<f32>) -> vec2<f32> {
+    let uv = select(uvs.xy, uvs.zw, bitcast<u32>(slot.transform_v.w) == 1u);
+    return vec2<f32>(dot(slot.transform_u.xy, uv) + slot.transform_u.z, dot(slot.transform_v.xy, uv) + slot.transform_v.z);
+}
+
+// One texel of mip level `level` (repeat wrap), decoded (sRGB colour channels when `srgb`).
+fn fetch_texel(t: TextureInfo, level: u32, x: i32, y: i32, srgb: bool) -> vec4<f32> {
+    // No loop here: a loop nested in BVH traversal (the any-hit alpha test) was seen to
+    // change lavapipe's results even where it never ran (a furnace lost 4% of its energy).
+    let first = texels[t.first + level];
+    let wi = i32(max(t.width >> level, 1u));
+    let hi = i32(max(t.height >> level, 1u));
+    let xx = ((x % wi) + wi) % wi;
+    let yy = ((y % hi) + hi) % hi;
+    let c = unpack4x8unorm(texels[first + u32(yy * wi + xx)]);
+    if srgb {
+        return vec4<f32>(srgb_to_linear(c.x), srgb_to_linear(c.y), srgb_to_linear(c.z), c.w);
     }
-    let p = uv * vec2<f32>(f32(m.base_tex.y), f32(m.base_tex.z)) - 0.5;
+    return c;
+}
+
+// Bilinear, repeat-wrapped lookup at the mip level nearest to `lod` (log2 of texels per
+// footprint at level 0; <= 0 reads level 0).
+fn sample_texture(index: u32, uv: vec2<f32>, lod: f32, srgb: bool) -> vec4<f32> {
+    let t = textures[index];
+    let level = u32(clamp(round(lod), 0.0, f32(max(t.levels, 1u) - 1u)));
+    let size = vec2<f32>(f32(max(t.width >> level, 1u)), f32(max(t.height >> level, 1u)));
+    let p = uv * size - 0.5;
     let f = floor(p);
-    let t = p - f;
+    let s = p - f;
     let x = i32(f.x);
     let y = i32(f.y);
-    let a = mix(texel(m, x, y), texel(m, x + 1, y), t.x);
-    let b = mix(texel(m, x, y + 1), texel(m, x + 1, y + 1), t.x);
-    return m.base_color * mix(a, b, t.y);
+    let a = mix(fetch_texel(t, level, x, y, srgb), fetch_texel(t, level, x + 1, y, srgb), s.x);
+    let b = mix(fetch_texel(t, level, x, y + 1, srgb), fetch_texel(t, level, x + 1, y + 1, srgb), s.x);
+    return mix(a, b, s.y);
+}
+
+// Texture of a material slot at a triangle point. `lod_base` is the ray-cone term
+// log2(footprint / |cos|) + 0.5 log2(uv area / world area) of the slot's UV set (see
+// gilab::surface); the texture's own size and the transform's scale are added here.
+fn slot_sample(slot: TexSlot, uvs: vec4<f32>, lod_base: vec2<f32>, srgb: bool) -> vec4<f32> {
+    let index = bitcast<u32>(slot.transform_u.w);
+    let t = textures[index];
+    let set1 = bitcast<u32>(slot.transform_v.w) == 1u;
+    let det = abs(slot.transform_u.x * slot.transform_v.y - slot.transform_u.y * slot.transform_v.x);
+    let lod = select(lod_base.x, lod_base.y, set1) + 0.5 * log2(max(f32(t.width * t.height) * det, 1e-20));
+    return sample_texture(index, slot_uv(slot, uvs), lod, srgb);
+}
+
+// Emitted radiance of a material at a triangle point (both sides; the caller decides which side
+// emits): the factor x the sRGB emissive texture at its finest level.
+fn material_emission(m: Material, uvs: vec4<f32>) -> vec3<f32> {
+    var le = m.emissive.xyz;
+    if slot_used(m.tex[SLOT_EMISSIVE]) && any(le > vec3<f32>(0.0)) {
+        le *= slot_sample(m.tex[SLOT_EMISSIVE], uvs, vec2<f32>(-100.0), true).xyz;
+    }
+    return le;
+}
+
+// Alpha of a material at a triangle point (base colour factor x texture, finest level):
+// what the any-hit test and the G-buffer cutout compare with the cutoff.
+fn material_alpha(m: Material, uvs: vec4<f32>) -> f32 {
+    var a = m.base_color.w;
+    let slot = m.tex[SLOT_BASE_COLOR];
+    if slot_used(slot) {
+        a *= sample_texture(bitcast<u32>(slot.transform_u.w), slot_uv(slot, uvs), 0.0, false).w;
+    }
+    return a;
+}
+
+// True where an alpha-tested triangle has a hole at barycentrics `bary`.
+fn alpha_hole(tri: u32, bary: vec2<f32>) -> bool {
+    let tag = tri_alpha_tag(tri);
+    if tag == 0u {
+        return false;
+    }
+    let m = materials[tag - 1u];
+    return material_alpha(m, tri_uvs(tri, bary)) < m.extra.z;
 }

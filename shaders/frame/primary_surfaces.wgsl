@@ -8,6 +8,7 @@
 #import gilab::scene::scene_triangle
 #import gilab::lights::triangle_emission
 #import gilab::primary::{GSurface, surfaces, surface_slot, previous_pixel_position, NO_SURFACE}
+#import gilab::sky::sky_radiance
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
@@ -20,7 +21,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let dir = camera_ray_dir(pixel_pos);
         let hit = trace_closest(origin, dir, 0.0, 1e30);
         counts[RAY_CAMERA] = 1u;
-        var g = GSurface(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(-dir, 1e30), vec4<f32>(frame.sky.xyz, 0.0), vec2<f32>(0.0), NO_SURFACE, NO_SURFACE);
+        var g = GSurface(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(-dir, 1e30), vec4<f32>(sky_radiance(dir), 0.0), vec2<f32>(0.0), NO_SURFACE, NO_SURFACE);
         if hit.tri != NO_HIT {
             let s = hit_surface(origin, dir, hit);
             let m = s.material;
@@ -29,7 +30,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             g.geo_specular = vec4<f32>(s.geo_normal, m.specular);
             g.base_metal = vec4<f32>(m.base_color, m.metallic);
             g.wo_dist = vec4<f32>(-dir, hit.t);
-            g.emission = vec4<f32>(triangle_emission(hit.tri, -dir), 0.0);
+            g.emission = vec4<f32>(triangle_emission(hit.tri, hit.bary, -dir), 0.0);
             g.triangle = scene_triangle(hit.tri);
             g.material = s.material_index;
             let prev = previous_pixel_position(s.position);

@@ -1,6 +1,9 @@
 // G-buffer raster pass: the shared primary-visibility input of every technique (normal+roughness, albedo+metallic, emission, motion, view distance).
 #import gilab::frame::frame
-#import gilab::scene::{materials, base_color}
+#import gilab::scene::{materials, alpha_hole}
+#import gilab::surface_point::surface_at
+#import gilab::surface::pixel_spread
+#import gilab::lights::triangle_emission
 
 struct VertexIn {
     @location(0) position: vec3<f32>,
@@ -17,6 +20,10 @@ struct VertexOut {
     @location(3) @interpolate(flat) material: u32,
     @location(4) prev_clip: vec4<f32>,
     @location(5) cur_clip: vec4<f32>,
+    // The triangle (vertices are triangles expanded in BVH order) and barycentrics of its
+    // second and third vertex, so the fragment shades through gilab::surface like a ray hit.
+    @location(6) @interpolate(flat) tri: u32,
+    @location(7) bary: vec2<f32>,
 }
 
 struct GBufferOut {
@@ -33,7 +40,7 @@ struct GBufferOut {
 }
 
 @vertex
-fn vs_main(v: VertexIn) -> VertexOut {
+fn vs_main(v: VertexIn, @builtin(vertex_index) vertex: u32) -> VertexOut {
     var o: VertexOut;
     let p = vec4<f32>(v.position, 1.0);
     o.clip = frame.clip_from_world * p;
@@ -43,29 +50,31 @@ fn vs_main(v: VertexIn) -> VertexOut {
     o.normal = v.normal;
     o.uv = v.uv;
     o.material = v.material;
+    o.tri = vertex / 3u;
+    let k = vertex % 3u;
+    o.bary = vec2<f32>(select(0.0, 1.0, k == 1u), select(0.0, 1.0, k == 2u));
     return o;
 }
 
 @fragment
 fn fs_main(in: VertexOut, @builtin(front_facing) front_facing: bool) -> GBufferOut {
+    // Alpha-masked holes are cut out like the any-hit test cuts them for rays.
+    if alpha_hole(in.tri, in.bary) {
+        discard;
+    }
     var o: GBufferOut;
     let m = materials[in.material];
     let view = in.world_pos - frame.camera_pos.xyz;
     let dist = length(view);
-    let geo_n = normalize(cross(dpdx(in.world_pos), dpdy(in.world_pos)));
-    // Facing decided from the geometric normal; robust to missing or flipped vertex normals.
-    let to_cam = -view / max(dist, 1e-20);
-    var ng = select(-geo_n, geo_n, dot(geo_n, to_cam) >= 0.0);
-    var n = in.normal;
-    let len = length(n);
-    n = select(ng, n / max(len, 1e-20), len > 1e-6);
-    n = select(-n, n, dot(n, ng) >= 0.0);
-    o.normal_roughness = vec4<f32>(n, m.params.y);
-    let base = base_color(m, in.uv);
-    o.albedo_metallic = vec4<f32>(base.xyz, m.params.x);
+    let dir = view / max(dist, 1e-20);
+    // The same surface a camera ray would find (textures at the camera ray cone's level,
+    // normal map, facing), so raster and traced primary surfaces agree.
+    let s = surface_at(in.tri, in.bary, dir, dist * pixel_spread());
+    o.normal_roughness = vec4<f32>(s.normal, sqrt(s.material.alpha));
+    o.albedo_metallic = vec4<f32>(s.material.base_color, s.material.metallic);
     // Counter-clockwise winding (glTF's convention) is the emitting side unless double-sided.
     let emits = m.emissive.w > 0.5 || front_facing;
-    o.emissive = vec4<f32>(select(vec3<f32>(0.0), m.emissive.xyz, emits), 1.0);
+    o.emissive = vec4<f32>(select(vec3<f32>(0.0), triangle_emission(in.tri, in.bary, -dir), emits), 1.0);
     let cur = in.cur_clip.xy / in.cur_clip.w;
     let prev = in.prev_clip.xy / in.prev_clip.w;
     o.motion = (cur - prev) * vec2<f32>(0.5, -0.5) * vec2<f32>(frame.size);

@@ -9,6 +9,7 @@
 #import gilab::counters::{flush_counts, no_counts, RAY_CACHE}
 #import gilab::rng::{rng_init, rand, rand_pair, STREAM_LUMEN_PROBE}
 #import gilab::lumen::{params, tile_list, probes, Probe, cache_texel, trace_scene, hit_radiance}
+#import gilab::sky::sky_radiance
 
 const PROBE_RAYS: u32 = 16u;
 
@@ -39,7 +40,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 let u = (vec2<f32>(f32(r % 4u), f32(r / 4u)) + jitter) / 4.0;
                 let dir = to_world(sample_cosine_hemisphere(u), t.normal);
                 let h = trace_scene(t.position, t.normal, dir, 1e30);
-                sum += hit_radiance(h, frame.sky.xyz);
+                sum += hit_radiance(h, sky_radiance(dir));
                 dist += select(1e4, h.t, h.hit);
             }
             counts[RAY_CACHE] += PROBE_RAYS;

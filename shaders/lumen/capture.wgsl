@@ -2,9 +2,10 @@
 // orthographic camera into the card's rectangle of the atlas (viewport = rectangle, the card's
 // box depth range clips), writing albedo, normal, emission and depth. `vs_clear` first marks
 // the whole rectangle invalid (depth 2), so a recapture leaves nothing stale behind.
-#import gilab::scene::{materials, base_color}
-#import gilab::brdf::{make_shaded_surface, diffuse_color}
-#import gilab::lumen_card::{Card, card_uv, card_depth, card_dir}
+#import gilab::scene::{materials, alpha_hole, material_emission, tri_uvs}
+#import gilab::surface_point::surface_at
+#import gilab::brdf::diffuse_color
+#import gilab::lumen_card::{Card, card_uv, card_depth, card_dir, card_axis}
 
 @group(1) @binding(0) var<storage, read> capture_cards: array<Card>;
 
@@ -22,6 +23,10 @@ struct VertexOut {
     @location(2) @interpolate(flat) material: u32,
     @location(3) @interpolate(flat) card: u32,
     @location(4) depth: f32,
+    // The triangle (capture indices are vertex numbers: 3 x triangle + corner) and barycentrics
+    // of its second and third vertex, to shade through gilab::surface_point like a ray hit.
+    @location(5) @interpolate(flat) tri: u32,
+    @location(6) bary: vec2<f32>,
 }
 
 struct CaptureOut {
@@ -35,7 +40,7 @@ struct CaptureOut {
 }
 
 @vertex
-fn vs_main(v: VertexIn, @builtin(instance_index) card: u32) -> VertexOut {
+fn vs_main(v: VertexIn, @builtin(instance_index) card: u32, @builtin(vertex_index) vertex: u32) -> VertexOut {
     let c = capture_cards[card];
     let uv = card_uv(c, v.position);
     let depth = card_depth(c, v.position);
@@ -46,6 +51,9 @@ fn vs_main(v: VertexIn, @builtin(instance_index) card: u32) -> VertexOut {
     o.material = v.material;
     o.card = card;
     o.depth = depth;
+    o.tri = vertex / 3u;
+    let k = vertex % 3u;
+    o.bary = vec2<f32>(select(0.0, 1.0, k == 1u), select(0.0, 1.0, k == 2u));
     return o;
 }
 
@@ -57,17 +65,22 @@ fn fs_main(in: VertexOut, @builtin(front_facing) front_facing: bool) -> CaptureO
     if !front_facing && !double_sided {
         discard;
     }
-    let dir = card_dir(capture_cards[in.card]);
-    var n = in.normal;
-    let len = length(n);
-    n = select(dir, n / max(len, 1e-20), len > 1e-6);
-    n = select(-n, n, dot(n, dir) >= 0.0);
-    let base = base_color(m, in.uv);
-    let albedo = diffuse_color(make_shaded_surface(base.xyz, m.params.x, m.params.y, m.params.z, m.shading), 1.0);
+    if alpha_hole(in.tri, in.bary) {
+        discard;
+    }
+    let c = capture_cards[in.card];
+    let dir = card_dir(c);
+    // Textures at the level of one card texel (its world size as the footprint).
+    let size = c.box_max.xyz - c.box_min.xyz;
+    let a = card_axis(c);
+    let texel = max(size[(a + 1u) % 3u] / f32(c.rect.z), size[(a + 2u) % 3u] / f32(c.rect.w));
+    let s = surface_at(in.tri, in.bary, -dir, texel);
+    let n = s.normal;
+    let albedo = diffuse_color(s.material, 1.0);
     var o: CaptureOut;
     o.albedo = vec4<f32>(albedo, 1.0);
     o.normal = vec4<f32>(n, 1.0);
-    o.emissive = vec4<f32>(m.emissive.xyz, 1.0);
+    o.emissive = vec4<f32>(material_emission(m, tri_uvs(in.tri, in.bary)), 1.0);
     o.depth = in.depth;
     return o;
 }

@@ -9,6 +9,7 @@
 #import gilab::rng::{rng_init, rand_pair, STREAM_LUMEN_GATHER}
 #import gilab::primary::current_surface
 #import gilab::lumen::{params, gather_out, trace_scene, hit_radiance}
+#import gilab::sky::sky_radiance
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
@@ -31,7 +32,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 if dot(dir, s.geo_specular.xyz) <= 0.0 {
                     continue;
                 }
-                sum += hit_radiance(trace_scene(s.pos.xyz, s.geo_specular.xyz, dir, 1e30), frame.sky.xyz);
+                sum += hit_radiance(trace_scene(s.pos.xyz, s.geo_specular.xyz, dir, 1e30), sky_radiance(dir));
             }
             counts[RAY_INDIRECT] += params.rays_per_pixel;
             gather_out[g] = vec4<f32>(PI * sum / f32(max(params.rays_per_pixel, 1u)), 1.0);

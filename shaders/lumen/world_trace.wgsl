@@ -6,6 +6,7 @@
 #import gilab::frame::frame
 #import gilab::lumen::{trace_scene_on, hit_radiance, has_flag, FLAG_BVH}
 #import gilab::lumen_probes::{pp, probe_state, probe_data, load_probe, parity, probes_flag, ray_index, equal_area_dir, world_lookup, PROBES_WORLD_CACHE, PROBE_CELLS, STATE_WORLD_RAYS, STATE_WORLD_CONTINUED, STATE_WORLD_READS}
+#import gilab::sky::sky_radiance
 
 @compute @workgroup_size(64, 1, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
@@ -50,7 +51,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             }
         }
         if !found {
-            radiance = hit_radiance(h, frame.sky.xyz);
+            radiance = hit_radiance(h, sky_radiance(d));
         }
         probe_data[r + 1u] = vec4<f32>(radiance, t_free + select(reach, h.t, h.hit));
         probe_data[r].z = -probe_data[r].z;

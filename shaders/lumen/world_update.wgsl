@@ -11,6 +11,7 @@
 #import gilab::rng::{rng_init, rand_pair, STREAM_LUMEN_WORLD}
 #import gilab::lumen::{trace_scene, hit_radiance}
 #import gilab::lumen_probes::{pp, probe_state, world_cache, world_header, world_slot_coord, world_probe_pos, world_slots, world_spacing, world_res, world_updates, cell_dir, WORLD_RES, WORLD_CELLS, STATE_WORLD_NEW, STATE_WORLD_OLD}
+#import gilab::sky::sky_radiance
 
 var<workgroup> back_faces: atomic<u32>;
 
@@ -50,7 +51,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
         if hit.hit && hit.back_face && hit.t < skip {
             atomicAdd(&back_faces, 1u);
         }
-        radiance = hit_radiance(hit, frame.sky.xyz);
+        radiance = hit_radiance(hit, sky_radiance(d));
         dist = select(1e20, hit.t, hit.hit);
         old = world_cache[slot * WORLD_CELLS + j];
     }

@@ -11,6 +11,7 @@
 #import gilab::lights::{select_light, select_light_in_class, class_pdf_scale}
 #import gilab::sampling::{sample_triangle, sample_cosine_hemisphere}
 #import gilab::brdf::{bsdf_eval, bsdf_sample}
+#import gilab::sky::{sample_sky, sky_pdf, sky_importance}
 #import gilab::primary::{GSurface, reproject, current_surface, previous_surface, surface_material}
 #import gilab::restir::{params, reservoirs, Reservoir, reservoir_index, parity, empty_reservoir, regir_cell, regir_slots, contribution, target_at, visible, update, similar, oct_encode, SKY_SAMPLE, VISIBILITY_PER_CLASS, VISIBILITY_MERGED, TEMPORAL_SEGMENT}
 
@@ -80,27 +81,44 @@ fn directional_candidates(s: GSurface, rng: ptr<function, Rng>) -> Reservoir {
     return finish_ris(s, r);
 }
 
-// The sky: directions from an equal mix of the BSDF's own sampling and the cosine lobe (the
-// mix keeps the pdf non-zero wherever f * cos is, also on mirrors).
+// The sky: directions from a mixture of the BSDF's own sampling and the cosine lobe (the two
+// keep the pdf non-zero wherever f * cos is, also on mirrors) and, with an environment map,
+// the map's luminance importance sampling: one-sample MIS with the mixture pdf. Without a map
+// BSDF and cosine 1/2 each; with one BSDF 1/4, cosine 1/4, map 1/2.
 fn sky_candidates(s: GSurface, rng: ptr<function, Rng>) -> Reservoir {
     var r = empty_reservoir();
     let n = s.normal_alpha.xyz;
     let wo = s.wo_dist.xyz;
     let m = surface_material(s);
+    var p_bsdf = 0.5;
+    var p_cos = 0.5;
+    var p_env = 0.0;
+    if sky_importance() {
+        p_bsdf = 0.25;
+        p_cos = 0.25;
+        p_env = 0.5;
+    }
     for (var i = 0u; i < params.sky_candidates; i++) {
         let u_mix = rand(rng);
         let u_lobe = rand(rng);
         let u = rand_pair(rng);
         var wi = to_world(sample_cosine_hemisphere(u), n);
         var valid = true;
-        if u_mix < 0.5 {
+        if u_mix < p_bsdf {
             // A failed BSDF sample is a candidate of weight 0 (the pdf below is the density
             // of the valid ones).
             let bs = bsdf_sample(m, n, wo, u_lobe, u);
             wi = bs.wi;
             valid = bs.valid;
+        } else if u_mix >= p_bsdf + p_cos {
+            let ss = sample_sky(u);
+            wi = ss.dir;
+            valid = ss.pdf > 0.0;
         }
-        let pdf = 0.5 * max(dot(n, wi), 0.0) / PI + 0.5 * bsdf_eval(m, n, wo, wi).pdf;
+        var pdf = p_cos * max(dot(n, wi), 0.0) / PI + p_bsdf * bsdf_eval(m, n, wo, wi).pdf;
+        if p_env > 0.0 {
+            pdf += p_env * sky_pdf(wi);
+        }
         let e = oct_encode(wi);
         var w = 0.0;
         if valid && pdf > 0.0 {

@@ -11,6 +11,7 @@
 #import gilab::lights::{LightSample, eval_light_point, light_shadow_ray}
 #import gilab::ray::{spawn_ray_to, unoccluded, INFINITE_DISTANCE}
 #import gilab::math::PI
+#import gilab::sky::sky_radiance
 
 struct RestirParams {
     // RIS candidates per pixel per frame from the local lights (triangles, point, spot) by
@@ -113,8 +114,9 @@ fn oct_decode(e: vec2<f32>) -> vec3<f32> {
 // A stored sample seen from p: a light pool sample, or the sky in a direction (infinitely far).
 fn eval_sample(light: u32, bary: vec2<f32>, p: vec3<f32>) -> LightSample {
     if light == SKY_SAMPLE {
-        let sky = frame.sky.xyz;
-        return LightSample(oct_decode(bary), INFINITE_DISTANCE, sky, 0.0, 0.0, 1.0, false, any(sky > vec3<f32>(0.0)), vec3<f32>(0.0));
+        let dir = oct_decode(bary);
+        let sky = sky_radiance(dir);
+        return LightSample(dir, INFINITE_DISTANCE, sky, 0.0, 0.0, 1.0, false, any(sky > vec3<f32>(0.0)), vec3<f32>(0.0));
     }
     return eval_light_point(light, bary, p);
 }

@@ -17,6 +17,7 @@
 #import gilab::path::trace_path
 #import gilab::nee::direct_light
 #import gilab::surfels::{params, surfels, states, ray_offsets, ray_owner, ray_results, has_flag, gather, gathered_irradiance, grid_center_for, guide_value, hemi_oct_encode, hemi_oct_decode, hemi_oct_jacobian, texel_of, FLAG_GUIDING, FLAG_SKY, GUIDE_RES, GUIDE_TEXELS, GUIDE_POPULATED, GUIDE_MIX, DEPTH_RES}
+#import gilab::sky::sky_radiance
 
 // A hit counts as covered by the cache with this much surfel weight (or cell-average weight).
 const COVERED: f32 = 0.25;
@@ -81,7 +82,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             counts[RAY_SURFEL] += 1u;
             if hit.tri == NO_HIT {
                 if has_flag(FLAG_SKY) {
-                    l = frame.sky.xyz;
+                    l = sky_radiance(dir);
                 }
             } else {
                 t_hit = hit.t;

@@ -1,25 +1,64 @@
-//! `gilab bench`: BVH traversal throughput (Mrays/s, rays counted on the GPU like every
-//! technique's) and reference path tracer ms/frame, per scene. Prints numbers; asserts nothing.
+//! `gilab bench`: BVH traversal throughput per scene, split into camera rays and diffuse bounce
+//! rays (Mrays/s, rays counted on the GPU like every technique's), and the reference path
+//! tracer's ms/frame. Frames run back to back after a clock warm-up. Prints numbers; asserts
+//! nothing.
 
 use crate::app::{headless::HeadlessViewer, session::ReferenceSource, ViewerOptions};
-use crate::gpu::{shaders::ShaderLibrary, timing::PassTimer, Gpu};
+use crate::gpu::{calibrate::Calibration, shaders::ShaderLibrary, timing::PassTimer, Gpu};
 use crate::preset::LoadedPreset;
-use crate::render::params::Params;
+use crate::render::params::{ParamKind, ParamSpec, Params};
 use crate::render::{
-    engine::Engine, engine::EngineSettings, pipelines, PassInfo, RenderContext, Technique,
+    engine::Engine, engine::EngineSettings, pipelines, PassInfo, RayCounts, RenderContext,
+    Technique,
 };
-use crate::scene::{builtin, features::SceneFeatures};
+use crate::scene::{builtin, features::SceneFeatures, gpu_scene::GpuScene};
 use crate::techniques::create_technique;
 use anyhow::Result;
 use std::sync::Arc;
 
-/// Camera ray plus three diffuse bounces per pixel, closest hit: traversal cost alone.
+/// Diffuse bounces of the bounce-ray measurement (the camera-ray one traces none).
+pub const BENCH_BOUNCES: u32 = 3;
+/// Frames rendered back to back before each timed series (after the calibration warm-up).
+const WARMUP_FRAMES: u32 = 4;
+
+const TRACE_PARAMS: &[ParamSpec] = &[ParamSpec {
+    name: "bounces",
+    what: "cosine-sampled diffuse bounce rays traced after each camera ray (a path ends at a miss)",
+    higher: "more bounce rays per pixel",
+    lower: "fewer; 0 traces camera rays alone",
+    kind: ParamKind::Int { min: 0, max: 8 },
+    default: BENCH_BOUNCES as f64,
+}];
+
+/// Camera ray plus `bounces` diffuse bounces per pixel, closest hit: traversal cost alone.
 struct TraceBench {
-    /// No parameters.
     params: Params,
     pipeline: Option<wgpu::ComputePipeline>,
     bind_group: Option<wgpu::BindGroup>,
     checksum: Option<wgpu::Buffer>,
+    /// `BenchSettings` of shaders/bench/trace_rays.wgsl: bounces and padding.
+    settings: Option<wgpu::Buffer>,
+}
+
+/// The trace benchmark's parameter table with `bounces`.
+fn bounces_table(bounces: u32) -> toml::Table {
+    let mut t = toml::Table::new();
+    t.insert("bounces".into(), toml::Value::Integer(bounces as i64));
+    t
+}
+
+impl TraceBench {
+    fn new(bounces: u32) -> Result<TraceBench> {
+        let mut params = Params::new("bench-trace", TRACE_PARAMS);
+        params.set("bench-trace", &bounces_table(bounces))?;
+        Ok(TraceBench {
+            params,
+            pipeline: None,
+            bind_group: None,
+            checksum: None,
+            settings: None,
+        })
+    }
 }
 
 impl Technique for TraceBench {
@@ -37,21 +76,47 @@ impl Technique for TraceBench {
         }]
     }
     fn build(&mut self, ctx: &RenderContext) -> Result<()> {
-        let layout = pipelines::layout(ctx.gpu, "bench", &[pipelines::storage_entry(0, false)]);
+        let layout = pipelines::layout(
+            ctx.gpu,
+            "bench",
+            &[
+                pipelines::storage_entry(0, false),
+                pipelines::uniform_entry(1, wgpu::ShaderStages::COMPUTE),
+            ],
+        );
         let pipeline = ctx.pipeline("bench/trace_rays.wgsl", &layout)?;
         let checksum = pipelines::storage_buffer(
             ctx.gpu,
             "bench checksum",
             (ctx.extent[0] * ctx.extent[1]) as u64 * 16,
         );
+        let settings = self.settings.take().unwrap_or_else(|| {
+            ctx.gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("bench settings"),
+                size: 16,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        });
         self.bind_group = Some(pipelines::buffers_bind_group(
             ctx.gpu,
             "bench",
             &layout,
-            &[&checksum],
+            &[&checksum, &settings],
         ));
         self.pipeline = Some(pipeline);
         self.checksum = Some(checksum);
+        self.settings = Some(settings);
+        self.apply_params(ctx)
+    }
+    fn apply_params(&mut self, ctx: &RenderContext) -> Result<()> {
+        if let Some(b) = &self.settings {
+            ctx.gpu.queue.write_buffer(
+                b,
+                0,
+                bytemuck::cast_slice(&[self.params.u32("bounces"), 0u32, 0, 0]),
+            );
+        }
         Ok(())
     }
     fn shader_files(&self) -> &'static [&'static str] {
@@ -89,77 +154,176 @@ pub fn largest_builtin() -> Result<String> {
     Ok(best.0)
 }
 
-/// One warm-up frame (pipeline compilation happens lazily on some drivers), then `frames` timed ones.
-fn timed_frames(mut e: Engine, frames: u32) -> Result<Engine> {
-    e.render_frame()?;
-    e.reset();
-    for _ in 0..frames {
-        e.render_frame()?;
+/// One timed series: per-frame GPU ms and the rays the GPU counted in its frames.
+struct Series {
+    ms: Vec<f64>,
+    rays: RayCounts,
+}
+
+impl Series {
+    fn min_ms(&self) -> f64 {
+        stats(self.ms.clone()).0
     }
-    Ok(e)
+    fn median_ms(&self) -> f64 {
+        stats(self.ms.clone()).1
+    }
+    /// Rays of one kind (`render::RAY_KINDS` index) per frame.
+    fn per_frame(&self, kind: usize) -> f64 {
+        self.rays.by_kind[kind] as f64 / self.ms.len().max(1) as f64
+    }
+    fn total_per_frame(&self) -> f64 {
+        self.rays.total() as f64 / self.ms.len().max(1) as f64
+    }
+}
+
+/// `warmup` frames, then `frames` frames submitted back to back (up to 3 in flight, so the
+/// GPU never waits for the CPU between them).
+fn timed_series(e: &mut Engine, warmup: u32, frames: u32) -> Result<Series> {
+    for _ in 0..warmup {
+        e.submit_frame(None)?;
+    }
+    e.finish_frames()?;
+    e.take_completed();
+    let before = e.ray_counts()?;
+    for _ in 0..frames {
+        e.submit_frame(None)?;
+    }
+    e.finish_frames()?;
+    let results = e.take_completed();
+    let after = e.ray_counts()?;
+    let mut rays = after;
+    for (r, b) in rays.by_kind.iter_mut().zip(before.by_kind) {
+        *r = r.saturating_sub(b);
+    }
+    Ok(Series {
+        ms: results.iter().map(|r| r.report.gpu_ms).collect(),
+        rays,
+    })
+}
+
+/// Rays per second in millions from rays per frame and ms per frame.
+fn mrays(rays_per_frame: f64, ms: f64) -> Option<f64> {
+    (ms > 0.0).then(|| rays_per_frame / ms / 1e3)
+}
+
+fn fmt_opt(v: Option<f64>, width: usize) -> String {
+    v.map_or(format!("{:>width$}", "n/a"), |v| format!("{v:>width$.1}"))
 }
 
 pub fn run(gpu: Arc<Gpu>, extent: [u32; 2], frames: u32, scenes: &[String]) -> Result<()> {
+    const CAMERA: usize = 0;
+    const INDIRECT: usize = 2;
+    debug_assert_eq!(crate::render::RAY_KINDS[CAMERA], "camera");
+    debug_assert_eq!(crate::render::RAY_KINDS[INDIRECT], "indirect");
     let scenes: Vec<String> = if scenes.is_empty() {
         vec!["cornell".into(), largest_builtin()?]
     } else {
         scenes.to_vec()
     };
+    let shaders = ShaderLibrary::discover();
+    let mut calibration = Calibration::new(&gpu, &shaders)?;
     println!(
-        "{:<12} {:>9} {:>12} {:>14} {:>16} {:>14}",
-        "scene", "triangles", "size", "trace Mrays/s", "reference ms/fr", "ref rays/px/fr"
+        "{}x{}, {frames} frames back to back per series after a clock warm-up and {WARMUP_FRAMES} \
+         frames; Mrays/s from the per-frame median GPU time",
+        extent[0], extent[1]
     );
+    println!(
+        "{:<12} {:>10} {:>9} {:>9} {:>9} {:>17} {:>17} {:>8} {:>10} {:>9}",
+        "",
+        "",
+        "primary",
+        "diffuse",
+        "mixed",
+        "camera rays ms",
+        "+3 bounces ms",
+        "bounce",
+        "reference",
+        "ref rays"
+    );
+    println!(
+        "{:<12} {:>10} {:>9} {:>9} {:>9} {:>17} {:>17} {:>8} {:>10} {:>9}",
+        "scene",
+        "triangles",
+        "Mrays/s",
+        "Mrays/s",
+        "Mrays/s",
+        "min / median",
+        "min / median",
+        "rays/px",
+        "ms/frame",
+        "/px/frame"
+    );
+    let mut notes = Vec::new();
     for name in scenes {
         let scene = builtin::build(&name, &toml::Table::new())?;
         let camera = scene.default_camera();
         let tris = scene.triangles.len();
+        let gpu_scene = Arc::new(GpuScene::upload(&gpu, &scene));
+        let scene = Arc::new(scene);
         let settings = || EngineSettings {
             extent,
             seed: 1,
             camera,
         };
-        let bench = Box::new(TraceBench {
-            params: Params::new("bench-trace", &[]),
-            pipeline: None,
-            bind_group: None,
-            checksum: None,
-        });
-        let e = timed_frames(
-            Engine::new(
+        let engine = |t: Box<dyn Technique>| {
+            Engine::with_shared_scene(
                 gpu.clone(),
-                ShaderLibrary::discover(),
+                shaders.clone(),
                 scene.clone(),
-                bench,
+                gpu_scene.clone(),
+                t,
                 settings(),
-            )?,
-            frames,
-        )?;
-        let rays = e.ray_counts()?.total() as f64;
-        let mrays = rays / (e.total_gpu_ms * 1e-3) / 1e6;
+            )
+        };
+
+        // Camera rays alone, then the same camera rays plus BENCH_BOUNCES diffuse bounces:
+        // the difference of the two times is what the bounce rays cost.
+        let mut e = engine(Box::new(TraceBench::new(0)?))?;
+        let (before, warm_ms) = calibration.warm_up(&gpu)?;
+        let clock_before = calibration.clock();
+        let primary = timed_series(&mut e, WARMUP_FRAMES, frames)?;
+        e.set_params(&bounces_table(BENCH_BOUNCES))?;
+        let bounced = timed_series(&mut e, WARMUP_FRAMES, frames)?;
+        let after = calibration.measure(&gpu)?;
+        let check = Calibration::check(before, after, warm_ms, (clock_before, calibration.clock()));
+        drop(e);
+
+        let primary_mrays = mrays(primary.per_frame(CAMERA), primary.median_ms());
+        let bounce_ms = bounced.median_ms() - primary.median_ms();
+        let diffuse_mrays = mrays(bounced.per_frame(INDIRECT), bounce_ms);
+        let mixed_mrays = mrays(bounced.total_per_frame(), bounced.median_ms());
+        let pixels = (extent[0] * extent[1]) as f64;
 
         let mut reference = create_technique("reference")?;
         reference.set_params(&toml::toml! { samples_per_frame = 1 })?;
-        let e = timed_frames(
-            Engine::new(
-                gpu.clone(),
-                ShaderLibrary::discover(),
-                scene,
-                reference,
-                settings(),
-            )?,
-            frames,
-        )?;
-        let ms = e.total_gpu_ms / frames as f64;
-        let rpp = e.ray_counts()?.total() as f64 / (extent[0] * extent[1]) as f64 / frames as f64;
+        let mut e = engine(reference)?;
+        calibration.warm_up(&gpu)?;
+        let reference = timed_series(&mut e, WARMUP_FRAMES, frames)?;
+        drop(e);
+
         println!(
-            "{:<12} {:>9} {:>12} {:>14.2} {:>16.2} {:>14.2}",
+            "{:<12} {:>10} {} {} {} {:>17} {:>17} {:>8.2} {:>10.2} {:>9.2}",
             name,
             tris,
-            format!("{}x{}", extent[0], extent[1]),
-            mrays,
-            ms,
-            rpp
+            fmt_opt(primary_mrays, 9),
+            fmt_opt(diffuse_mrays, 9),
+            fmt_opt(mixed_mrays, 9),
+            format!("{:.3} / {:.3}", primary.min_ms(), primary.median_ms()),
+            format!("{:.3} / {:.3}", bounced.min_ms(), bounced.median_ms()),
+            bounced.per_frame(INDIRECT) / pixels,
+            reference.median_ms(),
+            reference.total_per_frame() / pixels,
         );
+        notes.push(format!("{name}: {}", check.summary()));
+    }
+    println!(
+        "primary: camera rays / camera-rays-only time; diffuse: bounce rays / (time with \
+         {BENCH_BOUNCES} bounces - camera-rays-only time);\nmixed: all rays / time with \
+         {BENCH_BOUNCES} bounces (the one number earlier versions reported); bounce rays/px: \
+         per frame (a path ends at a miss);\nreference: path tracer, 1 spp/frame, median GPU ms."
+    );
+    for n in notes {
+        println!("clock check, {n}");
     }
     println!(
         "(GPU time from timestamp queries: {})",

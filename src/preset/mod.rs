@@ -5,6 +5,7 @@
 
 pub mod experiment;
 
+use crate::scene::environment::Environment;
 use crate::scene::shading::ShadingSettings;
 use crate::scene::{builtin, gltf_load, Camera, Scene};
 use anyhow::{anyhow, bail, Context, Result};
@@ -167,6 +168,52 @@ pub struct SceneRef {
     /// Built-in scene parameters (e.g. furnace `albedo`).
     #[serde(default, skip_serializing_if = "toml::Table::is_empty")]
     pub params: toml::Table,
+    /// An equirectangular HDR environment map (.exr or .hdr) as the sky, replacing the
+    /// scene's constant sky (relative paths are relative to the preset file).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub environment: Option<String>,
+    /// Turn of the environment map about +Y in degrees (right-handed: +X towards -Z).
+    #[serde(
+        default,
+        skip_serializing_if = "is_zero_f32",
+        deserialize_with = "rotation_f32"
+    )]
+    pub environment_rotation: f32,
+    /// Radiance scale of the environment map.
+    #[serde(
+        default = "one_f32",
+        skip_serializing_if = "is_one_f32",
+        deserialize_with = "intensity_f32"
+    )]
+    pub environment_intensity: f32,
+}
+
+fn is_zero_f32(v: &f32) -> bool {
+    *v == 0.0
+}
+fn is_one_f32(v: &f32) -> bool {
+    *v == 1.0
+}
+fn one_f32() -> f32 {
+    1.0
+}
+fn rotation_f32<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<f32, D::Error> {
+    let v = f64::deserialize(d)?;
+    if !v.is_finite() {
+        return Err(serde::de::Error::custom(format!(
+            "environment_rotation {v}: expected a finite number of degrees"
+        )));
+    }
+    Ok(v as f32)
+}
+fn intensity_f32<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<f32, D::Error> {
+    let v = f64::deserialize(d)?;
+    if !(v.is_finite() && v >= 0.0) {
+        return Err(serde::de::Error::custom(format!(
+            "environment_intensity {v}: expected a finite number >= 0"
+        )));
+    }
+    Ok(v as f32)
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -379,8 +426,17 @@ impl LoadedPreset {
             let (k, v) = kv
                 .split_once('=')
                 .ok_or_else(|| anyhow!("--set {kv}: expected KEY=VALUE"))?;
-            let value = parse_value(v.trim());
+            let mut value = parse_value(v.trim());
             let k = k.trim();
+            // A relative environment map path typed on the command line is relative to where
+            // the user typed it, as `--scene` is.
+            if let ("scene.environment", toml::Value::String(path)) = (k, &value) {
+                if Path::new(path).is_relative() {
+                    value = toml::Value::String(
+                        std::env::current_dir()?.join(path).display().to_string(),
+                    );
+                }
+            }
             let top = k.split('.').next().unwrap_or("");
             if [
                 "scene",
@@ -431,11 +487,48 @@ impl LoadedPreset {
         })
     }
 
-    /// Builds the scene the preset names, with the preset's shading model applied.
+    /// Builds the scene the preset names, with the preset's shading model and environment
+    /// map applied.
     pub fn load_scene(&self) -> Result<Scene> {
         let mut scene = self.load_scene_as_authored()?;
         self.preset.shading.apply(&mut scene)?;
+        scene.environment = self.load_environment()?;
         Ok(scene)
+    }
+
+    /// The file `scene.environment` names (relative paths are relative to the preset file).
+    pub fn environment_path(&self) -> Option<PathBuf> {
+        let p = Path::new(self.preset.scene.environment.as_ref()?);
+        Some(match (&self.path, p.is_relative()) {
+            (Some(preset_path), true) => preset_path.parent().unwrap_or(Path::new(".")).join(p),
+            _ => p.to_path_buf(),
+        })
+    }
+
+    /// The environment map `scene.environment` names, with its rotation and intensity.
+    pub fn load_environment(&self) -> Result<Option<Environment>> {
+        let s = &self.preset.scene;
+        let Some(path) = self.environment_path() else {
+            if s.environment_rotation != 0.0 || s.environment_intensity != 1.0 {
+                bail!(
+                    "{}: scene.environment_rotation and scene.environment_intensity need scene.environment (an .exr or .hdr file)",
+                    self.path
+                        .as_ref()
+                        .map_or("the preset".to_string(), |p| p.display().to_string())
+                );
+            }
+            return Ok(None);
+        };
+        let env = Environment::load(&path, s.environment_rotation, s.environment_intensity)
+            .with_context(|| {
+                format!(
+                    "scene.environment of {}",
+                    self.path
+                        .as_ref()
+                        .map_or("the preset".to_string(), |p| p.display().to_string())
+                )
+            })?;
+        Ok(Some(env))
     }
 
     fn load_scene_as_authored(&self) -> Result<Scene> {

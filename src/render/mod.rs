@@ -36,6 +36,10 @@ pub struct FrameUniforms {
 /// only the light arriving at the first surface (tests of direct-light estimators use it).
 pub const FLAG_NO_PRIMARY_EMISSION: u32 = 1;
 
+/// FrameUniforms flag: the path tracer (`gilab::path`) leaves the environment map out of
+/// next-event estimation, so the sky is reached by BSDF sampling alone (A/B tests).
+pub const FLAG_NO_SKY_NEE: u32 = 2;
+
 /// Ray kinds, indices into the GPU counters (shaders/common/counters.wgsl).
 /// `candidate`: visibility of a resampling candidate before reuse; `reuse`: occlusion tests made
 /// by reuse itself (unbiased weights, bidirectional test).

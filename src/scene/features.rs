@@ -25,8 +25,15 @@ pub struct SceneFeatures {
     pub has_mirror: bool,
     /// Sky radiance is non-zero and probe rays from the camera reach it.
     pub sky_visible: bool,
+    /// Size of the environment map that is the sky (None: the constant sky).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub environment: Option<[u32; 2]>,
     pub texture_count: usize,
     pub textured_materials: usize,
+    /// Materials rays may pass through (alpha mask, or blend traced as a mask): traversal runs
+    /// the any-hit alpha test on their triangles only.
+    pub alpha_tested_materials: usize,
+    pub normal_mapped_materials: usize,
     pub many_lights: bool,
     pub bounds_min: [f32; 3],
     pub bounds_max: [f32; 3],
@@ -43,6 +50,13 @@ impl SceneFeatures {
     }
     pub fn has_emissive(&self) -> bool {
         self.emissive_triangle_count > 0
+    }
+    /// "environment map WxH" when the sky is an environment map, "sky" otherwise.
+    pub fn sky_label(&self) -> String {
+        match self.environment {
+            Some([w, h]) => format!("environment map {w}x{h}"),
+            None => "sky".into(),
+        }
     }
     pub fn has_punctual(&self) -> bool {
         self.point_lights + self.spot_lights + self.directional_lights > 0
@@ -74,15 +88,25 @@ impl SceneFeatures {
             scene.triangle_material.iter().copied().collect();
         for &mi in &used {
             let m = &scene.materials[mi as usize];
-            if m.metallic > 0.0 || m.specular > 0.0 {
+            // A metallic-roughness texture scales the roughness factor by its G channel.
+            let roughness = m.roughness
+                * m.metallic_roughness_texture
+                    .and_then(|r| scene.textures.get(r.texture))
+                    .map_or(1.0, |t| {
+                        t.rgba8.chunks_exact(4).map(|c| c[1]).min().unwrap_or(255) as f32 / 255.0
+                    });
+            let metal_texture = m.metallic_roughness_texture.is_some();
+            if m.metallic > 0.0 || m.specular > 0.0 || metal_texture {
                 f.min_specular_roughness = Some(
                     f.min_specular_roughness
-                        .map_or(m.roughness, |r: f32| r.min(m.roughness)),
+                        .map_or(roughness, |r: f32| r.min(roughness)),
                 );
             }
-            if m.base_color_texture.is_some() {
+            if m.texture_refs().iter().any(|(_, t)| t.is_some()) {
                 f.textured_materials += 1;
             }
+            f.alpha_tested_materials += m.alpha_tested() as usize;
+            f.normal_mapped_materials += m.normal_texture.is_some() as usize;
         }
         f.has_glossy = f
             .min_specular_roughness
@@ -95,7 +119,9 @@ impl SceneFeatures {
         f.bounds_max = hi.to_array();
         f.bvh_nodes = bvh.nodes.len();
         f.bvh_depth = bvh.depth;
-        f.sky_visible = scene.sky.max_element() > 0.0 && sky_reachable(scene, bvh, tris);
+        // The environment map's mean radiance (intensity included) when there is one.
+        f.sky_visible = scene.sky_mean().max_element() > 0.0 && sky_reachable(scene, bvh, tris);
+        f.environment = scene.environment.as_ref().map(|e| [e.width(), e.height()]);
         f
     }
 
@@ -103,7 +129,7 @@ impl SceneFeatures {
     pub fn summary(&self) -> String {
         format!(
             "triangles {}, emissive triangles {} ({:.3} W), point/spot/directional lights {}/{}/{}, \
-             min specular roughness {}, glossy {}, mirror {}, sky visible {}, textures {} ({} materials), many lights {}, BVH {} nodes depth {}",
+             min specular roughness {}, glossy {}, mirror {}, {} visible {}, textures {} ({} materials, {} alpha-tested, {} normal-mapped), many lights {}, BVH {} nodes depth {}",
             self.triangle_count,
             self.emissive_triangle_count,
             self.emissive_power,
@@ -113,9 +139,12 @@ impl SceneFeatures {
             self.min_specular_roughness.map_or("none".into(), |r| format!("{r:.3}")),
             self.has_glossy,
             self.has_mirror,
+            self.sky_label(),
             self.sky_visible,
             self.texture_count,
             self.textured_materials,
+            self.alpha_tested_materials,
+            self.normal_mapped_materials,
             self.many_lights,
             self.bvh_nodes,
             self.bvh_depth

@@ -1,48 +1,86 @@
 //! glTF 2.0 (.gltf and .glb) through the `gltf` crate, flattened to a world-space [`Scene`].
 //!
-//! Read: node hierarchy and transforms, triangle primitives (positions, normals, UV0, indices;
-//! flat normals generated when missing), metallic-roughness factors, base-colour textures,
-//! emissive factor x KHR_materials_emissive_strength, KHR_materials_specular's factor,
-//! doubleSided, KHR_lights_punctual and the first perspective camera.
-//! Not read (left out on purpose, listed in the README): metallic-roughness/normal/occlusion/
-//! emissive textures, texture transforms, UV sets other than 0, alpha modes, skins, morph targets.
-//! Lenient where a part is optional: an unreadable image or an unknown extension that is not
-//! required is skipped with a warning; a file with no light at all gets a default sky.
+//! Read:
+//! - the node hierarchy and transforms, triangle primitives (positions, normals, TEXCOORD_0,
+//!   TEXCOORD_1, TANGENT, indices; flat normals generated when missing);
+//! - materials: base colour factor and texture (with alpha), metallic-roughness factors and
+//!   texture, normal texture and its `scale`, emissive factor and texture,
+//!   occlusion texture and its `strength` (loaded; the renderers do not apply it, see
+//!   [`Material::occlusion_texture`]), `alphaMode` and `alphaCutoff` (BLEND is traced as MASK),
+//!   doubleSided; every texture's `texCoord` (sets 0 and 1) and KHR_texture_transform (offset,
+//!   rotation, scale and its `texCoord` override); KHR_materials_emissive_strength,
+//!   KHR_materials_specular's `specularFactor`, KHR_materials_ior; the `gilab_callisto` extras;
+//! - KHR_lights_punctual and the first perspective camera;
+//! - EXT_mesh_gpu_instancing (TRANSLATION, ROTATION, SCALE): every instance is flattened into
+//!   the triangle soup as a copy of the mesh (the BVH is one level; a two-level BVH that keeps
+//!   one copy per mesh is future work, so heavily instanced files cost memory per instance).
+//!
+//! Tangents: a primitive whose material has a normal texture keeps its TANGENT attribute
+//! (transformed by the node's matrix; the bitangent sign flips where the matrix mirrors), or,
+//! without one, gets MikkTSpace tangents ([`super::tangents`]) computed in object space from
+//! the normal texture's UV set, then transformed the same way. Other primitives get none.
+//!
+//! Not read (left out on purpose, listed in the README): samplers (wrap and filter modes),
+//! UV sets past 1 (a texture using one is dropped with a warning), KHR_materials_specular's
+//! colour and textures, the other material extensions (transmission, clearcoat, sheen, ...),
+//! skins, morph targets, animations, cameras after the first, orthographic cameras.
+//! Lenient where a part is optional: an unreadable image, an invalid texture transform or
+//! instancing extension, or an unknown extension that is not required is skipped with a
+//! warning naming it; an extension the file requires but this loader does not read is refused.
+//! A file with no light at all gets a default sky.
 
-use super::{Camera, Material, PunctualKind, PunctualLight, Scene, Texture};
+use super::{
+    tangents, AlphaMode, Camera, Material, PunctualKind, PunctualLight, Scene, Texture, TextureRef,
+    UvTransform,
+};
 use anyhow::{anyhow, bail, Context, Result};
-use glam::{Mat3, Mat4, Vec2, Vec3, Vec4};
+use glam::{Mat3, Mat4, Quat, Vec2, Vec3, Vec4};
+use std::collections::HashMap;
 use std::path::Path;
 
 pub fn load(path: &Path) -> Result<Scene> {
     load_inner(path).with_context(|| format!("cannot load glTF scene {}", path.display()))
 }
 
-/// Extensions read (others in `extensionsUsed` are ignored with a warning; the gltf crate
-/// refuses a file that *requires* one it does not know).
-const SUPPORTED_EXTENSIONS: [&str; 3] = [
+/// Extensions read (others in `extensionsUsed` are ignored with a warning; a file that
+/// *requires* one not listed here is refused).
+pub const SUPPORTED_EXTENSIONS: [&str; 6] = [
     "KHR_lights_punctual",
     "KHR_materials_emissive_strength",
     "KHR_materials_specular",
+    "KHR_materials_ior",
+    "KHR_texture_transform",
+    "EXT_mesh_gpu_instancing",
 ];
 
-fn load_inner(path: &Path) -> Result<Scene> {
-    let gltf::Gltf {
-        document: doc,
-        blob,
-    } = gltf::Gltf::open(path).map_err(|e| anyhow!("{e}"))?;
-    for ext in doc.extensions_used() {
-        if !SUPPORTED_EXTENSIONS.contains(&ext) {
-            let required = doc.extensions_required().any(|r| r == ext);
-            if required {
-                bail!("extension {ext} is required by the file but not supported");
-            }
+/// Parses and validates the file. The gltf crate refuses every required extension it does not
+/// know itself (EXT_mesh_gpu_instancing and KHR_materials_specular among them), so required
+/// extensions are checked here against [`SUPPORTED_EXTENSIONS`] before its validation.
+fn open(path: &Path) -> Result<(gltf::Document, Option<Vec<u8>>)> {
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let gltf::Gltf { document, blob } =
+        gltf::Gltf::from_slice_without_validation(&bytes).map_err(|e| anyhow!("{e}"))?;
+    let mut root = document.into_json();
+    for ext in &root.extensions_required {
+        if !SUPPORTED_EXTENSIONS.contains(&ext.as_str()) {
+            bail!("extension {ext} is required by the file but not supported");
+        }
+    }
+    for ext in &root.extensions_used {
+        if !SUPPORTED_EXTENSIONS.contains(&ext.as_str()) {
             log::warn!(
                 "{}: extension {ext} is not supported: ignored",
                 path.display()
             );
         }
     }
+    root.extensions_required.clear();
+    let doc = gltf::Document::from_json(root).map_err(|e| anyhow!("{e}"))?;
+    Ok((doc, blob))
+}
+
+fn load_inner(path: &Path) -> Result<Scene> {
+    let (doc, blob) = open(path)?;
     let base = path.parent();
     let buffers = gltf::import_buffers(&doc, base, blob).map_err(|e| anyhow!("{e}"))?;
     let mut scene = Scene::new(
@@ -51,6 +89,7 @@ fn load_inner(path: &Path) -> Result<Scene> {
             .map(|s| s.to_string_lossy().to_string())
             .unwrap_or_default(),
     );
+    let file = path.display().to_string();
 
     // Lenient: an image that cannot be read is skipped (its textures fall back to the factors)
     // with a warning naming it, instead of refusing the whole scene.
@@ -72,8 +111,7 @@ fn load_inner(path: &Path) -> Result<Scene> {
                     _ => String::new(),
                 };
                 log::warn!(
-                    "{}: image {} ('{}'){from} skipped: {e:#}; textures using it fall back to their factors",
-                    path.display(),
+                    "{file}: image {} ('{}'){from} skipped: {e:#}; textures using it fall back to their factors",
                     image.index(),
                     image.name().unwrap_or("unnamed")
                 );
@@ -82,27 +120,32 @@ fn load_inner(path: &Path) -> Result<Scene> {
         }
     }
     for m in doc.materials() {
-        scene.materials.push(read_material(&m, &texture_of_image)?);
+        scene
+            .materials
+            .push(read_material(&m, &texture_of_image, &file)?);
     }
     // Primitives without a material get glTF's default material (appended last).
     let default_material = scene.materials.len() as u32;
     scene.materials.push(Material {
-        name: "gltf default".into(),
         base_color: Vec4::ONE,
-        base_color_texture: None,
         metallic: 1.0,
         roughness: 1.0,
-        emissive: Vec3::ZERO,
         specular: 1.0,
-        double_sided: false,
-        brdf: Default::default(),
-        callisto: Default::default(),
+        ..Material::lambert("gltf default", Vec3::ONE)
     });
 
     let gltf_scene = doc
         .default_scene()
         .or_else(|| doc.scenes().next())
         .ok_or_else(|| anyhow!("file has no scene"))?;
+    // Meshes drawn more than once (several nodes, or instancing) are read once and kept.
+    let mut uses = vec![0usize; doc.meshes().len()];
+    for node in doc.nodes() {
+        if let Some(mesh) = node.mesh() {
+            uses[mesh.index()] += 1 + node.extension_value(INSTANCING).is_some() as usize;
+        }
+    }
+    let mut cache: HashMap<usize, Vec<Primitive>> = HashMap::new();
     let mut stack: Vec<(gltf::Node, Mat4)> =
         gltf_scene.nodes().map(|n| (n, Mat4::IDENTITY)).collect();
     let mut visited = 0usize;
@@ -113,7 +156,44 @@ fn load_inner(path: &Path) -> Result<Scene> {
         }
         let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
         if let Some(mesh) = node.mesh() {
-            add_mesh(&mut scene, &mesh, world, &buffers, default_material)?;
+            let transforms = match read_instances(&node, &doc, &buffers) {
+                Ok(Some(instances)) => instances.into_iter().map(|m| world * m).collect(),
+                Ok(None) => vec![world],
+                Err(e) => {
+                    log::warn!(
+                        "{file}: node {} ('{}'): {INSTANCING} skipped ({e:#}): the mesh is drawn once at the node",
+                        node.index(),
+                        node.name().unwrap_or("unnamed")
+                    );
+                    vec![world]
+                }
+            };
+            let fresh;
+            let prims = match cache.get(&mesh.index()) {
+                Some(p) => p,
+                None => {
+                    fresh = read_mesh(&scene, &mesh, &buffers, default_material, &file)?;
+                    if uses[mesh.index()] > 1 {
+                        cache.insert(mesh.index(), fresh);
+                        &cache[&mesh.index()]
+                    } else {
+                        &fresh
+                    }
+                }
+            };
+            for m in &transforms {
+                if !m.is_finite() {
+                    log::warn!(
+                        "{file}: node {} ('{}'): an instance with a non-finite transform skipped",
+                        node.index(),
+                        node.name().unwrap_or("unnamed")
+                    );
+                    continue;
+                }
+                for p in prims {
+                    emit(&mut scene, p, *m);
+                }
+            }
         }
         if let Some(light) = node.light() {
             scene.lights.push(read_light(&light, world));
@@ -149,8 +229,7 @@ fn load_inner(path: &Path) -> Result<Scene> {
     if !emits && scene.lights.is_empty() && scene.sky.max_element() <= 0.0 {
         scene.sky = Vec3::splat(DEFAULT_SKY);
         log::warn!(
-            "{}: no light source (no emissive material, no KHR_lights_punctual): lit by a default uniform sky of radiance {DEFAULT_SKY}",
-            path.display()
+            "{file}: no light source (no emissive material, no KHR_lights_punctual): lit by a default uniform sky of radiance {DEFAULT_SKY}"
         );
     }
     scene.validate()?;
@@ -160,40 +239,244 @@ fn load_inner(path: &Path) -> Result<Scene> {
 /// Radiance of the sky a glTF without any light source gets.
 pub const DEFAULT_SKY: f32 = 1.0;
 
-fn read_material(m: &gltf::Material, texture_of_image: &[Option<usize>]) -> Result<Material> {
-    let pbr = m.pbr_metallic_roughness();
-    let tex = match pbr.base_color_texture() {
-        Some(info) => {
-            let idx = info.texture().source().index();
-            match texture_of_image.get(idx) {
-                Some(Some(t)) => Some(*t),
-                Some(None) => None, // unreadable image: warned about above
-                None => bail!(
-                    "material '{}' references missing image {idx}",
-                    m.name().unwrap_or("?")
-                ),
+const INSTANCING: &str = "EXT_mesh_gpu_instancing";
+
+fn info<'a>(slot: &'static str, i: Option<gltf::texture::Info<'a>>) -> Option<SlotIn<'a>> {
+    i.map(|i| SlotIn {
+        slot,
+        texture: i.texture(),
+        tex_coord: i.tex_coord(),
+        transform: typed_transform(i.texture_transform()),
+    })
+}
+
+/// A texture slot as the file gives it, before it becomes a [`TextureRef`].
+struct SlotIn<'a> {
+    slot: &'static str,
+    texture: gltf::texture::Texture<'a>,
+    tex_coord: u32,
+    /// KHR_texture_transform as parsed (None: absent), or why it is invalid.
+    transform: Option<std::result::Result<(UvTransform, Option<u32>), String>>,
+}
+
+fn typed_transform(
+    t: Option<gltf::texture::TextureTransform>,
+) -> Option<std::result::Result<(UvTransform, Option<u32>), String>> {
+    t.map(|t| {
+        Ok((
+            UvTransform {
+                offset: Vec2::from_array(t.offset()),
+                rotation: t.rotation(),
+                scale: Vec2::from_array(t.scale()),
+            },
+            t.tex_coord(),
+        ))
+    })
+}
+
+/// KHR_texture_transform from raw JSON (normal and occlusion textures, whose typed structs in
+/// the gltf crate do not carry it).
+fn raw_transform(
+    v: Option<&serde_json::Value>,
+) -> Option<std::result::Result<(UvTransform, Option<u32>), String>> {
+    let v = v?;
+    let pair = |key: &str, default: Vec2| -> std::result::Result<Vec2, String> {
+        match v.get(key) {
+            None => Ok(default),
+            Some(a) => {
+                let a = a
+                    .as_array()
+                    .filter(|a| a.len() == 2)
+                    .ok_or_else(|| format!("{key} is not an array of 2 numbers"))?;
+                let x = a[0]
+                    .as_f64()
+                    .ok_or_else(|| format!("{key}[0] is not a number"))?;
+                let y = a[1]
+                    .as_f64()
+                    .ok_or_else(|| format!("{key}[1] is not a number"))?;
+                Ok(Vec2::new(x as f32, y as f32))
             }
         }
-        None => None,
     };
+    Some((|| {
+        let offset = pair("offset", Vec2::ZERO)?;
+        let scale = pair("scale", Vec2::ONE)?;
+        let rotation = match v.get("rotation") {
+            None => 0.0,
+            Some(r) => r.as_f64().ok_or("rotation is not a number")? as f32,
+        };
+        let tex_coord = match v.get("texCoord") {
+            None => None,
+            Some(t) => Some(
+                t.as_u64()
+                    .filter(|&t| t <= u32::MAX as u64)
+                    .ok_or("texCoord is not a non-negative integer")? as u32,
+            ),
+        };
+        Ok((
+            UvTransform {
+                offset,
+                rotation,
+                scale,
+            },
+            tex_coord,
+        ))
+    })())
+}
+
+/// The [`TextureRef`] of a slot, or None (with a warning) when its image could not be read,
+/// its UV set is past 1; an invalid transform is dropped (identity) with a warning.
+fn texture_ref(
+    s: SlotIn,
+    material: &str,
+    texture_of_image: &[Option<usize>],
+    file: &str,
+) -> Result<Option<TextureRef>> {
+    let idx = s.texture.source().index();
+    let texture = match texture_of_image.get(idx) {
+        Some(Some(t)) => *t,
+        Some(None) => return Ok(None), // unreadable image: warned about above
+        None => bail!(
+            "material '{material}': {} references missing image {idx}",
+            s.slot
+        ),
+    };
+    let mut tex_coord = s.tex_coord;
+    let mut transform = UvTransform::default();
+    match s.transform {
+        None => {}
+        Some(Ok((t, set))) => {
+            let finite = t.offset.is_finite() && t.rotation.is_finite() && t.scale.is_finite();
+            if finite {
+                transform = t;
+                if let Some(set) = set {
+                    tex_coord = set;
+                }
+            } else {
+                log::warn!(
+                    "{file}: material '{material}': {}: KHR_texture_transform has non-finite values: ignored",
+                    s.slot
+                );
+            }
+        }
+        Some(Err(e)) => log::warn!(
+            "{file}: material '{material}': {}: KHR_texture_transform is invalid ({e}): ignored",
+            s.slot
+        ),
+    }
+    if tex_coord > 1 {
+        log::warn!(
+            "{file}: material '{material}': {} uses TEXCOORD_{tex_coord} (only sets 0 and 1 are read): texture dropped",
+            s.slot
+        );
+        return Ok(None);
+    }
+    Ok(Some(TextureRef {
+        texture,
+        tex_coord,
+        transform,
+    }))
+}
+
+fn read_material(
+    m: &gltf::Material,
+    texture_of_image: &[Option<usize>],
+    file: &str,
+) -> Result<Material> {
+    let name = m.name().unwrap_or("unnamed").to_string();
+    let pbr = m.pbr_metallic_roughness();
+    let tex = |s: Option<SlotIn>| -> Result<Option<TextureRef>> {
+        match s {
+            Some(s) => texture_ref(s, &name, texture_of_image, file),
+            None => Ok(None),
+        }
+    };
+    let base_color_texture = tex(info("baseColorTexture", pbr.base_color_texture()))?;
+    let metallic_roughness_texture = tex(info(
+        "metallicRoughnessTexture",
+        pbr.metallic_roughness_texture(),
+    ))?;
+    let emissive_texture = tex(info("emissiveTexture", m.emissive_texture()))?;
+    let normal = m.normal_texture();
+    let normal_scale = normal.as_ref().map_or(1.0, |n| n.scale());
+    let normal_texture = tex(normal.map(|n| SlotIn {
+        slot: "normalTexture",
+        texture: n.texture(),
+        tex_coord: n.tex_coord(),
+        transform: raw_transform(n.extension_value("KHR_texture_transform")),
+    }))?;
+    let occlusion = m.occlusion_texture();
+    let occlusion_strength = occlusion.as_ref().map_or(1.0, |o| o.strength());
+    let occlusion_texture = tex(occlusion.map(|o| SlotIn {
+        slot: "occlusionTexture",
+        texture: o.texture(),
+        tex_coord: o.tex_coord(),
+        transform: raw_transform(o.extension_value("KHR_texture_transform")),
+    }))?;
+
     let strength = m.emissive_strength().unwrap_or(1.0);
     let specular = m.specular().map(|s| s.specular_factor()).unwrap_or(1.0);
     let emissive = Vec3::from_array(m.emissive_factor()) * strength;
     if !emissive.is_finite() {
-        bail!(
-            "material '{}' has a non-finite emission",
-            m.name().unwrap_or("?")
-        );
+        bail!("material '{name}' has a non-finite emission");
     }
+    let checked = |what: &str, v: f32, ok: bool, default: f32| {
+        if ok {
+            v
+        } else {
+            log::warn!("{file}: material '{name}': {what} {v} is invalid: {default} used");
+            default
+        }
+    };
+    let normal_scale = checked(
+        "normalTexture.scale",
+        normal_scale,
+        normal_scale.is_finite(),
+        1.0,
+    );
+    let occlusion_strength = checked(
+        "occlusionTexture.strength",
+        occlusion_strength,
+        occlusion_strength.is_finite(),
+        1.0,
+    );
+    let cutoff = m.alpha_cutoff().unwrap_or(0.5);
+    let alpha_cutoff = checked(
+        "alphaCutoff",
+        cutoff,
+        cutoff.is_finite() && cutoff >= 0.0,
+        0.5,
+    );
+    let ior = m.ior().unwrap_or(1.5);
+    let ior = checked(
+        "KHR_materials_ior.ior",
+        ior,
+        ior.is_finite() && ior >= 1.0,
+        1.5,
+    );
+    let alpha_mode = match m.alpha_mode() {
+        gltf::material::AlphaMode::Opaque => AlphaMode::Opaque,
+        gltf::material::AlphaMode::Mask => AlphaMode::Mask,
+        gltf::material::AlphaMode::Blend => AlphaMode::Blend,
+    };
     let callisto = read_callisto_extras(m)?;
     Ok(Material {
-        name: m.name().unwrap_or("unnamed").to_string(),
+        name: name.clone(),
         base_color: Vec4::from_array(pbr.base_color_factor()),
-        base_color_texture: tex,
+        base_color_texture,
         metallic: pbr.metallic_factor(),
         roughness: pbr.roughness_factor(),
+        metallic_roughness_texture,
+        normal_texture,
+        normal_scale,
         emissive,
+        emissive_texture,
+        occlusion_texture,
+        occlusion_strength,
+        alpha_mode,
+        alpha_cutoff,
         specular,
+        ior,
         double_sided: m.double_sided(),
         brdf: Default::default(),
         callisto,
@@ -220,20 +503,31 @@ fn read_callisto_extras(m: &gltf::Material) -> Result<crate::scene::shading::Cal
     Ok(p)
 }
 
-fn add_mesh(
-    scene: &mut Scene,
+/// One triangle primitive in object space, its vertices unshared (three per triangle, in the
+/// file's winding), ready to be placed once per node or instance.
+struct Primitive {
+    material: u32,
+    positions: Vec<Vec3>,
+    normals: Vec<Vec3>,
+    uvs: Vec<Vec2>,
+    uvs1: Option<Vec<Vec2>>,
+    /// Only for normal-mapped materials: the file's TANGENT or MikkTSpace's.
+    tangents: Option<Vec<Vec4>>,
+}
+
+fn read_mesh(
+    scene: &Scene,
     mesh: &gltf::Mesh,
-    world: Mat4,
     buffers: &[gltf::buffer::Data],
     default_material: u32,
-) -> Result<()> {
-    let normal_matrix = Mat3::from_mat4(world).inverse().transpose();
-    let flip = Mat3::from_mat4(world).determinant() < 0.0;
+    file: &str,
+) -> Result<Vec<Primitive>> {
+    let mesh_name = mesh.name().unwrap_or("?");
+    let mut out = Vec::new();
     for prim in mesh.primitives() {
         if prim.mode() != gltf::mesh::Mode::Triangles {
             log::warn!(
-                "mesh '{}': skipping a {:?} primitive (only triangles are rendered)",
-                mesh.name().unwrap_or("?"),
+                "mesh '{mesh_name}': skipping a {:?} primitive (only triangles are rendered)",
                 prim.mode()
             );
             continue;
@@ -241,70 +535,278 @@ fn add_mesh(
         let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
         let positions: Vec<Vec3> = reader
             .read_positions()
-            .ok_or_else(|| {
-                anyhow!(
-                    "mesh '{}' has a primitive without positions",
-                    mesh.name().unwrap_or("?")
-                )
-            })?
-            .map(|p| world.transform_point3(Vec3::from_array(p)))
+            .ok_or_else(|| anyhow!("mesh '{mesh_name}' has a primitive without positions"))?
+            .map(Vec3::from_array)
             .collect();
         let n = positions.len();
-        let normals: Vec<Vec3> = match reader.read_normals() {
-            Some(it) => it
-                .map(|v| (normal_matrix * Vec3::from_array(v)).normalize_or_zero())
-                .collect(),
-            None => vec![Vec3::ZERO; n],
-        };
+        let normals: Option<Vec<Vec3>> = reader.read_normals().map(|it| {
+            it.map(|v| Vec3::from_array(v).normalize_or_zero())
+                .collect()
+        });
         let uvs: Vec<Vec2> = match reader.read_tex_coords(0) {
             Some(it) => it.into_f32().map(Vec2::from_array).collect(),
             None => vec![Vec2::ZERO; n],
         };
-        if normals.len() != n || uvs.len() != n {
-            bail!(
-                "mesh '{}': attribute counts differ from the position count",
-                mesh.name().unwrap_or("?")
-            );
+        let uvs1: Option<Vec<Vec2>> = reader
+            .read_tex_coords(1)
+            .map(|it| it.into_f32().map(Vec2::from_array).collect());
+        if normals.as_ref().is_some_and(|v| v.len() != n)
+            || uvs.len() != n
+            || uvs1.as_ref().is_some_and(|v| v.len() != n)
+        {
+            bail!("mesh '{mesh_name}': attribute counts differ from the position count");
         }
         let indices: Vec<u32> = match reader.read_indices() {
             Some(it) => it.into_u32().collect(),
             None => (0..n as u32).collect(),
         };
         if let Some(bad) = indices.iter().find(|&&i| i as usize >= n) {
-            bail!(
-                "mesh '{}': index {bad} is out of range ({n} vertices)",
-                mesh.name().unwrap_or("?")
-            );
+            bail!("mesh '{mesh_name}': index {bad} is out of range ({n} vertices)");
         }
         let material = prim
             .material()
             .index()
             .map_or(default_material, |i| i as u32);
-        let missing_normals = reader.read_normals().is_none();
-        for tri in indices.chunks_exact(3) {
-            let t = if flip {
-                [tri[0], tri[2], tri[1]]
-            } else {
-                [tri[0], tri[1], tri[2]]
-            };
-            let base = scene.positions.len() as u32;
-            let p = t.map(|i| positions[i as usize]);
-            // Unshared vertices: generated flat normals stay per triangle.
-            let flat = (p[1] - p[0]).cross(p[2] - p[0]).normalize_or_zero();
-            for (k, &i) in t.iter().enumerate() {
-                scene.positions.push(p[k]);
-                scene.normals.push(if missing_normals {
-                    flat
-                } else {
-                    normals[i as usize]
-                });
-                scene.uvs.push(uvs[i as usize]);
+        let normal_map = scene.materials[material as usize].normal_texture;
+
+        // Unshare: three vertices per triangle; generated flat normals stay per triangle.
+        let corners = indices.len() / 3 * 3;
+        let idx = &indices[..corners];
+        let mut p = Primitive {
+            material,
+            positions: idx.iter().map(|&i| positions[i as usize]).collect(),
+            normals: Vec::with_capacity(corners),
+            uvs: idx.iter().map(|&i| uvs[i as usize]).collect(),
+            uvs1: uvs1
+                .as_ref()
+                .map(|u| idx.iter().map(|&i| u[i as usize]).collect()),
+            tangents: None,
+        };
+        match &normals {
+            Some(nv) => p.normals.extend(idx.iter().map(|&i| nv[i as usize])),
+            None => {
+                for t in p.positions.chunks_exact(3) {
+                    let f = (t[1] - t[0]).cross(t[2] - t[0]).normalize_or_zero();
+                    p.normals.extend([f; 3]);
+                }
             }
-            scene.triangles.push([base, base + 1, base + 2]);
-            scene.triangle_material.push(material);
         }
+        if let Some(nt) = normal_map {
+            let file_tangents: Option<Vec<Vec4>> = reader
+                .read_tangents()
+                .map(|it| it.map(Vec4::from_array).collect());
+            match file_tangents {
+                Some(t) if t.len() == n && t.iter().all(|t| t.is_finite()) => {
+                    p.tangents = Some(
+                        idx.iter()
+                            .map(|&i| {
+                                let t = t[i as usize];
+                                let xyz = t.truncate().normalize_or_zero();
+                                if xyz == Vec3::ZERO {
+                                    Vec4::ZERO
+                                } else {
+                                    xyz.extend(if t.w < 0.0 { -1.0 } else { 1.0 })
+                                }
+                            })
+                            .collect(),
+                    );
+                }
+                other => {
+                    if other.is_some() {
+                        log::warn!(
+                            "{file}: mesh '{mesh_name}': TANGENT is invalid (count or non-finite values): MikkTSpace tangents used"
+                        );
+                    }
+                    let set = if nt.tex_coord == 0 {
+                        Some(&p.uvs)
+                    } else {
+                        p.uvs1.as_ref()
+                    };
+                    match set {
+                        Some(uv) if nt.tex_coord == 1 || reader.read_tex_coords(0).is_some() => {
+                            let tris: Vec<[u32; 3]> = (0..corners as u32 / 3)
+                                .map(|k| [3 * k, 3 * k + 1, 3 * k + 2])
+                                .collect();
+                            p.tangents =
+                                Some(tangents::generate(&p.positions, &p.normals, uv, &tris));
+                        }
+                        _ => log::warn!(
+                            "{file}: mesh '{mesh_name}': the normal map reads TEXCOORD_{}, which the primitive lacks: no normal mapping on it",
+                            nt.tex_coord
+                        ),
+                    }
+                }
+            }
+        }
+        out.push(p);
     }
-    Ok(())
+    Ok(out)
+}
+
+/// Appends a primitive placed by `m` (winding kept front-facing where `m` mirrors).
+fn emit(scene: &mut Scene, p: &Primitive, m: Mat4) {
+    let m3 = Mat3::from_mat4(m);
+    let normal_matrix = m3.inverse().transpose();
+    let flip = m3.determinant() < 0.0;
+    let sign = if flip { -1.0 } else { 1.0 };
+    let order: [usize; 3] = if flip { [0, 2, 1] } else { [0, 1, 2] };
+    let start = scene.positions.len();
+    let tri_count = p.positions.len() / 3;
+    scene.positions.reserve(tri_count * 3);
+    for k in 0..tri_count {
+        let base = scene.positions.len() as u32;
+        for &c in &order {
+            let i = 3 * k + c;
+            scene.positions.push(m.transform_point3(p.positions[i]));
+            scene
+                .normals
+                .push((normal_matrix * p.normals[i]).normalize_or_zero());
+            scene.uvs.push(p.uvs[i]);
+        }
+        scene.triangles.push([base, base + 1, base + 2]);
+        scene.triangle_material.push(p.material);
+    }
+    let end = scene.positions.len();
+    // Optional arrays: empty until some primitive has them, then one entry per vertex.
+    match &p.uvs1 {
+        Some(uv) => {
+            scene.uvs1.resize(start, Vec2::ZERO);
+            for k in 0..tri_count {
+                scene.uvs1.extend(order.map(|c| uv[3 * k + c]));
+            }
+        }
+        None if !scene.uvs1.is_empty() => scene.uvs1.resize(end, Vec2::ZERO),
+        None => {}
+    }
+    match &p.tangents {
+        Some(t) => {
+            scene.tangents.resize(start, Vec4::ZERO);
+            for k in 0..tri_count {
+                scene.tangents.extend(order.map(|c| {
+                    let t = t[3 * k + c];
+                    let xyz = (m3 * t.truncate()).normalize_or_zero();
+                    if xyz == Vec3::ZERO {
+                        Vec4::ZERO
+                    } else {
+                        xyz.extend(t.w * sign)
+                    }
+                }));
+            }
+        }
+        None if !scene.tangents.is_empty() => scene.tangents.resize(end, Vec4::ZERO),
+        None => {}
+    }
+}
+
+/// EXT_mesh_gpu_instancing: the node's instance matrices (relative to the node), None without
+/// the extension, an error when it is malformed.
+fn read_instances(
+    node: &gltf::Node,
+    doc: &gltf::Document,
+    buffers: &[gltf::buffer::Data],
+) -> Result<Option<Vec<Mat4>>> {
+    use gltf::accessor::{DataType, Dimensions, Iter};
+    let Some(ext) = node.extension_value(INSTANCING) else {
+        return Ok(None);
+    };
+    let attributes = ext
+        .get("attributes")
+        .and_then(|a| a.as_object())
+        .ok_or_else(|| anyhow!("no attributes object"))?;
+    let accessor = |name: &str, dims: Dimensions| -> Result<Option<gltf::Accessor>> {
+        let Some(v) = attributes.get(name) else {
+            return Ok(None);
+        };
+        let i = v
+            .as_u64()
+            .ok_or_else(|| anyhow!("{name} is not an accessor index"))?;
+        let a = doc
+            .accessors()
+            .nth(i as usize)
+            .ok_or_else(|| anyhow!("{name}: accessor {i} does not exist"))?;
+        if a.dimensions() != dims {
+            bail!(
+                "{name}: accessor {i} is {:?}, {dims:?} expected",
+                a.dimensions()
+            );
+        }
+        Ok(Some(a))
+    };
+    let get = |b: gltf::Buffer| buffers.get(b.index()).map(|d| &d.0[..]);
+    let unreadable = |name: &str| anyhow!("{name}: accessor data cannot be read");
+    let translation: Option<Vec<Vec3>> = match accessor("TRANSLATION", Dimensions::Vec3)? {
+        Some(a) if a.data_type() == DataType::F32 => Some(
+            Iter::<[f32; 3]>::new(a, get)
+                .ok_or_else(|| unreadable("TRANSLATION"))?
+                .map(Vec3::from_array)
+                .collect(),
+        ),
+        Some(a) => bail!(
+            "TRANSLATION: {:?} components (float expected)",
+            a.data_type()
+        ),
+        None => None,
+    };
+    let scale: Option<Vec<Vec3>> = match accessor("SCALE", Dimensions::Vec3)? {
+        Some(a) if a.data_type() == DataType::F32 => Some(
+            Iter::<[f32; 3]>::new(a, get)
+                .ok_or_else(|| unreadable("SCALE"))?
+                .map(Vec3::from_array)
+                .collect(),
+        ),
+        Some(a) => bail!("SCALE: {:?} components (float expected)", a.data_type()),
+        None => None,
+    };
+    let rotation: Option<Vec<Vec4>> = match accessor("ROTATION", Dimensions::Vec4)? {
+        Some(a) => {
+            let normalized = a.normalized();
+            Some(match a.data_type() {
+                DataType::F32 => Iter::<[f32; 4]>::new(a, get)
+                    .ok_or_else(|| unreadable("ROTATION"))?
+                    .map(Vec4::from_array)
+                    .collect(),
+                DataType::I8 if normalized => Iter::<[i8; 4]>::new(a, get)
+                    .ok_or_else(|| unreadable("ROTATION"))?
+                    .map(|q| Vec4::from_array(q.map(|c| (c as f32 / 127.0).max(-1.0))))
+                    .collect(),
+                DataType::I16 if normalized => Iter::<[i16; 4]>::new(a, get)
+                    .ok_or_else(|| unreadable("ROTATION"))?
+                    .map(|q| Vec4::from_array(q.map(|c| (c as f32 / 32767.0).max(-1.0))))
+                    .collect(),
+                other => bail!(
+                    "ROTATION: {other:?} components{} (float, or normalized byte or short expected)",
+                    if normalized { "" } else { ", not normalized" }
+                ),
+            })
+        }
+        None => None,
+    };
+    let counts: Vec<usize> = [
+        translation.as_ref().map(|v| v.len()),
+        rotation.as_ref().map(|v| v.len()),
+        scale.as_ref().map(|v| v.len()),
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    let Some(&count) = counts.first() else {
+        bail!("none of TRANSLATION, ROTATION, SCALE is given");
+    };
+    if counts.iter().any(|&c| c != count) {
+        bail!("TRANSLATION, ROTATION and SCALE differ in count ({counts:?})");
+    }
+    Ok(Some(
+        (0..count)
+            .map(|i| {
+                let t = translation.as_ref().map_or(Vec3::ZERO, |v| v[i]);
+                let s = scale.as_ref().map_or(Vec3::ONE, |v| v[i]);
+                let r = rotation.as_ref().map_or(Quat::IDENTITY, |v| {
+                    v[i].try_normalize().map_or(Quat::IDENTITY, Quat::from_vec4)
+                });
+                Mat4::from_scale_rotation_translation(s, r, t)
+            })
+            .collect(),
+    ))
 }
 
 fn read_light(light: &gltf::khr_lights_punctual::Light, world: Mat4) -> PunctualLight {
@@ -333,22 +835,52 @@ fn read_light(light: &gltf::khr_lights_punctual::Light, world: Mat4) -> Punctual
     }
 }
 
+/// Decoded image to RGBA8. The gltf crate decodes PNG and JPEG with the `image` crate, whose
+/// grey-alpha images arrive as two channels (grey, alpha); 16-bit and float images are
+/// rounded to 8 bits (floats clamped to [0, 1]).
 fn to_rgba8(img: &gltf::image::Data) -> Result<Texture> {
     use gltf::image::Format;
     let px = img.width as usize * img.height as usize;
     let src = &img.pixels;
+    let u16s = || {
+        src.chunks_exact(2)
+            .map(|c| ((u16::from_ne_bytes([c[0], c[1]]) as u32 * 255 + 32767) / 65535) as u8)
+            .collect::<Vec<u8>>()
+    };
+    let f32s = || {
+        src.chunks_exact(4)
+            .map(|c| {
+                let v = f32::from_ne_bytes([c[0], c[1], c[2], c[3]]);
+                (if v.is_finite() {
+                    v.clamp(0.0, 1.0)
+                } else {
+                    0.0
+                } * 255.0)
+                    .round() as u8
+            })
+            .collect::<Vec<u8>>()
+    };
+    let expand = |v: &[u8], channels: usize| -> Vec<u8> {
+        v.chunks_exact(channels)
+            .flat_map(|c| match channels {
+                1 => [c[0], c[0], c[0], 255],
+                2 => [c[0], c[0], c[0], c[1]],
+                3 => [c[0], c[1], c[2], 255],
+                _ => [c[0], c[1], c[2], c[3]],
+            })
+            .collect()
+    };
     let rgba8: Vec<u8> = match img.format {
-        Format::R8 => src.iter().flat_map(|&r| [r, r, r, 255]).collect(),
-        Format::R8G8 => src
-            .chunks_exact(2)
-            .flat_map(|c| [c[0], c[1], 0, 255])
-            .collect(),
-        Format::R8G8B8 => src
-            .chunks_exact(3)
-            .flat_map(|c| [c[0], c[1], c[2], 255])
-            .collect(),
+        Format::R8 => expand(src, 1),
+        Format::R8G8 => expand(src, 2),
+        Format::R8G8B8 => expand(src, 3),
         Format::R8G8B8A8 => src.clone(),
-        other => bail!("unsupported texture format {other:?} (8-bit textures only)"),
+        Format::R16 => expand(&u16s(), 1),
+        Format::R16G16 => expand(&u16s(), 2),
+        Format::R16G16B16 => expand(&u16s(), 3),
+        Format::R16G16B16A16 => u16s(),
+        Format::R32G32B32FLOAT => expand(&f32s(), 3),
+        Format::R32G32B32A32FLOAT => f32s(),
     };
     if rgba8.len() != px * 4 {
         bail!(

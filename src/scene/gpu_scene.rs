@@ -13,25 +13,299 @@ pub struct GpuTriGeom {
     pub e2: [f32; 4],
 }
 
+/// Per-triangle shading attributes, 96 bytes so that a scene of 1.2M triangles stays under
+/// 128 MiB per binding: normals and tangents oct-encoded (16 bits per component).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct GpuTriAttr {
-    pub n0: [f32; 4],
-    pub n1: [f32; 4],
-    pub n2: [f32; 4],
-    pub uv01: [f32; 4],
-    pub uv2: [f32; 4],
+    /// Oct-encoded vertex normals (see `TRI_HAS_NORMALS`).
+    pub normals: [u32; 3],
+    /// Probability of picking this triangle as a light (0 if not emissive).
+    pub light_pmf: f32,
+    /// Oct-encoded vertex tangents (see `TRI_HAS_TANGENTS`; bitangent signs in `flags`).
+    pub tangents: [u32; 3],
+    pub material: u32,
+    /// UV set 0 of vertices a and b.
+    pub uv0_ab: [f32; 4],
+    /// xy: UV set 0 of vertex c, zw: UV set 1 of vertex a.
+    pub uv0_c_uv1_a: [f32; 4],
+    /// UV set 1 of vertices b and c.
+    pub uv1_bc: [f32; 4],
+    /// The triangle's index in the scene (these arrays are in BVH order).
+    pub scene_tri: u32,
+    pub flags: u32,
+    pub pad: [u32; 2],
 }
+
+impl GpuTriAttr {
+    pub fn material(&self) -> u32 {
+        self.material
+    }
+}
+
+/// `GpuTriAttr::flags`: the triangle has usable vertex normals (all three non-zero).
+pub const TRI_HAS_NORMALS: u32 = 1;
+/// The triangle has tangents (a normal-mapped material and non-zero tangents).
+pub const TRI_HAS_TANGENTS: u32 = 2;
+/// Bit 2 + k: vertex k's bitangent sign is negative.
+pub const TRI_BITANGENT_NEG_SHIFT: u32 = 2;
+
+/// A material's use of a texture on the GPU: the rows of its UV transform, the texture index
+/// (`transform_u[3]`, bits; `NO_TEXTURE` when unused) and the UV set (`transform_v[3]`, bits).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct GpuTexSlot {
+    pub transform_u: [f32; 4],
+    pub transform_v: [f32; 4],
+}
+
+pub const NO_TEXTURE: u32 = u32::MAX;
+
+impl GpuTexSlot {
+    fn new(r: Option<super::TextureRef>, present: &[bool]) -> GpuTexSlot {
+        match r {
+            Some(t) if present.get(t.texture).copied().unwrap_or(false) => {
+                let m = t.transform.rows();
+                GpuTexSlot {
+                    transform_u: [m[0][0], m[0][1], m[0][2], f32::from_bits(t.texture as u32)],
+                    transform_v: [m[1][0], m[1][1], m[1][2], f32::from_bits(t.tex_coord)],
+                }
+            }
+            _ => GpuTexSlot {
+                transform_u: [1.0, 0.0, 0.0, f32::from_bits(NO_TEXTURE)],
+                transform_v: [0.0, 1.0, 0.0, 0.0],
+            },
+        }
+    }
+}
+
+/// Material texture slots, in `GpuMaterial::tex` order.
+pub const SLOT_BASE_COLOR: usize = 0;
+pub const SLOT_METALLIC_ROUGHNESS: usize = 1;
+pub const SLOT_NORMAL: usize = 2;
+pub const SLOT_EMISSIVE: usize = 3;
+pub const SLOT_OCCLUSION: usize = 4;
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct GpuMaterial {
     pub base_color: [f32; 4],
+    /// rgb: emitted radiance, w: 1 if double-sided.
     pub emissive: [f32; 4],
+    /// metallic, roughness, specular factor (0 = pure Lambert), unused. (IOR: `shading[4][3]`.)
     pub params: [f32; 4],
-    pub base_tex: [u32; 4],
+    /// normal scale, occlusion strength, alpha cutoff, 1 if alpha-tested.
+    pub extra: [f32; 4],
+    /// Base colour, metallic-roughness, normal, emissive, occlusion.
+    pub tex: [GpuTexSlot; 5],
     /// Callisto parameters and the BRDF model (layout: shaders/common/brdf.wgsl `Shading`).
     pub shading: [[f32; 4]; 5],
+}
+
+/// Where a texture's mip chain lies in the texel array: `first` holds `levels` words, the
+/// offsets of each level's texels; level k is (width >> k) x (height >> k), at least 1 x 1.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct GpuTexture {
+    pub first: u32,
+    pub width: u32,
+    pub height: u32,
+    pub levels: u32,
+}
+
+/// Texels (all textures, all mip levels) kept under this so the array fits one storage
+/// binding (128 MiB is wgpu's default limit and lavapipe's): larger sets lose their finest
+/// levels, largest textures first, with a warning.
+pub const TEXEL_BUDGET: usize = 30 * 1024 * 1024;
+
+/// sRGB <-> linear (the exact curves; mips of colour textures are averaged in linear light).
+pub fn srgb_to_linear(c: f32) -> f32 {
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
+}
+pub fn linear_to_srgb(c: f32) -> f32 {
+    if c <= 0.0031308 {
+        c * 12.92
+    } else {
+        1.055 * c.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// The mip chain of one texture (level 0 first), box-filtered 2x2 (odd sizes: the last row or
+/// column folds into its neighbour), colour channels in linear light when `srgb`; alpha linear.
+pub fn mip_chain(t: &super::Texture, srgb: bool) -> Vec<(u32, u32, Vec<u8>)> {
+    let mut levels = vec![(t.width, t.height, t.rgba8.clone())];
+    loop {
+        let (w, h, ref px) = *levels.last().unwrap();
+        if w == 1 && h == 1 {
+            break;
+        }
+        let (nw, nh) = ((w / 2).max(1), (h / 2).max(1));
+        let decode = |v: u8, ch: usize| {
+            let f = v as f32 / 255.0;
+            if srgb && ch < 3 {
+                srgb_to_linear(f)
+            } else {
+                f
+            }
+        };
+        let mut out = vec![0u8; (nw * nh * 4) as usize];
+        for y in 0..nh {
+            for x in 0..nw {
+                // Source rectangle of this texel: 2x2, or wider at an odd last row/column.
+                let (x0, x1) = (x * w / nw, ((x + 1) * w / nw).max(x * w / nw + 1));
+                let (y0, y1) = (y * h / nh, ((y + 1) * h / nh).max(y * h / nh + 1));
+                for ch in 0..4 {
+                    let mut sum = 0.0;
+                    for sy in y0..y1 {
+                        for sx in x0..x1 {
+                            sum += decode(px[((sy * w + sx) * 4) as usize + ch], ch);
+                        }
+                    }
+                    let mut v = sum / ((x1 - x0) * (y1 - y0)) as f32;
+                    if srgb && ch < 3 {
+                        v = linear_to_srgb(v);
+                    }
+                    out[((y * nw + x) * 4) as usize + ch] =
+                        (v * 255.0 + 0.5).clamp(0.0, 255.0) as u8;
+                }
+            }
+        }
+        levels.push((nw, nh, out));
+    }
+    levels
+}
+
+/// Mean of a texture's texels (linear light for sRGB), for light powers of emissive textures.
+fn texture_mean(t: &super::Texture, srgb: bool) -> Vec3 {
+    let mut sum = glam::DVec3::ZERO;
+    for c in t.rgba8.chunks_exact(4) {
+        let f = |v: u8| {
+            let x = v as f32 / 255.0;
+            if srgb {
+                srgb_to_linear(x)
+            } else {
+                x
+            }
+        };
+        sum += glam::DVec3::new(f(c[0]) as f64, f(c[1]) as f64, f(c[2]) as f64);
+    }
+    (sum / (t.rgba8.len() / 4).max(1) as f64).as_vec3()
+}
+
+/// Packs every texture with its mips into one texel array (RGBA8 words) and the table of where
+/// each lies. Textures referenced only by colour slots are averaged in linear light.
+fn pack_textures(scene: &Scene) -> (Vec<u32>, Vec<GpuTexture>) {
+    let mut srgb = vec![false; scene.textures.len()];
+    for m in &scene.materials {
+        for r in [m.base_color_texture, m.emissive_texture]
+            .into_iter()
+            .flatten()
+        {
+            if let Some(s) = srgb.get_mut(r.texture) {
+                *s = true;
+            }
+        }
+    }
+    // Drop finest levels (largest first) until everything fits the budget.
+    let level_count = |w: u32, h: u32| 32 - w.max(h).leading_zeros();
+    let chain_texels = |w: u32, h: u32, skip: u32| -> usize {
+        let mut total = 0usize;
+        let (mut w, mut h) = (w, h);
+        for k in 0..level_count(w, h) {
+            if k >= skip {
+                total += (w * h) as usize;
+            }
+            w = (w / 2).max(1);
+            h = (h / 2).max(1);
+        }
+        total
+    };
+    let mut skip = vec![0u32; scene.textures.len()];
+    loop {
+        let total: usize = scene
+            .textures
+            .iter()
+            .zip(&skip)
+            .map(|(t, &s)| chain_texels(t.width, t.height, s))
+            .sum();
+        if total <= TEXEL_BUDGET {
+            break;
+        }
+        let largest = (0..scene.textures.len())
+            .filter(|&i| {
+                skip[i] + 1 < level_count(scene.textures[i].width, scene.textures[i].height)
+            })
+            .max_by_key(|&i| {
+                let t = &scene.textures[i];
+                (
+                    (t.width >> skip[i]).max(1) * (t.height >> skip[i]).max(1),
+                    usize::MAX - i,
+                )
+            });
+        match largest {
+            Some(i) => skip[i] += 1,
+            None => break,
+        }
+    }
+    if skip.iter().any(|&s| s > 0) {
+        let reduced = skip.iter().filter(|&&s| s > 0).count();
+        log::warn!(
+            "textures exceed the GPU texel budget ({} M texels): {reduced} of {} lose their finest mip levels",
+            TEXEL_BUDGET / (1024 * 1024),
+            scene.textures.len()
+        );
+    }
+    let chains: Vec<Vec<(u32, u32, Vec<u8>)>> = {
+        use rayon::prelude::*;
+        scene
+            .textures
+            .par_iter()
+            .enumerate()
+            .map(|(i, t)| mip_chain(t, srgb[i]).split_off(skip[i] as usize))
+            .collect()
+    };
+    let mut texels = Vec::new();
+    let mut table = Vec::new();
+    for chain in chains {
+        // A header of level offsets first: shaders find a level without a loop.
+        let header = texels.len();
+        table.push(GpuTexture {
+            first: header as u32,
+            width: chain[0].0,
+            height: chain[0].1,
+            levels: chain.len() as u32,
+        });
+        texels.resize(header + chain.len(), 0);
+        for (k, (_, _, px)) in chain.iter().enumerate() {
+            texels[header + k] = texels.len() as u32;
+            texels.extend(
+                px.chunks_exact(4)
+                    .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])),
+            );
+        }
+    }
+    (texels, table)
+}
+
+/// Octahedral encoding of a unit vector into two snorm16 (the shaders' `oct_decode_packed`).
+pub fn oct_encode_packed(n: Vec3) -> u32 {
+    let l1 = n.x.abs() + n.y.abs() + n.z.abs();
+    if l1.is_nan() || l1 <= 0.0 || !l1.is_finite() {
+        return 0;
+    }
+    let p = glam::Vec2::new(n.x, n.y) / l1;
+    let e = if n.z < 0.0 {
+        let sign = |v: f32| if v >= 0.0 { 1.0 } else { -1.0 };
+        glam::Vec2::new((1.0 - p.y.abs()) * sign(p.x), (1.0 - p.x.abs()) * sign(p.y))
+    } else {
+        p
+    };
+    let q = |v: f32| ((v.clamp(-1.0, 1.0) * 32767.0).round() as i16) as u16 as u32;
+    q(e.x) | (q(e.y) << 16)
 }
 
 pub const LIGHT_TRIANGLE: u32 = 0;
@@ -76,6 +350,10 @@ pub struct SceneData {
     pub tri_attr: Vec<GpuTriAttr>,
     pub materials: Vec<GpuMaterial>,
     pub texels: Vec<u32>,
+    /// Where each texture's mip chain lies in `texels`.
+    pub textures: Vec<GpuTexture>,
+    /// Binding 6: the environment map (`environment::gpu_bytes`; a header only without one).
+    pub environment: Vec<u8>,
     pub lights: Vec<GpuLight>,
     pub vertices: Vec<RasterVertex>,
     pub features: SceneFeatures,
@@ -105,33 +383,25 @@ impl SceneData {
         let bvh_build_ms = start.elapsed().as_secs_f64() * 1e3;
         let features = SceneFeatures::compute(scene, &bvh, &tris);
 
-        // Textures packed into one texel array (sRGB RGBA8 words).
-        let mut texels = Vec::new();
-        let mut tex_offset = Vec::new();
-        for t in &scene.textures {
-            tex_offset.push(texels.len() as u32);
-            texels.extend(
-                t.rgba8
-                    .chunks_exact(4)
-                    .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])),
-            );
-        }
+        // Textures with their mip chains packed into one texel array (RGBA8 words).
+        let (mut texels, textures) = pack_textures(scene);
         if texels.is_empty() {
             texels.push(0);
         }
+        let present: Vec<bool> = (0..scene.textures.len()).map(|_| true).collect();
         let materials: Vec<GpuMaterial> = scene
             .materials
             .iter()
             .map(|m| {
-                let base_tex = match m.base_color_texture {
-                    Some(i) => [
-                        tex_offset[i],
-                        scene.textures[i].width,
-                        scene.textures[i].height,
-                        1,
-                    ],
-                    None => [0; 4],
+                // KHR_materials_ior: the dielectric F0 (Shading.dual.w; IOR 1.5 gives 0.04).
+                let ior = if m.ior.is_finite() && m.ior >= 1.0 {
+                    m.ior
+                } else {
+                    1.5
                 };
+                let f0 = ((ior - 1.0) / (ior + 1.0)).powi(2);
+                let mut shading = m.callisto.gpu_words(m.brdf);
+                shading[4][3] = f0;
                 GpuMaterial {
                     base_color: m.base_color.to_array(),
                     emissive: m
@@ -144,9 +414,33 @@ impl SceneData {
                         m.specular.clamp(0.0, 1.0),
                         0.0,
                     ],
-                    base_tex,
-                    shading: m.callisto.gpu_words(m.brdf),
+                    extra: [
+                        m.normal_scale,
+                        m.occlusion_strength,
+                        m.alpha_cutoff,
+                        if m.alpha_tested() { 1.0 } else { 0.0 },
+                    ],
+                    tex: [
+                        GpuTexSlot::new(m.base_color_texture, &present),
+                        GpuTexSlot::new(m.metallic_roughness_texture, &present),
+                        GpuTexSlot::new(m.normal_texture, &present),
+                        GpuTexSlot::new(m.emissive_texture, &present),
+                        GpuTexSlot::new(m.occlusion_texture, &present),
+                    ],
+                    shading,
                 }
+            })
+            .collect();
+        // Light power of a textured emitter: factor x the texture's mean (every triangle of
+        // the material alike; unbiased as long as the mean is non-zero where texels are).
+        let emission_scale: Vec<Vec3> = scene
+            .materials
+            .iter()
+            .map(|m| match m.emissive_texture {
+                Some(r) if r.texture < scene.textures.len() => {
+                    texture_mean(&scene.textures[r.texture], true)
+                }
+                _ => Vec3::ONE,
             })
             .collect();
 
@@ -157,12 +451,13 @@ impl SceneData {
         let mut powers = Vec::new();
         let mut tri_light_power = vec![0.0f32; tris.len()];
         for (bvh_index, &orig) in bvh.order.iter().enumerate() {
-            let m = &scene.materials[scene.triangle_material[orig as usize] as usize];
+            let mi = scene.triangle_material[orig as usize] as usize;
+            let m = &scene.materials[mi];
             let t = &tris[orig as usize];
             let area = 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length();
             let power = std::f32::consts::PI
                 * area
-                * luminance(m.emissive)
+                * luminance(m.emissive * emission_scale[mi])
                 * if m.double_sided { 2.0 } else { 1.0 };
             if power > 0.0 && power.is_finite() {
                 tri_light_power[bvh_index] = power;
@@ -229,23 +524,49 @@ impl SceneData {
             let p = tris[orig as usize];
             let n = idx.map(|i| scene.normals[i as usize]);
             let uv = idx.map(|i| scene.uvs[i as usize]);
+            let uv1 = idx.map(|i| scene.uvs1.get(i as usize).copied().unwrap_or_default());
+            let tangent = idx.map(|i| scene.tangents.get(i as usize).copied().unwrap_or_default());
             let material = scene.triangle_material[orig as usize];
+            let m = &scene.materials[material as usize];
             let pmf = if total > 0.0 {
                 (tri_light_power[bvh_index] as f64 / total) as f32
             } else {
                 0.0
             };
+            let mut flags = 0;
+            if n.iter().all(|v| v.length_squared() > 1e-12) {
+                flags |= TRI_HAS_NORMALS;
+            }
+            if m.normal_texture.is_some()
+                && tangent
+                    .iter()
+                    .all(|t| t.truncate().length_squared() > 1e-12)
+            {
+                flags |= TRI_HAS_TANGENTS;
+            }
+            for (k, t) in tangent.iter().enumerate() {
+                if t.w < 0.0 {
+                    flags |= 1 << (TRI_BITANGENT_NEG_SHIFT + k as u32);
+                }
+            }
+            // Triangles rays may pass through carry their material (+1) for the any-hit test.
+            let alpha_tag = if m.alpha_tested() { material + 1 } else { 0 };
             tri_geom.push(GpuTriGeom {
-                v0: p[0].extend(0.0).to_array(),
+                v0: p[0].extend(f32::from_bits(alpha_tag)).to_array(),
                 e1: (p[1] - p[0]).extend(0.0).to_array(),
                 e2: (p[2] - p[0]).extend(0.0).to_array(),
             });
             tri_attr.push(GpuTriAttr {
-                n0: n[0].extend(pmf).to_array(),
-                n1: n[1].extend(f32::from_bits(material)).to_array(),
-                n2: n[2].extend(f32::from_bits(orig)).to_array(),
-                uv01: [uv[0].x, uv[0].y, uv[1].x, uv[1].y],
-                uv2: [uv[2].x, uv[2].y, 0.0, 0.0],
+                normals: n.map(oct_encode_packed),
+                light_pmf: pmf,
+                tangents: tangent.map(|t| oct_encode_packed(t.truncate())),
+                material,
+                uv0_ab: [uv[0].x, uv[0].y, uv[1].x, uv[1].y],
+                uv0_c_uv1_a: [uv[2].x, uv[2].y, uv1[0].x, uv1[0].y],
+                uv1_bc: [uv1[1].x, uv1[1].y, uv1[2].x, uv1[2].y],
+                scene_tri: orig,
+                flags,
+                pad: [0; 2],
             });
             for k in 0..3 {
                 vertices.push(RasterVertex {
@@ -268,6 +589,8 @@ impl SceneData {
             tri_attr,
             materials,
             texels,
+            textures,
+            environment: super::environment::gpu_bytes(scene.environment.as_ref()),
             lights,
             vertices,
             features,
@@ -300,7 +623,9 @@ pub struct GpuScene {
 
 impl GpuScene {
     pub fn bind_group_layout(gpu: &Gpu) -> wgpu::BindGroupLayout {
-        let entries: Vec<wgpu::BindGroupLayoutEntry> = (0..6)
+        // 0 BVH nodes, 1 triangle geometry, 2 triangle attributes, 3 materials, 4 texels,
+        // 5 light pool, 6 environment map, 7 texture table.
+        let entries: Vec<wgpu::BindGroupLayoutEntry> = (0..8)
             .map(|i| wgpu::BindGroupLayoutEntry {
                 binding: i,
                 visibility: wgpu::ShaderStages::COMPUTE | wgpu::ShaderStages::FRAGMENT,
@@ -340,6 +665,9 @@ impl GpuScene {
         let attr = storage("tri attr", bytemuck::cast_slice(&data.tri_attr));
         let mats = storage("materials", bytemuck::cast_slice(&data.materials));
         let texels = storage("texels", bytemuck::cast_slice(&data.texels));
+        let texture_table = storage("texture table", bytemuck::cast_slice(&data.textures));
+        // Binding 6: the environment map (shaders/common/sky.wgsl).
+        let environment = storage("environment", &data.environment);
         let mut light_bytes: Vec<u8> = Vec::new();
         let emissive = data
             .lights
@@ -368,7 +696,16 @@ impl GpuScene {
             gpu,
             "scene",
             &layout,
-            &[&nodes, &geom, &attr, &mats, &texels, &lights],
+            &[
+                &nodes,
+                &geom,
+                &attr,
+                &mats,
+                &texels,
+                &lights,
+                &environment,
+                &texture_table,
+            ],
         );
         let mut vbytes = bytemuck::cast_slice::<RasterVertex, u8>(&data.vertices).to_vec();
         if vbytes.is_empty() {
@@ -386,7 +723,8 @@ impl GpuScene {
         data.timings.threads = rayon::current_num_threads();
         GpuScene {
             data,
-            sky: scene.sky,
+            // The environment map's mean radiance when there is one.
+            sky: scene.sky_mean(),
             layout,
             bind_group,
             vertex_buffer,

@@ -4,27 +4,117 @@
 pub mod atrium;
 pub mod builtin;
 pub mod bvh;
+pub mod environment;
 pub mod features;
 pub mod gltf_load;
 pub mod gpu_scene;
 pub mod shading;
+pub mod tangents;
 
 use anyhow::Result;
 use glam::{Vec2, Vec3, Vec4};
 use serde::{Deserialize, Serialize};
+
+/// glTF alpha modes. `Blend` is traced as `Mask` with the material's cutoff (0.5 unless the
+/// file says otherwise): a path tracer has no draw order to blend in, and stochastic
+/// transparency would add noise to every technique alike (stated in the README).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum AlphaMode {
+    #[default]
+    Opaque,
+    Mask,
+    Blend,
+}
+
+/// KHR_texture_transform: uv' = T(offset) R(rotation) S(scale) uv, as the extension specifies
+/// (rotation in radians, counter-clockwise in UV space, i.e. the matrix [[c, s], [-s, c]]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct UvTransform {
+    pub offset: Vec2,
+    pub rotation: f32,
+    pub scale: Vec2,
+}
+
+impl Default for UvTransform {
+    fn default() -> Self {
+        UvTransform {
+            offset: Vec2::ZERO,
+            rotation: 0.0,
+            scale: Vec2::ONE,
+        }
+    }
+}
+
+impl UvTransform {
+    /// Rows of the 2x3 matrix: uv' = (r0.xy . uv + r0.z, r1.xy . uv + r1.z).
+    pub fn rows(&self) -> [[f32; 3]; 2] {
+        let (s, c) = self.rotation.sin_cos();
+        // T * R * S with R = [[c, s], [-s, c]] (the extension's column-major mat3 written out).
+        [
+            [c * self.scale.x, s * self.scale.y, self.offset.x],
+            [-s * self.scale.x, c * self.scale.y, self.offset.y],
+        ]
+    }
+    pub fn apply(&self, uv: Vec2) -> Vec2 {
+        let r = self.rows();
+        Vec2::new(
+            r[0][0] * uv.x + r[0][1] * uv.y + r[0][2],
+            r[1][0] * uv.x + r[1][1] * uv.y + r[1][2],
+        )
+    }
+}
+
+/// A material's use of a texture: which one, which UV set, and its transform.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TextureRef {
+    /// Index into `Scene::textures`.
+    pub texture: usize,
+    /// UV set: 0 (`uvs`) or 1 (`uvs1`).
+    pub tex_coord: u32,
+    pub transform: UvTransform,
+}
+
+impl TextureRef {
+    pub fn new(texture: usize) -> TextureRef {
+        TextureRef {
+            texture,
+            tex_coord: 0,
+            transform: UvTransform::default(),
+        }
+    }
+}
 
 #[derive(Clone, Debug, PartialEq)]
 pub struct Material {
     pub name: String,
     /// Linear RGBA factor (multiplied with the texture).
     pub base_color: Vec4,
-    pub base_color_texture: Option<usize>,
+    /// sRGB base colour and alpha.
+    pub base_color_texture: Option<TextureRef>,
     pub metallic: f32,
     pub roughness: f32,
+    /// Linear; G = roughness, B = metallic (glTF), multiplying the factors.
+    pub metallic_roughness_texture: Option<TextureRef>,
+    /// Tangent-space normal map (linear, glTF's +Y-up convention).
+    pub normal_texture: Option<TextureRef>,
+    /// glTF normalTexture.scale: scales the map's X and Y.
+    pub normal_scale: f32,
     /// Emitted radiance: emissiveFactor x KHR_materials_emissive_strength.
     pub emissive: Vec3,
+    /// sRGB, multiplying `emissive`.
+    pub emissive_texture: Option<TextureRef>,
+    /// Baked ambient occlusion (R channel). Loaded and uploaded but not applied: every technique
+    /// here computes occlusion itself, and applying both would count it twice (as Cycles and
+    /// Mitsuba also ignore it).
+    pub occlusion_texture: Option<TextureRef>,
+    pub occlusion_strength: f32,
+    pub alpha_mode: AlphaMode,
+    /// Mask: alpha below this is a hole (glTF default 0.5).
+    pub alpha_cutoff: f32,
     /// KHR_materials_specular specularFactor: 0 turns the dielectric specular lobe off (pure Lambert).
     pub specular: f32,
+    /// KHR_materials_ior: dielectric F0 = ((ior - 1) / (ior + 1))^2 (1.5: F0 = 0.04).
+    pub ior: f32,
     /// Emission goes both ways only when the material is double-sided.
     pub double_sided: bool,
     /// The BRDF model (set for all materials by the preset's `[shading] brdf`).
@@ -41,8 +131,17 @@ impl Material {
             base_color_texture: None,
             metallic: 0.0,
             roughness: 1.0,
+            metallic_roughness_texture: None,
+            normal_texture: None,
+            normal_scale: 1.0,
             emissive: Vec3::ZERO,
+            emissive_texture: None,
+            occlusion_texture: None,
+            occlusion_strength: 1.0,
+            alpha_mode: AlphaMode::Opaque,
+            alpha_cutoff: 0.5,
             specular: 0.0,
+            ior: 1.5,
             double_sided: false,
             brdf: shading::BrdfModel::default(),
             callisto: shading::CallistoParams::default(),
@@ -62,9 +161,24 @@ impl Material {
             ..Material::lambert(name, base)
         }
     }
+    /// Every texture the material uses, with the slot name (for validation and messages).
+    pub fn texture_refs(&self) -> [(&'static str, Option<TextureRef>); 5] {
+        [
+            ("baseColorTexture", self.base_color_texture),
+            ("metallicRoughnessTexture", self.metallic_roughness_texture),
+            ("normalTexture", self.normal_texture),
+            ("emissiveTexture", self.emissive_texture),
+            ("occlusionTexture", self.occlusion_texture),
+        ]
+    }
+    /// True when rays may pass through parts of it (alpha mask, or blend traced as a mask).
+    pub fn alpha_tested(&self) -> bool {
+        self.alpha_mode != AlphaMode::Opaque
+    }
 }
 
-/// An sRGB-encoded RGBA8 texture (base colour).
+/// An RGBA8 texture as stored in the file (sRGB or linear is decided by the material slot
+/// that reads it: base colour and emission are sRGB, the others linear).
 #[derive(Clone, Debug)]
 pub struct Texture {
     pub width: u32,
@@ -143,6 +257,11 @@ pub struct Scene {
     /// Per vertex; zero-length normals mean "use the geometric normal".
     pub normals: Vec<Vec3>,
     pub uvs: Vec<Vec2>,
+    /// Second UV set (glTF TEXCOORD_1): empty when no vertex has one, else one per vertex.
+    pub uvs1: Vec<Vec2>,
+    /// Per-vertex tangent (xyz) and bitangent sign (w), MikkTSpace when generated: empty when no
+    /// material needs them, else one per vertex (zero where unknown).
+    pub tangents: Vec<Vec4>,
     pub triangles: Vec<[u32; 3]>,
     pub triangle_material: Vec<u32>,
     pub materials: Vec<Material>,
@@ -151,6 +270,8 @@ pub struct Scene {
     pub camera: Option<Camera>,
     /// Constant sky radiance seen by rays that leave the scene.
     pub sky: Vec3,
+    /// An equirectangular HDR map as the sky; when set it replaces `sky` (see `sky_mean`).
+    pub environment: Option<environment::Environment>,
 }
 
 impl Scene {
@@ -250,6 +371,11 @@ impl Scene {
             "vertex attribute arrays differ in length"
         );
         anyhow::ensure!(
+            (self.uvs1.is_empty() || self.uvs1.len() == nv)
+                && (self.tangents.is_empty() || self.tangents.len() == nv),
+            "second UV set or tangents given for some vertices only"
+        );
+        anyhow::ensure!(
             self.triangle_material.len() == self.triangles.len(),
             "one material per triangle expected"
         );
@@ -267,12 +393,20 @@ impl Scene {
             anyhow::ensure!(p.is_finite(), "vertex position is not finite");
         }
         for m in &self.materials {
-            if let Some(t) = m.base_color_texture {
-                anyhow::ensure!(
-                    t < self.textures.len(),
-                    "material '{}' references a missing texture",
-                    m.name
-                );
+            for (slot, t) in m.texture_refs() {
+                if let Some(t) = t {
+                    anyhow::ensure!(
+                        t.texture < self.textures.len(),
+                        "material '{}': {slot} references a missing texture",
+                        m.name
+                    );
+                    anyhow::ensure!(
+                        t.tex_coord <= 1,
+                        "material '{}': {slot} uses TEXCOORD_{} (sets 0 and 1 are read)",
+                        m.name,
+                        t.tex_coord
+                    );
+                }
             }
         }
         Ok(())

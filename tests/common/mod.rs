@@ -1,6 +1,8 @@
 //! Shared helpers for the integration tests: one GPU device per test binary, small renders.
 #![allow(dead_code)]
 
+pub mod gltf_writer;
+
 use gilab::compare::Image;
 use gilab::gpu::{shaders::ShaderLibrary, BackendChoice, Gpu};
 use gilab::render::{engine::Engine, engine::EngineSettings, RayCounts};

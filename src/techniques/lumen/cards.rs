@@ -274,7 +274,7 @@ pub fn build(data: &SceneData, atlas: u32) -> Result<CardSet> {
     // Double-sidedness per scene triangle, from the BVH-ordered attributes.
     let mut two_sided = vec![false; data.tris.len()];
     for (bvh_index, &orig) in data.bvh.order.iter().enumerate() {
-        let m = data.tri_attr[bvh_index].n1[3].to_bits() as usize;
+        let m = data.tri_attr[bvh_index].material() as usize;
         two_sided[orig as usize] = data.materials.get(m).is_some_and(|m| m.emissive[3] > 0.5);
     }
     let mut per_object: Vec<Vec<[Vec3; 3]>> = vec![Vec::new(); object_count];

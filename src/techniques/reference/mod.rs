@@ -123,10 +123,13 @@ impl Technique for ReferencePathTracer {
         v.push(PassInfo {
             name: "sky",
             runs: f.sky_visible,
-            why: if f.sky_visible {
-                "sky radiance reachable from the camera".into()
-            } else {
-                "sky black or enclosed".into()
+            why: match (f.sky_visible, f.environment.is_some()) {
+                (true, true) => format!(
+                    "{} reachable from the camera: NEE samples it (importance by luminance)",
+                    f.sky_label()
+                ),
+                (true, false) => "sky radiance reachable from the camera".into(),
+                (false, _) => format!("{} black or enclosed", f.sky_label()),
             },
         });
         v.push(PassInfo {

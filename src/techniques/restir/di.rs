@@ -184,7 +184,12 @@ fn candidate_summary(s: &RestirSettings, f: &SceneFeatures) -> String {
     } else {
         "directional: none in the scene".into()
     });
-    parts.push(if sky > 0 {
+    parts.push(if sky > 0 && f.environment.is_some() {
+        format!(
+            "sky: {sky} candidate directions from BSDF, cosine and {} sampling",
+            f.sky_label()
+        )
+    } else if sky > 0 {
         format!("sky: {sky} candidate directions")
     } else if f.sky_visible {
         "sky: sky_candidates = 0, through GI rays".into()

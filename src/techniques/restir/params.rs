@@ -53,7 +53,7 @@ pub const PARAMS: &[ParamSpec] = &[
     },
     ParamSpec {
         name: "sky_candidates",
-        what: "initial RIS candidates per pixel per frame from the sky: directions from an equal mix of BSDF and cosine sampling, merged with the other classes (unused when the sky is black or out of reach)",
+        what: "initial RIS candidates per pixel per frame from the sky: directions from an equal mix of BSDF and cosine sampling (with an environment map: BSDF 1/4, cosine 1/4, the map's luminance importance sampling 1/2), merged with the other classes (unused when the sky is black or out of reach)",
         higher: "sky light resampled and reused like the other lights; one DI sample then carries sun, lamps and sky (colour noise)",
         lower: "0 (default): direct sky light comes from the GI sample ray instead (measured lower error on courtyard)",
         kind: ParamKind::Int { min: 0, max: 64 },
