@@ -123,11 +123,17 @@ struct LightPool {
 @group(0) @binding(1) var<storage, read> tri_geom: array<TriGeom>;
 @group(0) @binding(2) var<storage, read> tri_attr: array<TriAttr>;
 @group(0) @binding(3) var<storage, read> materials: array<Material>;
-// RGBA8 words of every texture and mip level (see TextureInfo).
+// The scene's data words: [0] the texture table's start; [1..] the environment map
+// (gilab::sky, ENV_OFFSET); then the texture table (4 words per texture, see texture_info);
+// then every texture's level-offset header and RGBA8 texels. One binding for all of it keeps
+// the techniques under lavapipe's 32 storage buffers per stage.
 @group(0) @binding(4) var<storage, read> texels: array<u32>;
 @group(0) @binding(5) var<storage, read> light_pool: LightPool;
-// Binding 6: the environment map (gilab::sky).
-@group(0) @binding(7) var<storage, read> textures: array<TextureInfo>;
+
+fn texture_info(index: u32) -> TextureInfo {
+    let k = texels[0] + 4u * index;
+    return TextureInfo(texels[k], texels[k + 1u], texels[k + 2u], texels[k + 3u]);
+}
 
 // The triangle's index in the scene (before BVH ordering).
 fn scene_triangle(tri: u32) -> u32 {
@@ -204,7 +210,7 @@ fn fetch_texel(t: TextureInfo, level: u32, x: i32, y: i32, srgb: bool) -> vec4<f
 // Bilinear, repeat-wrapped lookup at the mip level nearest to `lod` (log2 of texels per
 // footprint at level 0; <= 0 reads level 0).
 fn sample_texture(index: u32, uv: vec2<f32>, lod: f32, srgb: bool) -> vec4<f32> {
-    let t = textures[index];
+    let t = texture_info(index);
     let level = u32(clamp(round(lod), 0.0, f32(max(t.levels, 1u) - 1u)));
     let size = vec2<f32>(f32(max(t.width >> level, 1u)), f32(max(t.height >> level, 1u)));
     let p = uv * size - 0.5;
@@ -222,7 +228,7 @@ fn sample_texture(index: u32, uv: vec2<f32>, lod: f32, srgb: bool) -> vec4<f32> 
 // gilab::surface); the texture's own size and the transform's scale are added here.
 fn slot_sample(slot: TexSlot, uvs: vec4<f32>, lod_base: vec2<f32>, srgb: bool) -> vec4<f32> {
     let index = bitcast<u32>(slot.transform_u.w);
-    let t = textures[index];
+    let t = texture_info(index);
     let set1 = bitcast<u32>(slot.transform_v.w) == 1u;
     let det = abs(slot.transform_u.x * slot.transform_v.y - slot.transform_u.y * slot.transform_v.x);
     let lod = select(lod_base.x, lod_base.y, set1) + 0.5 * log2(max(f32(t.width * t.height) * det, 1e-20));

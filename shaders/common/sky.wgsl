@@ -8,6 +8,7 @@
 
 #import gilab::math::{PI, TWO_PI}
 #import gilab::frame::frame
+#import gilab::scene::texels
 
 // Header words (then texels: two words each, half (r, g) and half (b, 0); the marginal CDF over
 // rows; the conditional CDFs of every row; CDFs inclusive f32, last entry 1).
@@ -25,7 +26,13 @@ const ENV_TEXELS: u32 = 16u;
 // FrameUniforms flag (render::FLAG_NO_SKY_NEE): leave the map out of the path tracer's NEE.
 const FLAG_NO_SKY_NEE: u32 = 2u;
 
-@group(0) @binding(6) var<storage, read> environment: array<u32>;
+// The map's words sit in the scene's data buffer (`texels`, binding 4) from ENV_OFFSET on: one
+// binding for textures and the map keeps the techniques under 32 storage buffers per stage.
+const ENV_OFFSET: u32 = 1u;
+
+fn env_word(i: u32) -> u32 {
+    return texels[ENV_OFFSET + i];
+}
 
 struct SkySample {
     dir: vec3<f32>,
@@ -34,24 +41,24 @@ struct SkySample {
 }
 
 fn env_word_f32(i: u32) -> f32 {
-    return bitcast<f32>(environment[i]);
+    return bitcast<f32>(env_word(i));
 }
 
 // True when an environment map is bound (otherwise the sky is the constant frame.sky).
 fn has_environment() -> bool {
-    return environment[ENV_PRESENT] != 0u;
+    return env_word(ENV_PRESENT) != 0u;
 }
 
 // The path tracer samples the sky in next-event estimation: only an environment map that is not
 // black (a constant sky is reached by BSDF sampling, which cosine-weighted sampling would not
 // improve on), unless FLAG_NO_SKY_NEE is set.
 fn sky_nee() -> bool {
-    return has_environment() && environment[ENV_SAMPLEABLE] != 0u && (frame.flags & FLAG_NO_SKY_NEE) == 0u;
+    return has_environment() && env_word(ENV_SAMPLEABLE) != 0u && (frame.flags & FLAG_NO_SKY_NEE) == 0u;
 }
 
 // Environment map sampling is available (ReSTIR's sky class mixes it in).
 fn sky_importance() -> bool {
-    return has_environment() && environment[ENV_SAMPLEABLE] != 0u;
+    return has_environment() && env_word(ENV_SAMPLEABLE) != 0u;
 }
 
 // Map (u, v) of a world direction.
@@ -91,19 +98,19 @@ fn half_to_f32(h: u32) -> f32 {
 }
 
 fn env_texel(i: i32, j: i32) -> vec3<f32> {
-    let w = i32(environment[ENV_WIDTH]);
-    let h = i32(environment[ENV_HEIGHT]);
+    let w = i32(env_word(ENV_WIDTH));
+    let h = i32(env_word(ENV_HEIGHT));
     let ii = ((i % w) + w) % w;
     let jj = clamp(j, 0, h - 1);
     let k = ENV_TEXELS + 2u * u32(jj * w + ii);
-    let rg = environment[k];
-    return vec3<f32>(half_to_f32(rg & 0xffffu), half_to_f32(rg >> 16u), half_to_f32(environment[k + 1u]));
+    let rg = env_word(k);
+    return vec3<f32>(half_to_f32(rg & 0xffffu), half_to_f32(rg >> 16u), half_to_f32(env_word(k + 1u)));
 }
 
 // Bilinear between texel centres, wrapping in u, clamped in v; intensity included.
 fn env_radiance(dir: vec3<f32>) -> vec3<f32> {
     let uv = env_uv(dir);
-    let p = uv * vec2<f32>(f32(environment[ENV_WIDTH]), f32(environment[ENV_HEIGHT])) - 0.5;
+    let p = uv * vec2<f32>(f32(env_word(ENV_WIDTH)), f32(env_word(ENV_HEIGHT))) - 0.5;
     let f = floor(p);
     let t = p - f;
     let i = i32(f.x);
@@ -143,12 +150,12 @@ fn env_pmf(first: u32, k: u32) -> f32 {
 
 // Solid-angle pdf of texel (i, j) at polar sine sin_theta: pmf_row pmf_column W H / (2 pi^2 sin).
 fn env_texel_pdf(i: u32, j: u32, sin_theta: f32) -> f32 {
-    let w = environment[ENV_WIDTH];
-    let h = environment[ENV_HEIGHT];
+    let w = env_word(ENV_WIDTH);
+    let h = env_word(ENV_HEIGHT);
     if sin_theta <= 0.0 {
         return 0.0;
     }
-    let p = env_pmf(environment[ENV_MARGINAL], j) * env_pmf(environment[ENV_CONDITIONAL] + j * w, i) * f32(w) * f32(h);
+    let p = env_pmf(env_word(ENV_MARGINAL), j) * env_pmf(env_word(ENV_CONDITIONAL) + j * w, i) * f32(w) * f32(h);
     return max(p, 0.0) / (2.0 * PI * PI * sin_theta);
 }
 
@@ -163,15 +170,15 @@ fn sample_sky(u_in: vec2<f32>) -> SkySample {
         let phi = TWO_PI * u.y;
         return SkySample(vec3<f32>(r * cos(phi), y, r * sin(phi)), 0.25 / PI);
     }
-    if environment[ENV_SAMPLEABLE] == 0u {
+    if env_word(ENV_SAMPLEABLE) == 0u {
         return SkySample(vec3<f32>(0.0, 1.0, 0.0), 0.0);
     }
-    let w = environment[ENV_WIDTH];
-    let h = environment[ENV_HEIGHT];
-    let marginal = environment[ENV_MARGINAL];
+    let w = env_word(ENV_WIDTH);
+    let h = env_word(ENV_HEIGHT);
+    let marginal = env_word(ENV_MARGINAL);
     let j = env_search(marginal, h, u.x);
     let pj = env_pmf(marginal, j);
-    let row = environment[ENV_CONDITIONAL] + j * w;
+    let row = env_word(ENV_CONDITIONAL) + j * w;
     let i = env_search(row, w, u.y);
     let p_col = env_pmf(row, i);
     if pj <= 0.0 || p_col <= 0.0 {
@@ -190,11 +197,11 @@ fn sky_pdf(dir: vec3<f32>) -> f32 {
     if !has_environment() {
         return 0.25 / PI;
     }
-    if environment[ENV_SAMPLEABLE] == 0u {
+    if env_word(ENV_SAMPLEABLE) == 0u {
         return 0.0;
     }
-    let w = environment[ENV_WIDTH];
-    let h = environment[ENV_HEIGHT];
+    let w = env_word(ENV_WIDTH);
+    let h = env_word(ENV_HEIGHT);
     let uv = env_uv(dir);
     let i = min(u32(uv.x * f32(w)), w - 1u);
     let j = min(u32(uv.y * f32(h)), h - 1u);

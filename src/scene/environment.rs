@@ -33,9 +33,11 @@ use std::f64::consts::PI;
 use std::path::Path;
 use std::sync::Arc;
 
-/// Largest size of the GPU buffer (wgpu's default `max_storage_buffer_binding_size`, and
-/// lavapipe's): larger maps are halved (2x2 box filter) until they fit, with a warning.
-pub const MAX_GPU_BYTES: usize = 128 * 1024 * 1024;
+/// Largest share of the scene data buffer (128 MiB in all, wgpu's default
+/// `max_storage_buffer_binding_size` and lavapipe's, shared with the textures: see
+/// gpu_scene::SCENE_DATA_WORDS) the map may take: larger maps are halved (2x2 box filter)
+/// until they fit, with a warning. 4096x2048 is halved once, to 2048x1024 (24 MiB).
+pub const MAX_GPU_BYTES: usize = 64 * 1024 * 1024;
 
 /// Words of the buffer header (see [`gpu_bytes`]).
 pub const HEADER_WORDS: usize = 16;

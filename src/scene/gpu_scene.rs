@@ -113,10 +113,14 @@ pub struct GpuTexture {
     pub levels: u32,
 }
 
-/// Texels (all textures, all mip levels) kept under this so the array fits one storage
-/// binding (128 MiB is wgpu's default limit and lavapipe's): larger sets lose their finest
-/// levels, largest textures first, with a warning.
-pub const TEXEL_BUDGET: usize = 30 * 1024 * 1024;
+/// Words of the scene data buffer (binding 4: texture table, environment map, every texture's
+/// mip chain) kept under this so that it fits one storage binding (128 MiB is wgpu's default
+/// limit and lavapipe's): textures lose their finest levels, largest first, with a warning.
+pub const SCENE_DATA_WORDS: usize = 32 * 1024 * 1024 - 1024;
+
+/// Where the environment map's words start in the scene data buffer (shaders/common/sky.wgsl
+/// `ENV_OFFSET`); word 0 holds the texture table's start.
+pub const ENV_OFFSET: usize = 1;
 
 /// sRGB <-> linear (the exact curves; mips of colour textures are averaged in linear light).
 pub fn srgb_to_linear(c: f32) -> f32 {
@@ -196,9 +200,10 @@ fn texture_mean(t: &super::Texture, srgb: bool) -> Vec3 {
     (sum / (t.rgba8.len() / 4).max(1) as f64).as_vec3()
 }
 
-/// Packs every texture with its mips into one texel array (RGBA8 words) and the table of where
-/// each lies. Textures referenced only by colour slots are averaged in linear light.
-fn pack_textures(scene: &Scene) -> (Vec<u32>, Vec<GpuTexture>) {
+/// Packs every texture with its mips (RGBA8 words, each chain behind a header of level offsets)
+/// to be placed at word `base` of the scene data buffer, in at most `budget` words, and the
+/// table of where each lies (absolute offsets). Colour textures are averaged in linear light.
+fn pack_textures(scene: &Scene, base: usize, budget: usize) -> (Vec<u32>, Vec<GpuTexture>) {
     let mut srgb = vec![false; scene.textures.len()];
     for m in &scene.materials {
         for r in [m.base_color_texture, m.emissive_texture]
@@ -217,7 +222,8 @@ fn pack_textures(scene: &Scene) -> (Vec<u32>, Vec<GpuTexture>) {
         let (mut w, mut h) = (w, h);
         for k in 0..level_count(w, h) {
             if k >= skip {
-                total += (w * h) as usize;
+                // The level's texels and its word in the chain's header.
+                total += (w * h) as usize + 1;
             }
             w = (w / 2).max(1);
             h = (h / 2).max(1);
@@ -232,7 +238,7 @@ fn pack_textures(scene: &Scene) -> (Vec<u32>, Vec<GpuTexture>) {
             .zip(&skip)
             .map(|(t, &s)| chain_texels(t.width, t.height, s))
             .sum();
-        if total <= TEXEL_BUDGET {
+        if total <= budget {
             break;
         }
         let largest = (0..scene.textures.len())
@@ -254,8 +260,8 @@ fn pack_textures(scene: &Scene) -> (Vec<u32>, Vec<GpuTexture>) {
     if skip.iter().any(|&s| s > 0) {
         let reduced = skip.iter().filter(|&&s| s > 0).count();
         log::warn!(
-            "textures exceed the GPU texel budget ({} M texels): {reduced} of {} lose their finest mip levels",
-            TEXEL_BUDGET / (1024 * 1024),
+            "textures exceed the GPU buffer budget ({:.1} M texels left beside the environment map): {reduced} of {} lose their finest mip levels",
+            budget as f64 / (1024.0 * 1024.0),
             scene.textures.len()
         );
     }
@@ -274,14 +280,14 @@ fn pack_textures(scene: &Scene) -> (Vec<u32>, Vec<GpuTexture>) {
         // A header of level offsets first: shaders find a level without a loop.
         let header = texels.len();
         table.push(GpuTexture {
-            first: header as u32,
+            first: (base + header) as u32,
             width: chain[0].0,
             height: chain[0].1,
             levels: chain.len() as u32,
         });
         texels.resize(header + chain.len(), 0);
         for (k, (_, _, px)) in chain.iter().enumerate() {
-            texels[header + k] = texels.len() as u32;
+            texels[header + k] = (base + texels.len()) as u32;
             texels.extend(
                 px.chunks_exact(4)
                     .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])),
@@ -349,10 +355,13 @@ pub struct SceneData {
     pub tri_geom: Vec<GpuTriGeom>,
     pub tri_attr: Vec<GpuTriAttr>,
     pub materials: Vec<GpuMaterial>,
+    /// The scene data buffer (binding 4): word 0 the texture table's start, the environment
+    /// map from ENV_OFFSET, the table (`textures`, 4 words each), then the mip chains.
     pub texels: Vec<u32>,
     /// Where each texture's mip chain lies in `texels`.
     pub textures: Vec<GpuTexture>,
-    /// Binding 6: the environment map (`environment::gpu_bytes`; a header only without one).
+    /// The environment map's words (`environment::gpu_bytes`; a header only without one), also
+    /// inside `texels` from ENV_OFFSET on.
     pub environment: Vec<u8>,
     pub lights: Vec<GpuLight>,
     pub vertices: Vec<RasterVertex>,
@@ -383,11 +392,31 @@ impl SceneData {
         let bvh_build_ms = start.elapsed().as_secs_f64() * 1e3;
         let features = SceneFeatures::compute(scene, &bvh, &tris);
 
-        // Textures with their mip chains packed into one texel array (RGBA8 words).
-        let (mut texels, textures) = pack_textures(scene);
-        if texels.is_empty() {
-            texels.push(0);
+        // The scene data buffer: the texture table's start, the environment map, the table,
+        // then every texture's mip chain (one binding: see SCENE_DATA_WORDS).
+        let environment = super::environment::gpu_bytes(scene.environment.as_ref());
+        let env_words: Vec<u32> = environment
+            .chunks(4)
+            .map(|c| {
+                let mut w = [0u8; 4];
+                w[..c.len()].copy_from_slice(c);
+                u32::from_le_bytes(w)
+            })
+            .collect();
+        let table_start = ENV_OFFSET + env_words.len();
+        let data_start = table_start + 4 * scene.textures.len();
+        let (texture_words, textures) = pack_textures(
+            scene,
+            data_start,
+            SCENE_DATA_WORDS.saturating_sub(data_start),
+        );
+        let mut texels = Vec::with_capacity(data_start + texture_words.len());
+        texels.push(table_start as u32);
+        texels.extend_from_slice(&env_words);
+        for t in &textures {
+            texels.extend_from_slice(&[t.first, t.width, t.height, t.levels]);
         }
+        texels.extend_from_slice(&texture_words);
         let present: Vec<bool> = (0..scene.textures.len()).map(|_| true).collect();
         let materials: Vec<GpuMaterial> = scene
             .materials
@@ -590,7 +619,7 @@ impl SceneData {
             materials,
             texels,
             textures,
-            environment: super::environment::gpu_bytes(scene.environment.as_ref()),
+            environment,
             lights,
             vertices,
             features,
@@ -623,9 +652,9 @@ pub struct GpuScene {
 
 impl GpuScene {
     pub fn bind_group_layout(gpu: &Gpu) -> wgpu::BindGroupLayout {
-        // 0 BVH nodes, 1 triangle geometry, 2 triangle attributes, 3 materials, 4 texels,
-        // 5 light pool, 6 environment map, 7 texture table.
-        let entries: Vec<wgpu::BindGroupLayoutEntry> = (0..8)
+        // 0 BVH nodes, 1 triangle geometry, 2 triangle attributes, 3 materials, 4 scene data
+        // (texture table, environment map, textures), 5 light pool.
+        let entries: Vec<wgpu::BindGroupLayoutEntry> = (0..6)
             .map(|i| wgpu::BindGroupLayoutEntry {
                 binding: i,
                 visibility: wgpu::ShaderStages::COMPUTE | wgpu::ShaderStages::FRAGMENT,
@@ -665,9 +694,6 @@ impl GpuScene {
         let attr = storage("tri attr", bytemuck::cast_slice(&data.tri_attr));
         let mats = storage("materials", bytemuck::cast_slice(&data.materials));
         let texels = storage("texels", bytemuck::cast_slice(&data.texels));
-        let texture_table = storage("texture table", bytemuck::cast_slice(&data.textures));
-        // Binding 6: the environment map (shaders/common/sky.wgsl).
-        let environment = storage("environment", &data.environment);
         let mut light_bytes: Vec<u8> = Vec::new();
         let emissive = data
             .lights
@@ -696,16 +722,7 @@ impl GpuScene {
             gpu,
             "scene",
             &layout,
-            &[
-                &nodes,
-                &geom,
-                &attr,
-                &mats,
-                &texels,
-                &lights,
-                &environment,
-                &texture_table,
-            ],
+            &[&nodes, &geom, &attr, &mats, &texels, &lights],
         );
         let mut vbytes = bytemuck::cast_slice::<RasterVertex, u8>(&data.vertices).to_vec();
         if vbytes.is_empty() {
