@@ -211,6 +211,15 @@ pub fn curve(op: Operator, gt_params: &GtParams, x: f32) -> f32 {
     }
 }
 
+/// The sRGB transfer function's inverse (8-bit colour textures and the talk's base colours).
+pub fn srgb_to_linear(c: f32) -> f32 {
+    if c <= 0.040_45 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
+}
+
 pub fn linear_to_srgb(c: f32) -> f32 {
     if c <= 0.003_130_8 {
         c * 12.92

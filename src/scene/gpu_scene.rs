@@ -1,6 +1,7 @@
 //! GpuScene: the scene's buffers on the GPU (bind group 0 of every technique) and the light pool.
 
 use super::{bvh::Bvh, features::luminance, features::SceneFeatures, PunctualKind, Scene};
+use crate::compare::tonemap::{linear_to_srgb, srgb_to_linear};
 use crate::gpu::Gpu;
 use glam::Vec3;
 use wgpu::util::DeviceExt;
@@ -121,22 +122,6 @@ pub const SCENE_DATA_WORDS: usize = 32 * 1024 * 1024 - 1024;
 /// Where the environment map's words start in the scene data buffer (shaders/common/sky.wgsl
 /// `ENV_OFFSET`); word 0 holds the texture table's start.
 pub const ENV_OFFSET: usize = 1;
-
-/// sRGB <-> linear (the exact curves; mips of colour textures are averaged in linear light).
-pub fn srgb_to_linear(c: f32) -> f32 {
-    if c <= 0.04045 {
-        c / 12.92
-    } else {
-        ((c + 0.055) / 1.055).powf(2.4)
-    }
-}
-pub fn linear_to_srgb(c: f32) -> f32 {
-    if c <= 0.0031308 {
-        c * 12.92
-    } else {
-        1.055 * c.powf(1.0 / 2.4) - 0.055
-    }
-}
 
 /// The mip chain of one texture (level 0 first), box-filtered 2x2 (odd sizes: the last row or
 /// column folds into its neighbour), colour channels in linear light when `srgb`; alpha linear.

@@ -407,7 +407,10 @@ pub fn callisto_fit(name: &str) -> Option<CallistoFit> {
             dual: (2.0, 0.0),
         },
     ];
-    let srgb = |c: [u8; 3]| Vec3::from_array(c.map(|v| srgb_to_linear(v as f32 / 255.0)));
+    // The talk prints base colours as 8-bit sRGB.
+    let srgb = |c: [u8; 3]| {
+        Vec3::from_array(c.map(|v| crate::compare::tonemap::srgb_to_linear(v as f32 / 255.0)))
+    };
     let unit = |c: [u8; 3]| c.map(|v| v as f32 / 255.0);
     let f = fits.iter().find(|f| f.name == name)?;
     Some(CallistoFit {
@@ -441,15 +444,6 @@ pub const CALLISTO_FITS: [&str; 6] = [
     "gold-metallic-paint",
     "light-red-paint",
 ];
-
-/// The sRGB transfer function's inverse (the talk prints base colours as 8-bit sRGB).
-fn srgb_to_linear(c: f32) -> f32 {
-    if c <= 0.040_45 {
-        c / 12.92
-    } else {
-        ((c + 0.055) / 1.055).powf(2.4)
-    }
-}
 
 #[cfg(test)]
 mod tests {
