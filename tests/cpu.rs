@@ -2,7 +2,7 @@
 //! force, presets parse and round-trip, glTF loading and its errors, metrics.
 
 use gilab::compare::{metrics, Image};
-use gilab::gpu::shaders::ShaderLibrary;
+use gilab::gpu::shaders::{ShaderLibrary, ShaderVariant};
 use gilab::preset::{LoadedPreset, Overrides};
 use gilab::scene::{builtin, bvh, gltf_load};
 use glam::Vec3;
@@ -10,7 +10,14 @@ use std::path::Path;
 
 #[test]
 fn every_wgsl_entry_file_validates() {
-    for lib in [ShaderLibrary::discover(), ShaderLibrary::embedded()] {
+    // Both sources, each in every variant (scene-chosen shader defs).
+    let opaque = ShaderVariant { alpha_test: false };
+    for lib in [
+        ShaderLibrary::discover(),
+        ShaderLibrary::embedded(),
+        ShaderLibrary::discover().with_variant(opaque),
+        ShaderLibrary::embedded().with_variant(opaque),
+    ] {
         let entries = lib.entry_files().unwrap();
         assert!(entries.len() >= 3, "entry files: {entries:?}");
         for entry in entries {
@@ -44,6 +51,7 @@ fn shader_errors_name_file_and_line() {
     .unwrap();
     let lib = ShaderLibrary {
         source: gilab::gpu::shaders::ShaderSource::Disk(dir.clone()),
+        variant: Default::default(),
     };
     let err = lib.compose("reference/path_trace.wgsl").unwrap_err();
     assert!(
@@ -1248,4 +1256,34 @@ fn atrium_has_a_million_triangles_and_its_bvh_is_exact() {
         instanced,
         low.instances.len()
     );
+}
+
+/// Scenes choose their shader variant: the any-hit alpha test is compiled into traversal only
+/// where a material is alpha-tested (it costs ~3x on lavapipe even when it never runs).
+#[test]
+fn shader_variant_follows_the_scene() {
+    use gilab::scene::gpu_scene::SceneData;
+    let cornell = SceneData::new(&builtin::build("cornell", &toml::Table::new()).unwrap());
+    assert!(!cornell.shader_variant().alpha_test);
+    let mut detail = toml::Table::new();
+    detail.insert("detail".into(), toml::Value::Float(0.05));
+    let atrium = SceneData::new(&builtin::build("atrium", &detail).unwrap());
+    assert!(
+        atrium.shader_variant().alpha_test,
+        "the atrium's cloth is alpha-masked"
+    );
+    // The library composes the def: the opaque variant has no alpha lookup in traversal.
+    let lib = ShaderLibrary::discover();
+    let with = lib.compose("bench/trace_rays.wgsl").unwrap();
+    let without = lib
+        .with_variant(cornell.shader_variant())
+        .compose("bench/trace_rays.wgsl")
+        .unwrap();
+    let has_alpha_hole = |m: &naga::Module| {
+        m.functions
+            .iter()
+            .any(|(_, f)| f.name.as_deref().is_some_and(|n| n.contains("alpha_hole")))
+    };
+    assert!(has_alpha_hole(&with));
+    assert!(!has_alpha_hole(&without));
 }

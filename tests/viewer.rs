@@ -90,6 +90,7 @@ fn viewer(f: &Fixture, watch: bool) -> Harness<'static, ViewerApp> {
     let mut options = ViewerOptions::new(preset);
     options.shaders = ShaderLibrary {
         source: gilab::gpu::shaders::ShaderSource::Disk(f.shaders.clone()),
+        variant: Default::default(),
     };
     options.presets_dir = f.presets.clone();
     options.out_dir = f.dir.join("out");

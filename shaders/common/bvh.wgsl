@@ -75,8 +75,13 @@ fn traverse(origin: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32, any_hit: 
         let first = node.tris >> 8u;
         for (var k = 0u; k < count; k++) {
             let r = intersect_tri(origin, dir, first + k);
-            // Any-hit: holes of alpha-tested triangles let the ray through.
+#ifdef ALPHA_TEST
+            // Any-hit: holes of alpha-tested triangles let the ray through (compiled in only
+            // for scenes with alpha-tested materials: ShaderVariant in src/gpu/shaders.rs).
             if r.x > t_min && r.x < hit.t && !alpha_hole(first + k, r.yz) {
+#else
+            if r.x > t_min && r.x < hit.t {
+#endif
                 hit = Hit(r.x, first + k, r.yz);
                 if any_hit {
                     return hit;

@@ -155,6 +155,8 @@ impl Engine {
             settings.extent[0] > 0 && settings.extent[1] > 0,
             "image size must be positive"
         );
+        // Pipelines compile the variant this scene needs (features it lacks compiled out).
+        let shaders = shaders.with_variant(gpu_scene.data.shader_variant());
         let max = gpu.device.limits().max_texture_dimension_2d;
         anyhow::ensure!(
             settings.extent[0] <= max && settings.extent[1] <= max,
@@ -409,9 +411,18 @@ impl Engine {
     /// technique's reuse history continue; accumulation restarts (`Technique::on_scene_change`).
     pub fn change_scene(&mut self, scene: Arc<Scene>, gpu_scene: Arc<GpuScene>) -> Result<()> {
         self.finish_frames()?;
+        let variant = gpu_scene.data.shader_variant();
+        let variant_changed = variant != self.shaders.variant;
+        self.shaders = self.shaders.with_variant(variant);
         self.scene = scene;
         self.gpu_scene = gpu_scene;
         self.rebuild_primary()?;
+        if variant_changed {
+            // The edit added or removed a shader feature: every pipeline compiles again.
+            if let Some(d) = &mut self.denoiser {
+                d.rebuild(&self.gpu, &self.shaders, &self.frame_layout)?;
+            }
+        }
         self.technique.build(&render_context!(self))?;
         self.gpu.check_errors()?;
         self.technique.on_scene_change(&self.gpu);

@@ -354,6 +354,15 @@ pub struct SceneData {
     pub timings: SceneTimings,
 }
 
+impl SceneData {
+    /// The shader variant this scene needs: features it lacks are compiled out.
+    pub fn shader_variant(&self) -> crate::gpu::shaders::ShaderVariant {
+        crate::gpu::shaders::ShaderVariant {
+            alpha_test: self.features.alpha_tested_materials > 0,
+        }
+    }
+}
+
 /// Where a scene's set-up time goes (wall ms on the CPU), printed by `shot --verbose` and
 /// recorded in the shot JSON.
 #[derive(Clone, Copy, Debug, Default, serde::Serialize)]
