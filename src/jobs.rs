@@ -314,12 +314,31 @@ pub fn reference_key_for_camera(p: &LoadedPreset, camera: &crate::scene::Camera)
         canonical["environment"] = serde_json::json!([
             env,
             p.preset.scene.environment_rotation,
-            p.preset.scene.environment_intensity
+            p.preset.scene.environment_intensity,
+            p.environment_path().as_deref().and_then(file_stamp)
         ]);
+    }
+    // A scene file edited in place (same name) must not hit the old render.
+    if let Some(stamp) = p.scene_path().as_deref().and_then(file_stamp) {
+        canonical["scene_file"] = serde_json::json!(stamp);
+    }
+    if !p.preset.scene.instancing {
+        canonical["instancing"] = false.into();
     }
     let mut h = fnv::FnvHasher::default();
     h.write(canonical.to_string().as_bytes());
     format!("{:016x}", h.finish())
+}
+
+/// A file's length and modification time (ns since the epoch): cache keys of file inputs.
+fn file_stamp(path: &Path) -> Option<(u64, u128)> {
+    let meta = std::fs::metadata(path).ok()?;
+    let modified = meta
+        .modified()
+        .ok()?
+        .duration_since(std::time::UNIX_EPOCH)
+        .ok()?;
+    Some((meta.len(), modified.as_nanos()))
 }
 
 pub fn reference(gpu: Arc<Gpu>, p: &LoadedPreset, cache: &Path, force: bool) -> Result<PathBuf> {

@@ -11,13 +11,18 @@ use std::path::Path;
 #[test]
 fn every_wgsl_entry_file_validates() {
     // Both sources, each in every variant (scene-chosen shader defs).
-    let opaque = ShaderVariant { alpha_test: false };
-    for lib in [
-        ShaderLibrary::discover(),
-        ShaderLibrary::embedded(),
-        ShaderLibrary::discover().with_variant(opaque),
-        ShaderLibrary::embedded().with_variant(opaque),
-    ] {
+    let mut libs = Vec::new();
+    for alpha_test in [false, true] {
+        for instances in [false, true] {
+            let variant = ShaderVariant {
+                alpha_test,
+                instances,
+            };
+            libs.push(ShaderLibrary::discover().with_variant(variant));
+            libs.push(ShaderLibrary::embedded().with_variant(variant));
+        }
+    }
+    for lib in libs {
         let entries = lib.entry_files().unwrap();
         assert!(entries.len() >= 3, "entry files: {entries:?}");
         for entry in entries {
@@ -987,6 +992,9 @@ fn gltf_optional_parts_are_skipped_with_warnings() {
     let dark = gltf_load::load(&write(&d, "no-light.gltf")).unwrap();
     assert!(dark.lights.is_empty());
     assert_eq!(dark.sky, Vec3::splat(gltf_load::DEFAULT_SKY));
+    // An environment map (a preset's scene.environment) lights it: no default sky then.
+    let lit = gltf_load::load_lit(&write(&d, "no-light-env.gltf"), true).unwrap();
+    assert_eq!(lit.sky, Vec3::ZERO);
 }
 
 /// The large scene: at its default detail at least a million triangles (with 64 local lights,
@@ -1265,12 +1273,20 @@ fn shader_variant_follows_the_scene() {
     use gilab::scene::gpu_scene::SceneData;
     let cornell = SceneData::new(&builtin::build("cornell", &toml::Table::new()).unwrap());
     assert!(!cornell.shader_variant().alpha_test);
+    assert!(
+        !cornell.shader_variant().instances,
+        "no instances: a flat tree"
+    );
     let mut detail = toml::Table::new();
     detail.insert("detail".into(), toml::Value::Float(0.05));
     let atrium = SceneData::new(&builtin::build("atrium", &detail).unwrap());
     assert!(
         atrium.shader_variant().alpha_test,
         "the atrium's cloth is alpha-masked"
+    );
+    assert!(
+        atrium.shader_variant().instances,
+        "the atrium's columns are instances"
     );
     // The library composes the def: the opaque variant has no alpha lookup in traversal.
     let lib = ShaderLibrary::discover();
@@ -1286,4 +1302,169 @@ fn shader_variant_follows_the_scene() {
     };
     assert!(has_alpha_hole(&with));
     assert!(!has_alpha_hole(&without));
+}
+
+/// The two-level BVH finds the same closest hit as brute force, with rotated, non-uniformly
+/// scaled and mirrored (winding-flipped) instances; instances that do not match their mesh (an
+/// edited copy) or overlap another are traced as ordinary triangles, still exactly.
+#[test]
+fn instanced_bvh_matches_brute_force() {
+    use gilab::scene::MeshInstance;
+    use glam::{Mat4, Quat};
+    // A mesh: a bumpy closed blob (an octahedron split 3 times, radius varying).
+    let mut mesh: Vec<[Vec3; 3]> = vec![];
+    let p = [
+        Vec3::X,
+        Vec3::NEG_X,
+        Vec3::Y,
+        Vec3::NEG_Y,
+        Vec3::Z,
+        Vec3::NEG_Z,
+    ];
+    for (a, b) in [(0, 2), (2, 1), (1, 3), (3, 0)] {
+        mesh.push([p[a], p[b], p[4]]);
+        mesh.push([p[b], p[a], p[5]]);
+    }
+    for _ in 0..3 {
+        mesh = mesh
+            .iter()
+            .flat_map(|t| {
+                let m = |a: Vec3, b: Vec3| ((a + b) * 0.5).normalize();
+                let (ab, bc, ca) = (m(t[0], t[1]), m(t[1], t[2]), m(t[2], t[0]));
+                [[t[0], ab, ca], [ab, t[1], bc], [ca, bc, t[2]], [ab, bc, ca]]
+            })
+            .collect();
+    }
+    let bump = |v: Vec3| v * (1.0 + 0.2 * (5.0 * v.x).sin() * (3.0 * v.y).cos());
+    let mesh: Vec<[Vec3; 3]> = mesh.iter().map(|t| t.map(bump)).collect();
+    // The rest of the scene: a floor of 2 x 20 x 20 triangles.
+    let mut tris = Vec::new();
+    for i in 0..20 {
+        for j in 0..20 {
+            let c = Vec3::new(i as f32 - 10.0, -2.0, j as f32 - 10.0);
+            let (a, b, d) = (c + Vec3::X, c + Vec3::X + Vec3::Z, c + Vec3::Z);
+            tris.push([c, a, b]);
+            tris.push([c, b, d]);
+        }
+    }
+    let mut instances = Vec::new();
+    let mut place = |tris: &mut Vec<[Vec3; 3]>, m: Mat4, mirrored: bool| {
+        let first = tris.len() as u32;
+        for t in &mesh {
+            let w = t.map(|v| m.transform_point3(v));
+            // A mirroring node flips the winding (as the glTF loader does).
+            tris.push(if mirrored { [w[0], w[2], w[1]] } else { w });
+        }
+        instances.push(MeshInstance {
+            mesh: 7,
+            transform: m,
+            first_triangle: first,
+            triangle_count: mesh.len() as u32,
+        });
+    };
+    for k in 0..24 {
+        let f = k as f32;
+        let m = Mat4::from_scale_rotation_translation(
+            Vec3::new(0.5 + 0.1 * (k % 3) as f32, 0.4 + 0.05 * (k % 5) as f32, 0.6),
+            Quat::from_euler(glam::EulerRot::XYZ, f * 0.7, f * 1.3, f * 0.4),
+            Vec3::new(
+                (k % 6) as f32 * 3.0 - 8.0,
+                (k / 6) as f32 * 1.5 - 1.0,
+                (f * 2.3) % 9.0 - 4.5,
+            ),
+        );
+        place(&mut tris, m, false);
+    }
+    place(&mut tris, Mat4::from_scale(Vec3::new(-0.8, 0.7, 0.7)), true);
+    // An edited copy: one vertex moved, so it no longer matches the mesh.
+    place(
+        &mut tris,
+        Mat4::from_translation(Vec3::new(6.0, 2.0, 6.0)),
+        false,
+    );
+    let last = tris.len() - 1;
+    tris[last][0] += Vec3::splat(0.3);
+    // An instance whose range overlaps another's.
+    let mut overlapping = instances[3];
+    overlapping.first_triangle += 5;
+    instances.push(overlapping);
+
+    let bvh = bvh::Bvh::build_instanced(&tris, &instances);
+    assert_eq!(
+        bvh.instances, 25,
+        "24 placed + the mirrored one; edited and overlapping dropped"
+    );
+    assert_eq!(bvh.instanced_meshes, 1);
+    // Every triangle appears once in the traversal order.
+    let mut seen = vec![0; tris.len()];
+    bvh.order.iter().for_each(|&t| seen[t as usize] += 1);
+    assert!(seen.iter().all(|&c| c == 1));
+    let flat = bvh::Bvh::build(&tris);
+    assert!(
+        bvh.nodes.len() < flat.nodes.len() / 3,
+        "{} vs {} nodes",
+        bvh.nodes.len(),
+        flat.nodes.len()
+    );
+    let (mut hits, mut total) = (0, 0);
+    // Random rays, and as many aimed at the instances' centres (a little off).
+    let mut rays = random_rays(
+        4000,
+        Vec3::new(-10.0, -2.5, -6.0),
+        Vec3::new(10.0, 6.0, 6.0),
+        11,
+    );
+    let aimed: Vec<(Vec3, Vec3)> = rays
+        .iter()
+        .enumerate()
+        .map(|(k, &(o, d))| {
+            let centre = instances[k % 24].transform.w_axis.truncate() + d * 0.3;
+            (o, (centre - o).normalize_or(Vec3::X))
+        })
+        .collect();
+    rays.extend(aimed);
+    for (o, d) in rays {
+        let a = bvh.closest_hit(&tris, o, d, f32::MAX);
+        let b = bvh::brute_force_closest(&tris, o, d);
+        total += 1;
+        match (a, b) {
+            (None, None) => {}
+            (Some(a), Some(b)) => {
+                // Hits on instances (the floor's 800 triangles come first).
+                hits += (b.1 >= 800) as usize;
+                assert!((a.0 - b.0).abs() <= 1e-5 * b.0.max(1.0), "t {a:?} vs {b:?}");
+            }
+            _ => panic!("two-level BVH {a:?} vs brute force {b:?} from {o} along {d}"),
+        }
+    }
+    assert!(
+        hits > total / 3,
+        "{hits}/{total} rays hit instances: the test must exercise them"
+    );
+
+    // The atrium's 184 repeats: same hits as brute force.
+    let atrium = gilab::scene::atrium::build(0.05).scene;
+    let tris = atrium.triangle_positions();
+    let start = std::time::Instant::now();
+    let bvh = bvh::Bvh::build_instanced(&tris, &atrium.instances);
+    let two_level_ms = start.elapsed().as_secs_f64() * 1e3;
+    let start = std::time::Instant::now();
+    let flat = bvh::Bvh::build(&tris);
+    let flat_ms = start.elapsed().as_secs_f64() * 1e3;
+    assert_eq!((bvh.instances, bvh.instanced_meshes), (184, 5));
+    eprintln!(
+        "atrium detail 0.05: two-level {} nodes in {two_level_ms:.0} ms, flat {} nodes in {flat_ms:.0} ms",
+        bvh.nodes.len(),
+        flat.nodes.len()
+    );
+    let (lo, hi) = atrium.bounds();
+    for (o, d) in random_rays(400, lo, hi, 5) {
+        let a = bvh.closest_hit(&tris, o, d, f32::MAX).map(|h| h.0);
+        let b = bvh::brute_force_closest(&tris, o, d).map(|h| h.0);
+        match (a, b) {
+            (None, None) => {}
+            (Some(a), Some(b)) => assert!((a - b).abs() <= 1e-5 * b.max(1.0), "{a} vs {b}"),
+            _ => panic!("atrium: two-level {a:?} vs brute force {b:?}"),
+        }
+    }
 }

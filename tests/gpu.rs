@@ -644,3 +644,50 @@ fn atrium_at_low_detail_renders() {
     );
     assert!((0.02..0.6).contains(&share), "{share}");
 }
+
+/// The two-level BVH on the GPU (instanced columns, arches, vases and lamps of the atrium)
+/// finds the same primary surfaces as a flat tree over the same triangles, and shadow rays
+/// through it give the same direct light.
+#[test]
+fn instanced_traversal_matches_the_flat_tree() {
+    let mut params = toml::Table::new();
+    params.insert("detail".into(), 0.05.into());
+    let instanced = builtin::build("atrium", &params).unwrap();
+    assert_eq!(instanced.instances.len(), 184);
+    let mut flat = instanced.clone();
+    flat.instances.clear();
+    let size = [64u32, 40];
+    let surfaces = |scene: gilab::scene::Scene| {
+        let mut e = common::engine("restir", toml::Table::new(), scene, size, 3);
+        e.render_frame().unwrap();
+        e.read_primary_surfaces().unwrap().unwrap()
+    };
+    let (a, b) = (surfaces(instanced.clone()), surfaces(flat.clone()));
+    let (mut same_tri, mut hits) = (0, 0);
+    for (k, (a, b)) in a.iter().zip(&b).enumerate() {
+        assert_eq!(a.pos[3], b.pos[3], "pixel {k}: hit vs miss");
+        if a.pos[3] < 0.5 {
+            continue;
+        }
+        hits += 1;
+        let (da, db) = (a.wo_dist[3], b.wo_dist[3]);
+        assert!(
+            (da - db).abs() <= 1e-4 * db,
+            "pixel {k}: distance {da} vs {db}"
+        );
+        same_tri += (a.triangle == b.triangle) as usize;
+    }
+    eprintln!("instanced vs flat: {hits} hits, {same_tri} on the same triangle");
+    assert!(hits > (size[0] * size[1]) as usize / 2);
+    // Ties on shared edges may pick either triangle.
+    assert!(same_tri as f64 >= 0.995 * hits as f64, "{same_tri}/{hits}");
+    // Direct light only (one bounce): shadow rays through both trees, 16 spp, same means.
+    let ra = render_reference(instanced, [48, 32], 16, 4, 3, 1);
+    let rb = render_reference(flat, [48, 32], 16, 4, 3, 1);
+    let (ma, mb) = (
+        common::luminance(ra.image.mean()),
+        common::luminance(rb.image.mean()),
+    );
+    eprintln!("direct light mean: instanced {ma:.5}, flat {mb:.5}");
+    assert!((ma - mb).abs() <= 0.03 * mb, "{ma} vs {mb}");
+}

@@ -766,6 +766,153 @@ fn gpu_texture_transform_and_texcoord1_place_the_texture() {
     eprintln!("texture transform:\n  {}", report.join("\n  "));
 }
 
+/// glTF samplers: a 4 x 4 emissive texture on a quad whose UVs run from -0.75 to 2.25, read
+/// with each wrap mode (repeat, clamp to edge, mirrored repeat; u and v differently) and with
+/// magFilter NEAREST. Every pixel matches a CPU model of the sampler averaged over the pixel;
+/// the same model with the wrong mode misses by far, so the test tells the modes apart.
+#[test]
+fn gpu_samplers_wrap_and_filter_as_gltf_specifies() {
+    const N: u32 = 32;
+    const REPEAT: u32 = 10497;
+    const CLAMP: u32 = 33071;
+    const MIRROR: u32 = 33648;
+    let (r_bytes, g_bytes) = ([40u8, 100, 170, 250], [30u8, 90, 160, 240]);
+    let mut rgba = Vec::new();
+    for g in g_bytes {
+        for r in r_bytes {
+            rgba.extend([r, g, 0, 255]);
+        }
+    }
+    let uv_of = |p: Vec2| (p + Vec2::ONE) * 1.5 - Vec2::splat(0.75);
+    // The sampler's model: wrap codes 0 repeat, 1 clamp, 2 mirror (as the shader).
+    let wrap = |i: i32, mode: u32| -> usize {
+        let n = 4;
+        (match mode {
+            0 => i.rem_euclid(n),
+            1 => i.clamp(0, n - 1),
+            _ => {
+                let p = i.rem_euclid(2 * n);
+                if p >= n {
+                    2 * n - 1 - p
+                } else {
+                    p
+                }
+            }
+        }) as usize
+    };
+    let sample = |uv: Vec2, mu: u32, mv: u32, nearest: bool| -> Vec2 {
+        let p = uv * 4.0 - Vec2::splat(0.5);
+        let f = p.floor();
+        let mut s = p - f;
+        if nearest {
+            s = Vec2::new((s.x >= 0.5) as u32 as f32, (s.y >= 0.5) as u32 as f32);
+        }
+        let texel = |dx: i32, dy: i32| {
+            let (x, y) = (wrap(f.x as i32 + dx, mu), wrap(f.y as i32 + dy, mv));
+            Vec2::new(srgb_to_linear(r_bytes[x]), srgb_to_linear(g_bytes[y]))
+        };
+        let a = texel(0, 0).lerp(texel(1, 0), s.x);
+        let b = texel(0, 1).lerp(texel(1, 1), s.x);
+        a.lerp(b, s.y)
+    };
+    let fov = 2.0 * 0.5f32.atan().to_degrees();
+    // The model over a pixel (the renderer jitters camera rays within it): its mean, and the
+    // standard deviation of the mean of SPP jittered samples (large where a seam or texel
+    // edge crosses the pixel).
+    const SPP: u32 = 32;
+    let expected = |x: u32, y: u32, mu: u32, mv: u32, nearest: bool| -> (Vec2, f32) {
+        let (mut sum, mut sum2) = (Vec2::ZERO, Vec2::ZERO);
+        for j in 0..8 {
+            for i in 0..8 {
+                let (px, py) = (
+                    x as f32 + (i as f32 + 0.5) / 8.0,
+                    y as f32 + (j as f32 + 0.5) / 8.0,
+                );
+                let v = sample(uv_of(plane_point(px, py, N, 2.0, fov)), mu, mv, nearest);
+                sum += v;
+                sum2 += v * v;
+            }
+        }
+        let mean = sum / 64.0;
+        let var = (sum2 / 64.0 - mean * mean).max(Vec2::ZERO);
+        (mean, (var.max_element() / SPP as f32).sqrt())
+    };
+    let mut report = Vec::new();
+    for (name, s, t, mag, (mu, mv, nearest), wrong) in [
+        ("repeat", REPEAT, REPEAT, None, (0, 0, false), (1, 1, false)),
+        (
+            "clamp-u-mirror-v",
+            CLAMP,
+            MIRROR,
+            None,
+            (1, 2, false),
+            (0, 0, false),
+        ),
+        (
+            "mirror-u-clamp-v",
+            MIRROR,
+            CLAMP,
+            None,
+            (2, 1, false),
+            (1, 2, false),
+        ),
+        (
+            "repeat-nearest",
+            REPEAT,
+            REPEAT,
+            Some(9728),
+            (0, 0, true),
+            (0, 0, false),
+        ),
+    ] {
+        let mut b = GltfBuilder::new();
+        let tex = b.texture_rgba8(4, 4, &rgba);
+        b.sampler(tex, s, t, mag);
+        let m = b.material(&MaterialDesc {
+            emissive: Some([1.0; 3]),
+            emissive_texture: Some(TexRef {
+                texture: tex,
+                tex_coord: 0,
+                transform: None,
+            }),
+            ..lambert("quad", 0.0)
+        });
+        let quad = MeshData::quad_xz(1.0, 0.0, |x, z| uv_of(Vec2::new(x, z)));
+        let mesh = b.mesh(&quad, Some(m));
+        b.node(mesh, Place::IDENTITY);
+        b.camera(Vec3::new(0.0, 2.0, 0.0), Vec3::ZERO, Vec3::NEG_Z, fov);
+        let scene = gltf_load::load(&b.write(&dir(&format!("sampler-{name}")), "scene")).unwrap();
+        let img = render(scene, N, SPP);
+        // Worst error in units of the pixel's tolerance: 0.01 plus 4 sigma of jitter noise.
+        let (mut worst, mut worst_wrong_mode) = (0.0f32, 0.0f32);
+        for y in 0..N {
+            for x in 0..N {
+                let [r, g, _] = img.pixel(x, y);
+                let got = Vec2::new(r, g);
+                let (e, sigma) = expected(x, y, mu, mv, nearest);
+                let tolerance = 0.01 + 4.0 * sigma;
+                worst = worst.max((got - e).abs().max_element() / tolerance);
+                let (other, sigma) = expected(x, y, wrong.0, wrong.1, wrong.2);
+                let tolerance = 0.01 + 4.0 * sigma;
+                worst_wrong_mode =
+                    worst_wrong_mode.max((got - other).abs().max_element() / tolerance);
+            }
+        }
+        report.push(format!(
+            "{name}: worst pixel at {worst:.2} x its tolerance (the model with the wrong mode: {worst_wrong_mode:.1} x)"
+        ));
+        assert!(
+            worst < 1.0,
+            "{name}: a pixel is off the sampler model ({worst:.2} x tolerance)"
+        );
+        assert!(
+            worst_wrong_mode > 3.0,
+            "{name}: the wrong mode fits too ({worst_wrong_mode:.2} x)"
+        );
+    }
+    eprintln!("samplers:\n  {}", report.join("\n  "));
+}
+
 // ---------------------------------------------------------------------------------------------
 // d. The loader alone (no GPU).
 
@@ -1062,7 +1209,7 @@ fn loader_tangents_from_file_and_generated_agree() {
 /// node x instance(T, R, S); ROTATION as normalized shorts too. A malformed one draws the mesh
 /// once with a warning.
 #[test]
-fn loader_flattens_mesh_instancing() {
+fn loader_reads_mesh_instancing_as_instances() {
     capture_logs();
     let tri = MeshData {
         positions: vec![Vec3::ZERO, Vec3::X, Vec3::Z],
@@ -1100,9 +1247,24 @@ fn loader_flattens_mesh_instancing() {
         assert!(text.contains("extensionsRequired"));
         let s = gltf_load::load(&path).unwrap();
         assert_eq!(s.triangles.len(), 3, "one triangle per instance");
+        assert_eq!(
+            s.instances.len(),
+            3,
+            "each placement a MeshInstance of one mesh"
+        );
         for (k, t) in s.triangles.iter().enumerate() {
             let inst = Mat4::from_translation(Vec3::new(10.0, 0.0, 0.0))
                 * Mat4::from_scale_rotation_translation(scales[k], rotations[k], translations[k]);
+            let i = &s.instances[k];
+            assert_eq!(
+                (i.mesh, i.first_triangle, i.triangle_count),
+                (0, k as u32, 1)
+            );
+            assert!(
+                i.transform.abs_diff_eq(inst, 2e-4 * 12.0),
+                "{} vs {inst}",
+                i.transform
+            );
             for (c, &v) in t.iter().enumerate() {
                 let want = inst.transform_point3(tri.positions[c]);
                 let got = s.positions[v as usize];

@@ -54,16 +54,55 @@ fn safe_inv_dir(dir: vec3<f32>) -> vec3<f32> {
     return 1.0 / d;
 }
 
+// Top-level leaf: `tris >> 8` is the node index of an instance record (src/scene/bvh.rs).
+const INSTANCE_LEAF: u32 = 0xffu;
+
 // Walks the BVH for hits in (t_min, t_max): the closest one, or with `any_hit` the first one
 // found (shadow rays need no more). hit.tri == NO_HIT on a miss.
+// With INSTANCES (a two-level BVH, src/scene/instancing.rs) a top-level leaf moves the ray into
+// its instance's object space for the node tests of the mesh's tree, then traversal returns to
+// the top level; triangles are always the flattened world-space ones, so `t` and the hit are
+// those of a flat tree.
 fn traverse(origin: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32, any_hit: bool) -> Hit {
     var hit = Hit(t_max, NO_HIT, vec2<f32>(0.0));
     let inv_dir = safe_inv_dir(dir);
     let node_count = arrayLength(&bvh_nodes);
+#ifdef INSTANCES
+    var top_end = 0u;
+    if node_count > 0u {
+        top_end = bvh_nodes[0].skip;
+    }
+    var o = origin;
+    var inv = inv_dir;
+    var end = top_end;
+    var resume = 0u;
+    var tri_base = 0u;
+    var inside = false;
+#else
+    let o = origin;
+    let inv = inv_dir;
+    let end = node_count;
+    let tri_base = 0u;
+#endif
     var i = 0u;
-    while i < node_count {
+    loop {
+        if i >= end {
+#ifdef INSTANCES
+            if inside {
+                // The instance's tree is done: back to the top level.
+                i = resume;
+                end = top_end;
+                o = origin;
+                inv = inv_dir;
+                tri_base = 0u;
+                inside = false;
+                continue;
+            }
+#endif
+            break;
+        }
         let node = bvh_nodes[i];
-        if !hits_aabb(origin, inv_dir, node.bounds_min, node.bounds_max, hit.t) {
+        if !hits_aabb(o, inv, node.bounds_min, node.bounds_max, hit.t) {
             i = node.skip;
             continue;
         }
@@ -72,7 +111,23 @@ fn traverse(origin: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32, any_hit: 
             i++;
             continue;
         }
-        let first = node.tris >> 8u;
+#ifdef INSTANCES
+        if count == INSTANCE_LEAF {
+            // InstanceRecord: world-to-object columns and translation in the float slots,
+            // tree start/end and first triangle in the integer slots.
+            let a = bvh_nodes[node.tris >> 8u];
+            let b = bvh_nodes[(node.tris >> 8u) + 1u];
+            o = a.bounds_min * origin.x + a.bounds_max * origin.y + b.bounds_min * origin.z + b.bounds_max;
+            inv = safe_inv_dir(a.bounds_min * dir.x + a.bounds_max * dir.y + b.bounds_min * dir.z);
+            resume = node.skip;
+            i = a.skip;
+            end = a.tris;
+            tri_base = b.skip;
+            inside = true;
+            continue;
+        }
+#endif
+        let first = tri_base + (node.tris >> 8u);
         for (var k = 0u; k < count; k++) {
             let r = intersect_tri(origin, dir, first + k);
 #ifdef ALPHA_TEST

@@ -48,7 +48,8 @@ const TRI_BITANGENT_NEG_SHIFT: u32 = 2u;
 
 // A material's use of a texture: rows of the KHR_texture_transform matrix,
 // uv' = (dot(transform_u.xy, uv) + transform_u.z, dot(transform_v.xy, uv) + transform_v.z); transform_u.w: texture index
-// (bitcast, NO_TEXTURE when unused), transform_v.w: UV set (bitcast, 0 or 1).
+// (bitcast, NO_TEXTURE when unused), transform_v.w: UV set (bit 0) and sampler (bits 1-5,
+// Sampler::gpu_bits), bitcast.
 struct TexSlot {
     transform_u: vec4<f32>,
     transform_v: vec4<f32>,
@@ -187,19 +188,31 @@ fn slot_used(slot: TexSlot) -> bool {
 
 // The slot's texture coordinates: its UV set through its transform.
 fn slot_uv(slot: TexSlot, uvs: vec4<f32>) -> vec2<f32> {
-    let uv = select(uvs.xy, uvs.zw, bitcast<u32>(slot.transform_v.w) == 1u);
+    let uv = select(uvs.xy, uvs.zw, (bitcast<u32>(slot.transform_v.w) & 1u) == 1u);
     return vec2<f32>(dot(slot.transform_u.xy, uv) + slot.transform_u.z, dot(slot.transform_v.xy, uv) + slot.transform_v.z);
 }
 
-// One texel of mip level `level` (repeat wrap), decoded (sRGB colour channels when `srgb`).
-fn fetch_texel(t: TextureInfo, level: u32, x: i32, y: i32, srgb: bool) -> vec4<f32> {
+// Wraps texel coordinate `x` into [0, n): mode 0 repeat, 1 clamp to edge, 2 mirrored repeat
+// (glTF samplers). Selects rather than branches: this runs inside BVH traversal (the alpha
+// test), where lavapipe has miscompiled nested control flow before.
+fn wrap_texel(x: i32, n: i32, mode: u32) -> i32 {
+    let repeat = ((x % n) + n) % n;
+    let clamped = clamp(x, 0, n - 1);
+    let p = ((x % (2 * n)) + 2 * n) % (2 * n);
+    let mirrored = select(p, 2 * n - 1 - p, p >= n);
+    return select(select(repeat, clamped, mode == 1u), mirrored, mode == 2u);
+}
+
+// One texel of mip level `level`, wrapped by `sampler` (Sampler::gpu_bits: wrap u in bits
+// 0-1, wrap v in 2-3), decoded (sRGB colour channels when `srgb`).
+fn fetch_texel(t: TextureInfo, level: u32, x: i32, y: i32, srgb: bool, sampler: u32) -> vec4<f32> {
     // No loop here: a loop nested in BVH traversal (the any-hit alpha test) was seen to
     // change lavapipe's results even where it never ran (a furnace lost 4% of its energy).
     let first = texels[t.first + level];
     let wi = i32(max(t.width >> level, 1u));
     let hi = i32(max(t.height >> level, 1u));
-    let xx = ((x % wi) + wi) % wi;
-    let yy = ((y % hi) + hi) % hi;
+    let xx = wrap_texel(x, wi, sampler & 3u);
+    let yy = wrap_texel(y, hi, (sampler >> 2u) & 3u);
     let c = unpack4x8unorm(texels[first + u32(yy * wi + xx)]);
     if srgb {
         return vec4<f32>(srgb_to_linear(c.x), srgb_to_linear(c.y), srgb_to_linear(c.z), c.w);
@@ -207,20 +220,26 @@ fn fetch_texel(t: TextureInfo, level: u32, x: i32, y: i32, srgb: bool) -> vec4<f
     return c;
 }
 
-// Bilinear, repeat-wrapped lookup at the mip level nearest to `lod` (log2 of texels per
-// footprint at level 0; <= 0 reads level 0).
-fn sample_texture(index: u32, uv: vec2<f32>, lod: f32, srgb: bool) -> vec4<f32> {
+// Bilinear (or nearest: `sampler` bit 4) lookup at the mip level nearest to `lod` (log2 of
+// texels per footprint at level 0; <= 0 reads level 0), wrapped as `sampler` says.
+fn sample_texture(index: u32, uv: vec2<f32>, lod: f32, srgb: bool, sampler: u32) -> vec4<f32> {
     let t = texture_info(index);
     let level = u32(clamp(round(lod), 0.0, f32(max(t.levels, 1u) - 1u)));
     let size = vec2<f32>(f32(max(t.width >> level, 1u)), f32(max(t.height >> level, 1u)));
     let p = uv * size - 0.5;
     let f = floor(p);
-    let s = p - f;
+    // Nearest: weights 0 or 1 pick the texel containing `uv` out of the same four.
+    let s = select(p - f, step(vec2<f32>(0.5), p - f), (sampler & 16u) != 0u);
     let x = i32(f.x);
     let y = i32(f.y);
-    let a = mix(fetch_texel(t, level, x, y, srgb), fetch_texel(t, level, x + 1, y, srgb), s.x);
-    let b = mix(fetch_texel(t, level, x, y + 1, srgb), fetch_texel(t, level, x + 1, y + 1, srgb), s.x);
+    let a = mix(fetch_texel(t, level, x, y, srgb, sampler), fetch_texel(t, level, x + 1, y, srgb, sampler), s.x);
+    let b = mix(fetch_texel(t, level, x, y + 1, srgb, sampler), fetch_texel(t, level, x + 1, y + 1, srgb, sampler), s.x);
     return mix(a, b, s.y);
+}
+
+// The sampler bits of a slot (Sampler::gpu_bits, above its UV set bit).
+fn slot_sampler(slot: TexSlot) -> u32 {
+    return bitcast<u32>(slot.transform_v.w) >> 1u;
 }
 
 // Texture of a material slot at a triangle point. `lod_base` is the ray-cone term
@@ -229,10 +248,10 @@ fn sample_texture(index: u32, uv: vec2<f32>, lod: f32, srgb: bool) -> vec4<f32> 
 fn slot_sample(slot: TexSlot, uvs: vec4<f32>, lod_base: vec2<f32>, srgb: bool) -> vec4<f32> {
     let index = bitcast<u32>(slot.transform_u.w);
     let t = texture_info(index);
-    let set1 = bitcast<u32>(slot.transform_v.w) == 1u;
+    let set1 = (bitcast<u32>(slot.transform_v.w) & 1u) == 1u;
     let det = abs(slot.transform_u.x * slot.transform_v.y - slot.transform_u.y * slot.transform_v.x);
     let lod = select(lod_base.x, lod_base.y, set1) + 0.5 * log2(max(f32(t.width * t.height) * det, 1e-20));
-    return sample_texture(index, slot_uv(slot, uvs), lod, srgb);
+    return sample_texture(index, slot_uv(slot, uvs), lod, srgb, slot_sampler(slot));
 }
 
 // Emitted radiance of a material at a triangle point (both sides; the caller decides which side
@@ -251,7 +270,7 @@ fn material_alpha(m: Material, uvs: vec4<f32>) -> f32 {
     var a = m.base_color.w;
     let slot = m.tex[SLOT_BASE_COLOR];
     if slot_used(slot) {
-        a *= sample_texture(bitcast<u32>(slot.transform_u.w), slot_uv(slot, uvs), 0.0, false).w;
+        a *= sample_texture(bitcast<u32>(slot.transform_u.w), slot_uv(slot, uvs), 0.0, false, slot_sampler(slot)).w;
     }
     return a;
 }

@@ -1,29 +1,23 @@
 // G-buffer raster pass: the shared primary-visibility input of every technique (normal+roughness, albedo+metallic, emission, motion, view distance).
 #import gilab::frame::frame
-#import gilab::scene::{materials, alpha_hole}
+#import gilab::scene::{materials, alpha_hole, tri_material}
 #import gilab::surface_point::surface_at
 #import gilab::surface::pixel_spread
 #import gilab::lights::triangle_emission
 
 struct VertexIn {
     @location(0) position: vec3<f32>,
-    @location(1) normal: vec3<f32>,
-    @location(2) uv: vec2<f32>,
-    @location(3) material: u32,
 }
 
 struct VertexOut {
     @builtin(position) clip: vec4<f32>,
     @location(0) world_pos: vec3<f32>,
-    @location(1) normal: vec3<f32>,
-    @location(2) uv: vec2<f32>,
-    @location(3) @interpolate(flat) material: u32,
-    @location(4) prev_clip: vec4<f32>,
-    @location(5) cur_clip: vec4<f32>,
+    @location(1) prev_clip: vec4<f32>,
+    @location(2) cur_clip: vec4<f32>,
     // The triangle (vertices are triangles expanded in BVH order) and barycentrics of its
     // second and third vertex, so the fragment shades through gilab::surface like a ray hit.
-    @location(6) @interpolate(flat) tri: u32,
-    @location(7) bary: vec2<f32>,
+    @location(3) @interpolate(flat) tri: u32,
+    @location(4) bary: vec2<f32>,
 }
 
 struct GBufferOut {
@@ -47,9 +41,6 @@ fn vs_main(v: VertexIn, @builtin(vertex_index) vertex: u32) -> VertexOut {
     o.cur_clip = o.clip;
     o.prev_clip = frame.prev_clip_from_world * p;
     o.world_pos = v.position;
-    o.normal = v.normal;
-    o.uv = v.uv;
-    o.material = v.material;
     o.tri = vertex / 3u;
     let k = vertex % 3u;
     o.bary = vec2<f32>(select(0.0, 1.0, k == 1u), select(0.0, 1.0, k == 2u));
@@ -63,7 +54,7 @@ fn fs_main(in: VertexOut, @builtin(front_facing) front_facing: bool) -> GBufferO
         discard;
     }
     var o: GBufferOut;
-    let m = materials[in.material];
+    let m = materials[tri_material(in.tri)];
     let view = in.world_pos - frame.camera_pos.xyz;
     let dist = length(view);
     let dir = view / max(dist, 1e-20);

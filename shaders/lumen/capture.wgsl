@@ -2,7 +2,7 @@
 // orthographic camera into the card's rectangle of the atlas (viewport = rectangle, the card's
 // box depth range clips), writing albedo, normal, emission and depth. `vs_clear` first marks
 // the whole rectangle invalid (depth 2), so a recapture leaves nothing stale behind.
-#import gilab::scene::{materials, alpha_hole, material_emission, tri_uvs}
+#import gilab::scene::{materials, alpha_hole, material_emission, tri_uvs, tri_material}
 #import gilab::surface_point::surface_at
 #import gilab::brdf::diffuse_color
 #import gilab::lumen_card::{Card, card_uv, card_depth, card_dir, card_axis}
@@ -11,22 +11,16 @@
 
 struct VertexIn {
     @location(0) position: vec3<f32>,
-    @location(1) normal: vec3<f32>,
-    @location(2) uv: vec2<f32>,
-    @location(3) material: u32,
 }
 
 struct VertexOut {
     @builtin(position) clip: vec4<f32>,
-    @location(0) normal: vec3<f32>,
-    @location(1) uv: vec2<f32>,
-    @location(2) @interpolate(flat) material: u32,
-    @location(3) @interpolate(flat) card: u32,
-    @location(4) depth: f32,
+    @location(0) @interpolate(flat) card: u32,
+    @location(1) depth: f32,
     // The triangle (capture indices are vertex numbers: 3 x triangle + corner) and barycentrics
     // of its second and third vertex, to shade through gilab::surface_point like a ray hit.
-    @location(5) @interpolate(flat) tri: u32,
-    @location(6) bary: vec2<f32>,
+    @location(2) @interpolate(flat) tri: u32,
+    @location(3) bary: vec2<f32>,
 }
 
 struct CaptureOut {
@@ -46,9 +40,6 @@ fn vs_main(v: VertexIn, @builtin(instance_index) card: u32, @builtin(vertex_inde
     let depth = card_depth(c, v.position);
     var o: VertexOut;
     o.clip = vec4<f32>(uv.x * 2.0 - 1.0, 1.0 - uv.y * 2.0, depth, 1.0);
-    o.normal = v.normal;
-    o.uv = v.uv;
-    o.material = v.material;
     o.card = card;
     o.depth = depth;
     o.tri = vertex / 3u;
@@ -59,7 +50,7 @@ fn vs_main(v: VertexIn, @builtin(instance_index) card: u32, @builtin(vertex_inde
 
 @fragment
 fn fs_main(in: VertexOut, @builtin(front_facing) front_facing: bool) -> CaptureOut {
-    let m = materials[in.material];
+    let m = materials[tri_material(in.tri)];
     let double_sided = m.emissive.w > 0.5;
     // The card's projection keeps a surface facing the card counter-clockwise (card_uv).
     if !front_facing && !double_sided {

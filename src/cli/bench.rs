@@ -254,11 +254,40 @@ pub fn run(gpu: Arc<Gpu>, extent: [u32; 2], frames: u32, scenes: &[String]) -> R
         "/px/frame"
     );
     let mut notes = Vec::new();
+    let mut tree_notes = Vec::new();
+    // A scene with instances is measured twice: two-level BVH, then flat (same triangles).
+    let mut runs = Vec::new();
     for name in scenes {
         let scene = builtin::build(&name, &toml::Table::new())?;
+        if !scene.instances.is_empty() {
+            let mut flat = scene.clone();
+            flat.instances.clear();
+            runs.push((name.clone(), scene));
+            runs.push((format!("{name} flat"), flat));
+        } else {
+            runs.push((name, scene));
+        }
+    }
+    for (name, scene) in runs {
         let camera = scene.default_camera();
         let tris = scene.triangles.len();
         let gpu_scene = Arc::new(GpuScene::upload(&gpu, &scene));
+        let b = &gpu_scene.data.bvh;
+        tree_notes.push(format!(
+            "{name}: {} ({} nodes, {:.1} MiB, depth {}, built in {:.0} ms)",
+            if b.instances > 0 {
+                format!(
+                    "two-level BVH, {} instances of {} meshes",
+                    b.instances, b.instanced_meshes
+                )
+            } else {
+                "flat BVH".to_string()
+            },
+            b.nodes.len(),
+            (b.nodes.len() * 32) as f64 / (1u64 << 20) as f64,
+            b.depth,
+            gpu_scene.data.timings.bvh_build_ms
+        ));
         let scene = Arc::new(scene);
         let settings = || EngineSettings {
             extent,
@@ -322,6 +351,9 @@ pub fn run(gpu: Arc<Gpu>, extent: [u32; 2], frames: u32, scenes: &[String]) -> R
          {BENCH_BOUNCES} bounces (the one number earlier versions reported); bounce rays/px: \
          per frame (a path ends at a miss);\nreference: path tracer, 1 spp/frame, median GPU ms."
     );
+    for n in tree_notes {
+        println!("{n}");
+    }
     for n in notes {
         println!("clock check, {n}");
     }

@@ -43,12 +43,18 @@ pub struct ShaderVariant {
     /// Off for opaque scenes: on lavapipe the test alone made traversal ~3x slower even where
     /// no triangle was tagged (README, Known issues).
     pub alpha_test: bool,
+    /// `INSTANCES`: BVH traversal enters instances' bottom-level trees (a two-level BVH,
+    /// src/scene/instancing.rs); off for a flat tree.
+    pub instances: bool,
 }
 
 impl Default for ShaderVariant {
     /// Everything on: correct for any scene.
     fn default() -> Self {
-        ShaderVariant { alpha_test: true }
+        ShaderVariant {
+            alpha_test: true,
+            instances: true,
+        }
     }
 }
 
@@ -57,6 +63,9 @@ impl ShaderVariant {
         let mut defs = std::collections::HashMap::new();
         if self.alpha_test {
             defs.insert("ALPHA_TEST".to_string(), ShaderDefValue::Bool(true));
+        }
+        if self.instances {
+            defs.insert("INSTANCES".to_string(), ShaderDefValue::Bool(true));
         }
         defs
     }

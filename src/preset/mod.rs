@@ -186,6 +186,17 @@ pub struct SceneRef {
         deserialize_with = "intensity_f32"
     )]
     pub environment_intensity: f32,
+    /// `false` traces instanced meshes as ordinary triangles (a flat BVH) instead of a
+    /// two-level BVH: to compare the two on the same scene.
+    #[serde(default = "yes", skip_serializing_if = "is_true")]
+    pub instancing: bool,
+}
+
+fn yes() -> bool {
+    true
+}
+fn is_true(v: &bool) -> bool {
+    *v
 }
 
 fn is_zero_f32(v: &f32) -> bool {
@@ -491,6 +502,9 @@ impl LoadedPreset {
     /// map applied.
     pub fn load_scene(&self) -> Result<Scene> {
         let mut scene = self.load_scene_as_authored()?;
+        if !self.preset.scene.instancing {
+            scene.instances.clear();
+        }
         self.preset.shading.apply(&mut scene)?;
         scene.environment = self.load_environment()?;
         Ok(scene)
@@ -557,7 +571,7 @@ impl LoadedPreset {
                 path.display()
             );
         }
-        gltf_load::load(&path)
+        gltf_load::load_lit(&path, self.preset.scene.environment.is_some())
     }
 
     pub fn camera(&self, scene: &Scene) -> Camera {

@@ -78,8 +78,7 @@ impl GBuffer {
             .collect();
         let depth = make("gbuffer depth", DEPTH_FORMAT);
         let depth_view = depth.create_view(&Default::default());
-        let attributes =
-            wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Float32x2, 3 => Uint32];
+        let attributes = wgpu::vertex_attr_array![0 => Float32x3];
         let color_targets: Vec<Option<wgpu::ColorTargetState>> = TARGETS
             .iter()
             .map(|(_, f)| {

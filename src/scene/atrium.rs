@@ -27,12 +27,15 @@
 //!
 //! **Instances**: the columns (one mesh per storey), arches, vases and lamp spheres are the
 //! same mesh repeated at different places; [`build`] records which triangles and vertices
-//! belong to which repeat ([`Instance`]: prototype, translation, ranges), so a two-level BVH
-//! could share one bottom-level tree per prototype. That two-level BVH (and GPU instancing)
-//! is future work: the scene is still one flat triangle soup and the BVH is built over it.
+//! belong to which repeat ([`Instance`]: prototype, translation, ranges) and lists them as the
+//! scene's [`MeshInstance`]s, so the BVH has one bottom-level tree per prototype and a top
+//! level over the 184 repeats (`super::instancing`).
 
 use super::builtin::add_uv_sphere;
-use super::{AlphaMode, Camera, Material, PunctualKind, PunctualLight, Scene, Texture, TextureRef};
+use super::{
+    AlphaMode, Camera, Material, MeshInstance, PunctualKind, PunctualLight, Scene, Texture,
+    TextureRef,
+};
 use anyhow::{Context, Result};
 use glam::{Vec2, Vec3, Vec4};
 use rayon::prelude::*;
@@ -346,6 +349,26 @@ pub fn build(detail: f32) -> Atrium {
         s.tangents.resize(s.positions.len(), Vec4::ZERO);
     }
     super::tangents::ensure_scene_tangents(&mut s);
+    // The repeats as mesh instances: one mesh per prototype (numbered by first appearance).
+    let mut prototypes: Vec<&str> = Vec::new();
+    s.instances = instances
+        .iter()
+        .map(|i| {
+            let mesh = match prototypes.iter().position(|&p| p == i.prototype) {
+                Some(k) => k,
+                None => {
+                    prototypes.push(i.prototype);
+                    prototypes.len() - 1
+                }
+            };
+            MeshInstance {
+                mesh: mesh as u32,
+                transform: glam::Mat4::from_translation(i.translation),
+                first_triangle: i.first_triangle,
+                triangle_count: i.triangle_count,
+            }
+        })
+        .collect();
     Atrium {
         scene: s,
         instances,

@@ -82,6 +82,8 @@ struct BuildContext<'a> {
     boxes: &'a [Aabb],
     centroids: &'a [Vec3],
     parallel: bool,
+    /// Most primitives per leaf (MAX_LEAF for triangles, 1 for the instances of a top level).
+    max_leaf: usize,
 }
 
 impl BuildContext<'_> {
@@ -145,10 +147,10 @@ impl BuildContext<'_> {
             let split = best_split(range, self, &bounds, &cbounds);
             let leaf_cost = count as f32;
             let mid = match split {
-                Some((axis, pos, cost)) if cost < leaf_cost || count > MAX_LEAF => {
+                Some((axis, pos, cost)) if cost < leaf_cost || count > self.max_leaf => {
                     partition(range, |t| self.centroids[t as usize][axis] < pos)
                 }
-                _ if count <= MAX_LEAF => {
+                _ if count <= self.max_leaf => {
                     leaf(&mut nodes);
                     continue;
                 }
@@ -182,28 +184,35 @@ impl BuildContext<'_> {
 
 #[derive(Clone, Debug, Default)]
 pub struct Bvh {
+    /// A flat tree, or with instances (`build_instanced`): the top level, then one bottom
+    /// level per mesh, then the instance records (two nodes each, see `InstanceRecord`).
     pub nodes: Vec<BvhNode>,
     /// `order[i]` = original index of the i-th triangle in BVH order.
     pub order: Vec<u32>,
+    /// Deepest leaf (top level plus bottom level with instances).
     pub depth: usize,
+    /// Instances traced through their mesh's bottom-level tree (0: a flat tree).
+    pub instances: usize,
+    /// Meshes with a bottom-level tree of their own (the rest of the scene not counted).
+    pub instanced_meshes: usize,
 }
 
 #[derive(Clone, Copy)]
-struct Aabb {
-    min: Vec3,
-    max: Vec3,
+pub(crate) struct Aabb {
+    pub(crate) min: Vec3,
+    pub(crate) max: Vec3,
 }
 
 impl Aabb {
-    const EMPTY: Aabb = Aabb {
+    pub(crate) const EMPTY: Aabb = Aabb {
         min: Vec3::splat(f32::MAX),
         max: Vec3::splat(f32::MIN),
     };
-    fn grow(&mut self, p: Vec3) {
+    pub(crate) fn grow(&mut self, p: Vec3) {
         self.min = self.min.min(p);
         self.max = self.max.max(p);
     }
-    fn merge(&mut self, o: &Aabb) {
+    pub(crate) fn merge(&mut self, o: &Aabb) {
         self.min = self.min.min(o.min);
         self.max = self.max.max(o.max);
     }
@@ -234,7 +243,6 @@ impl Bvh {
     /// is the same function of its range's contents as in the sequential build.
     fn build_with(tris: &[[Vec3; 3]], parallel: bool) -> Bvh {
         use rayon::prelude::*;
-        let n = tris.len();
         let bbox = |t: &[Vec3; 3]| {
             let mut b = Aabb::EMPTY;
             t.iter().for_each(|p| b.grow(*p));
@@ -245,20 +253,27 @@ impl Bvh {
         } else {
             tris.iter().map(bbox).collect()
         };
+        Self::build_boxes(&boxes, parallel, MAX_LEAF)
+    }
+
+    /// The same builder over boxes (triangles' bounds, or instances' for a top level).
+    pub(crate) fn build_boxes(boxes: &[Aabb], parallel: bool, max_leaf: usize) -> Bvh {
+        use rayon::prelude::*;
+        let n = boxes.len();
         let centroids: Vec<Vec3> = boxes.iter().map(|b| (b.min + b.max) * 0.5).collect();
         let mut order: Vec<u32> = (0..n as u32).collect();
         if n == 0 {
             // Nothing to hit: no nodes at all, traversal ends at once.
             return Bvh {
-                nodes: Vec::new(),
                 order,
-                depth: 0,
+                ..Default::default()
             };
         }
         let ctx = BuildContext {
-            boxes: &boxes,
+            boxes,
             centroids: &centroids,
             parallel,
+            max_leaf,
         };
         // The top of the tree; ranges of at most SUBTREE triangles come back as jobs.
         let stop = if parallel { SUBTREE } else { 0 };
@@ -294,10 +309,12 @@ impl Bvh {
             nodes: flatten_depth_first(&nodes),
             order,
             depth: max_depth,
+            ..Default::default()
         }
     }
 
-    /// CPU closest hit, the same algorithm as the WGSL traversal: (t, original triangle index).
+    /// CPU closest hit, the same algorithm as the WGSL traversal (instances included):
+    /// (t, original triangle index).
     pub fn closest_hit(
         &self,
         tris: &[[Vec3; 3]],
@@ -307,17 +324,23 @@ impl Bvh {
     ) -> Option<(f32, u32)> {
         let mut best: Option<(f32, u32)> = None;
         let mut t_best = t_max;
-        let inv = Vec3::ONE / dir;
+        let world_inv = Vec3::ONE / dir;
+        // Node tests use the ray in the current tree's space; triangles are tested in world
+        // space (the flattened triangles), so `t` is one parameter throughout.
+        let (mut o, mut inv) = (origin, world_inv);
+        let top_end = self.nodes.first().map_or(0, |n| n.skip as usize);
+        let (mut end, mut resume, mut tri_base, mut inside) = (top_end, 0usize, 0u32, false);
         let mut i = 0usize;
-        while i < self.nodes.len() {
+        loop {
+            if i >= end {
+                if !inside {
+                    break;
+                }
+                (i, end, o, inv, tri_base, inside) = (resume, top_end, origin, world_inv, 0, false);
+                continue;
+            }
             let node = &self.nodes[i];
-            if !ray_box(
-                origin,
-                inv,
-                Vec3::from(node.min),
-                Vec3::from(node.max),
-                t_best,
-            ) {
+            if !ray_box(o, inv, Vec3::from(node.min), Vec3::from(node.max), t_best) {
                 i = node.skip as usize;
                 continue;
             }
@@ -325,7 +348,16 @@ impl Bvh {
                 i += 1;
                 continue;
             }
-            for k in node.first_tri()..node.first_tri() + node.tri_count() {
+            if node.tri_count() == INSTANCE_LEAF {
+                let r = self.instance_record(node.first_tri() as usize);
+                o = r.to_object_point(origin);
+                inv = Vec3::ONE / r.to_object_vector(dir);
+                (resume, i, end) = (node.skip as usize, r.root as usize, r.end as usize);
+                (tri_base, inside) = (r.tri_offset, true);
+                continue;
+            }
+            let first = tri_base + node.first_tri();
+            for k in first..first + node.tri_count() {
                 let orig = self.order[k as usize];
                 if let Some(t) = intersect_triangle(origin, dir, &tris[orig as usize]) {
                     if t > 0.0 && t < t_best {
@@ -337,6 +369,59 @@ impl Bvh {
             i = node.skip as usize;
         }
         best
+    }
+
+    /// The instance record stored in nodes `at` and `at + 1`.
+    pub fn instance_record(&self, at: usize) -> InstanceRecord {
+        bytemuck::cast_slice::<BvhNode, InstanceRecord>(&self.nodes[at..at + 2])[0]
+    }
+}
+
+/// `BvhNode::tri_count` of a top-level leaf: `first_tri` is then the node index of an
+/// `InstanceRecord` (triangle leaves hold at most MAX_LEAF triangles).
+pub const INSTANCE_LEAF: u32 = 0xff;
+
+/// One instance in the node array (two nodes' worth, so no extra binding): the world-to-object
+/// transform as three columns and a translation in the nodes' float slots, the bottom-level
+/// tree's node range and the instance's first triangle (BVH order) in their integer slots.
+/// Matches `instance_record` in shaders/common/bvh.wgsl.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct InstanceRecord {
+    pub column_x: [f32; 3],
+    /// First node of the instance's bottom-level tree.
+    pub root: u32,
+    pub column_y: [f32; 3],
+    /// One past its last node.
+    pub end: u32,
+    pub column_z: [f32; 3],
+    /// Added to the bottom-level leaves' triangle indices.
+    pub tri_offset: u32,
+    pub translation: [f32; 3],
+    pub flags: u32,
+}
+
+impl InstanceRecord {
+    pub fn new(world_to_object: glam::Mat4, root: u32, end: u32, tri_offset: u32) -> Self {
+        let c = |v: glam::Vec4| v.truncate().to_array();
+        InstanceRecord {
+            column_x: c(world_to_object.x_axis),
+            root,
+            column_y: c(world_to_object.y_axis),
+            end,
+            column_z: c(world_to_object.z_axis),
+            tri_offset,
+            translation: c(world_to_object.w_axis),
+            flags: 0,
+        }
+    }
+    pub fn to_object_vector(&self, v: Vec3) -> Vec3 {
+        Vec3::from(self.column_x) * v.x
+            + Vec3::from(self.column_y) * v.y
+            + Vec3::from(self.column_z) * v.z
+    }
+    pub fn to_object_point(&self, p: Vec3) -> Vec3 {
+        self.to_object_vector(p) + Vec3::from(self.translation)
     }
 }
 

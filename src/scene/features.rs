@@ -39,6 +39,9 @@ pub struct SceneFeatures {
     pub bounds_max: [f32; 3],
     pub bvh_nodes: usize,
     pub bvh_depth: usize,
+    /// Instances traced through a two-level BVH (0: flat) and their distinct meshes.
+    pub bvh_instances: usize,
+    pub bvh_instanced_meshes: usize,
 }
 
 impl SceneFeatures {
@@ -119,6 +122,8 @@ impl SceneFeatures {
         f.bounds_max = hi.to_array();
         f.bvh_nodes = bvh.nodes.len();
         f.bvh_depth = bvh.depth;
+        f.bvh_instances = bvh.instances;
+        f.bvh_instanced_meshes = bvh.instanced_meshes;
         // The environment map's mean radiance (intensity included) when there is one.
         f.sky_visible = scene.sky_mean().max_element() > 0.0 && sky_reachable(scene, bvh, tris);
         f.environment = scene.environment.as_ref().map(|e| [e.width(), e.height()]);
@@ -129,7 +134,7 @@ impl SceneFeatures {
     pub fn summary(&self) -> String {
         format!(
             "triangles {}, emissive triangles {} ({:.3} W), point/spot/directional lights {}/{}/{}, \
-             min specular roughness {}, glossy {}, mirror {}, {} visible {}, textures {} ({} materials, {} alpha-tested, {} normal-mapped), many lights {}, BVH {} nodes depth {}",
+             min specular roughness {}, glossy {}, mirror {}, {} visible {}, textures {} ({} materials, {} alpha-tested, {} normal-mapped), many lights {}, BVH {} nodes depth {}{}",
             self.triangle_count,
             self.emissive_triangle_count,
             self.emissive_power,
@@ -147,7 +152,15 @@ impl SceneFeatures {
             self.normal_mapped_materials,
             self.many_lights,
             self.bvh_nodes,
-            self.bvh_depth
+            self.bvh_depth,
+            if self.bvh_instances > 0 {
+                format!(
+                    " (two levels: {} instances of {} meshes)",
+                    self.bvh_instances, self.bvh_instanced_meshes
+                )
+            } else {
+                String::new()
+            }
         )
     }
 }

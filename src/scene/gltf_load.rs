@@ -11,17 +11,20 @@
 //!   rotation, scale and its `texCoord` override); KHR_materials_emissive_strength,
 //!   KHR_materials_specular's `specularFactor`, KHR_materials_ior; the `gilab_callisto` extras;
 //! - KHR_lights_punctual and the first perspective camera;
-//! - EXT_mesh_gpu_instancing (TRANSLATION, ROTATION, SCALE): every instance is flattened into
-//!   the triangle soup as a copy of the mesh (the BVH is one level; a two-level BVH that keeps
-//!   one copy per mesh is future work, so heavily instanced files cost memory per instance).
+//! - EXT_mesh_gpu_instancing (TRANSLATION, ROTATION, SCALE) and meshes used by several nodes:
+//!   each placement is a [`MeshInstance`] of one bottom-level tree (`super::instancing`); the
+//!   shading records stay one copy per instance (144 bytes a triangle), so heavily instanced
+//!   files still cost triangle memory per instance.
 //!
 //! Tangents: a primitive whose material has a normal texture keeps its TANGENT attribute
 //! (transformed by the node's matrix; the bitangent sign flips where the matrix mirrors), or,
 //! without one, gets MikkTSpace tangents ([`super::tangents`]) computed in object space from
 //! the normal texture's UV set, then transformed the same way. Other primitives get none.
 //!
-//! Not read (left out on purpose, listed in the README): samplers (wrap and filter modes),
-//! UV sets past 1 (a texture using one is dropped with a warning), KHR_materials_specular's
+//! Samplers: wrap modes (repeat, clamp to edge, mirrored repeat) per axis and magFilter
+//! (nearest or bilinear); minFilter is not read (ray cones pick the mip level).
+//!
+//! Not read (left out on purpose, listed in the README): UV sets past 1 (a texture using one is dropped with a warning), KHR_materials_specular's
 //! colour and textures, the other material extensions (transmission, clearcoat, sheen, ...),
 //! skins, morph targets, animations, cameras after the first, orthographic cameras.
 //! Lenient where a part is optional: an unreadable image, an invalid texture transform or
@@ -30,8 +33,8 @@
 //! A file with no light at all gets a default sky.
 
 use super::{
-    tangents, AlphaMode, Camera, Material, PunctualKind, PunctualLight, Scene, Texture, TextureRef,
-    UvTransform,
+    tangents, AlphaMode, Camera, Material, MeshInstance, PunctualKind, PunctualLight, Sampler,
+    Scene, Texture, TextureRef, UvTransform, Wrap,
 };
 use anyhow::{anyhow, bail, Context, Result};
 use glam::{Mat3, Mat4, Quat, Vec2, Vec3, Vec4};
@@ -39,7 +42,14 @@ use std::collections::HashMap;
 use std::path::Path;
 
 pub fn load(path: &Path) -> Result<Scene> {
-    load_inner(path).with_context(|| format!("cannot load glTF scene {}", path.display()))
+    load_lit(path, false)
+}
+
+/// `load`, told whether an environment map will light the scene (a preset's
+/// `scene.environment`): then a file without lights gets no default sky and no warning.
+pub fn load_lit(path: &Path, environment: bool) -> Result<Scene> {
+    load_inner(path, environment)
+        .with_context(|| format!("cannot load glTF scene {}", path.display()))
 }
 
 /// Extensions read (others in `extensionsUsed` are ignored with a warning; a file that
@@ -79,7 +89,7 @@ fn open(path: &Path) -> Result<(gltf::Document, Option<Vec<u8>>)> {
     Ok((doc, blob))
 }
 
-fn load_inner(path: &Path) -> Result<Scene> {
+fn load_inner(path: &Path, environment: bool) -> Result<Scene> {
     let (doc, blob) = open(path)?;
     let base = path.parent();
     let buffers = gltf::import_buffers(&doc, base, blob).map_err(|e| anyhow!("{e}"))?;
@@ -190,8 +200,18 @@ fn load_inner(path: &Path) -> Result<Scene> {
                     );
                     continue;
                 }
+                let first = scene.triangles.len() as u32;
                 for p in prims {
                     emit(&mut scene, p, *m);
+                }
+                // A mesh drawn more than once is traced as instances of one tree.
+                if uses[mesh.index()] > 1 {
+                    scene.instances.push(MeshInstance {
+                        mesh: mesh.index() as u32,
+                        transform: *m,
+                        first_triangle: first,
+                        triangle_count: scene.triangles.len() as u32 - first,
+                    });
                 }
             }
         }
@@ -226,7 +246,7 @@ fn load_inner(path: &Path) -> Result<Scene> {
         .triangle_material
         .iter()
         .any(|&m| scene.materials[m as usize].emissive.max_element() > 0.0);
-    if !emits && scene.lights.is_empty() && scene.sky.max_element() <= 0.0 {
+    if !emits && scene.lights.is_empty() && scene.sky.max_element() <= 0.0 && !environment {
         scene.sky = Vec3::splat(DEFAULT_SKY);
         log::warn!(
             "{file}: no light source (no emissive material, no KHR_lights_punctual): lit by a default uniform sky of radiance {DEFAULT_SKY}"
@@ -371,10 +391,21 @@ fn texture_ref(
         );
         return Ok(None);
     }
+    let wrap = |w: gltf::texture::WrappingMode| match w {
+        gltf::texture::WrappingMode::Repeat => Wrap::Repeat,
+        gltf::texture::WrappingMode::ClampToEdge => Wrap::ClampToEdge,
+        gltf::texture::WrappingMode::MirroredRepeat => Wrap::MirroredRepeat,
+    };
+    let sampler = s.texture.sampler();
     Ok(Some(TextureRef {
         texture,
         tex_coord,
         transform,
+        sampler: Sampler {
+            wrap_u: wrap(sampler.wrap_s()),
+            wrap_v: wrap(sampler.wrap_t()),
+            nearest: sampler.mag_filter() == Some(gltf::texture::MagFilter::Nearest),
+        },
     }))
 }
 

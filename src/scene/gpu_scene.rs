@@ -69,7 +69,12 @@ impl GpuTexSlot {
                 let m = t.transform.rows();
                 GpuTexSlot {
                     transform_u: [m[0][0], m[0][1], m[0][2], f32::from_bits(t.texture as u32)],
-                    transform_v: [m[1][0], m[1][1], m[1][2], f32::from_bits(t.tex_coord)],
+                    transform_v: [
+                        m[1][0],
+                        m[1][1],
+                        m[1][2],
+                        f32::from_bits(t.tex_coord | t.sampler.gpu_bits() << 1),
+                    ],
                 }
             }
             _ => GpuTexSlot {
@@ -323,14 +328,13 @@ pub struct GpuLight {
     pub spot: [f32; 4],
 }
 
-/// One vertex of the G-buffer raster pass (triangles expanded, BVH order).
+/// One vertex of the raster passes (G-buffer, Lumen's card capture): triangles expanded in BVH
+/// order, so vertex_index / 3 is the triangle whose record the fragment shades from
+/// (`surface_at`); only the position is a vertex attribute.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct RasterVertex {
     pub position: [f32; 3],
-    pub normal: [f32; 3],
-    pub uv: [f32; 2],
-    pub material: u32,
 }
 
 /// CPU copies of everything uploaded, kept for tests, the CPU BVH and light statistics.
@@ -359,6 +363,7 @@ impl SceneData {
     pub fn shader_variant(&self) -> crate::gpu::shaders::ShaderVariant {
         crate::gpu::shaders::ShaderVariant {
             alpha_test: self.features.alpha_tested_materials > 0,
+            instances: self.bvh.instances > 0,
         }
     }
 }
@@ -382,7 +387,7 @@ impl SceneData {
     pub fn new(scene: &Scene) -> SceneData {
         let start = std::time::Instant::now();
         let tris = scene.triangle_positions();
-        let bvh = Bvh::build(&tris);
+        let bvh = Bvh::build_instanced(&tris, &scene.instances);
         let bvh_build_ms = start.elapsed().as_secs_f64() * 1e3;
         let features = SceneFeatures::compute(scene, &bvh, &tris);
 
@@ -591,14 +596,9 @@ impl SceneData {
                 flags,
                 pad: [0; 2],
             });
-            for k in 0..3 {
-                vertices.push(RasterVertex {
-                    position: p[k].to_array(),
-                    normal: n[k].to_array(),
-                    uv: uv[k].to_array(),
-                    material,
-                });
-            }
+            vertices.extend(p.map(|v| RasterVertex {
+                position: v.to_array(),
+            }));
         }
         SceneData {
             timings: SceneTimings {

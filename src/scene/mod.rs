@@ -8,6 +8,7 @@ pub mod environment;
 pub mod features;
 pub mod gltf_load;
 pub mod gpu_scene;
+pub mod instancing;
 pub mod shading;
 pub mod tangents;
 
@@ -64,7 +65,7 @@ impl UvTransform {
     }
 }
 
-/// A material's use of a texture: which one, which UV set, and its transform.
+/// A material's use of a texture: which one, which UV set, its transform and its sampler.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TextureRef {
     /// Index into `Scene::textures`.
@@ -72,6 +73,7 @@ pub struct TextureRef {
     /// UV set: 0 (`uvs`) or 1 (`uvs1`).
     pub tex_coord: u32,
     pub transform: UvTransform,
+    pub sampler: Sampler,
 }
 
 impl TextureRef {
@@ -80,7 +82,34 @@ impl TextureRef {
             texture,
             tex_coord: 0,
             transform: UvTransform::default(),
+            sampler: Sampler::default(),
         }
+    }
+}
+
+/// glTF sampler wrap mode of one texture axis (codes as in shaders/common/scene.wgsl).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Wrap {
+    #[default]
+    Repeat = 0,
+    ClampToEdge = 1,
+    MirroredRepeat = 2,
+}
+
+/// How a texture is read (glTF sampler): wrap per axis, and `nearest` texel instead of
+/// bilinear (magFilter NEAREST; mip levels are picked by ray cones whatever minFilter says).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Sampler {
+    pub wrap_u: Wrap,
+    pub wrap_v: Wrap,
+    pub nearest: bool,
+}
+
+impl Sampler {
+    /// The bits above the UV set in `GpuTexSlot::transform_v.w`: wrap u (2 bits), wrap v
+    /// (2 bits), nearest (1 bit).
+    pub fn gpu_bits(self) -> u32 {
+        self.wrap_u as u32 | (self.wrap_v as u32) << 2 | (self.nearest as u32) << 4
     }
 }
 
@@ -272,6 +301,24 @@ pub struct Scene {
     pub sky: Vec3,
     /// An equirectangular HDR map as the sky; when set it replaces `sky` (see `sky_mean`).
     pub environment: Option<environment::Environment>,
+    /// Repeats of one mesh (glTF meshes drawn by several nodes, EXT_mesh_gpu_instancing, the
+    /// atrium's columns and vases): the BVH builds one bottom-level tree per mesh and a top
+    /// level over the instances (`bvh::Bvh::build_instanced`). Their triangles are also in
+    /// `triangles` (shading reads the flattened world-space records).
+    pub instances: Vec<MeshInstance>,
+}
+
+/// One placement of a mesh: scene triangles `first_triangle..first_triangle + triangle_count`
+/// are mesh `mesh`'s triangles, in the same order for every instance of that mesh, moved by
+/// `transform` (object to world, affine). The mesh's own object-space shape is that of its
+/// first instance taken back through its transform; an instance whose triangles do not match
+/// it (an edited scene, a mirrored winding) is traced as ordinary geometry instead.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MeshInstance {
+    pub mesh: u32,
+    pub transform: glam::Mat4,
+    pub first_triangle: u32,
+    pub triangle_count: u32,
 }
 
 impl Scene {

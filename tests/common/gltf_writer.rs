@@ -133,6 +133,7 @@ pub struct GltfBuilder {
     meshes: Vec<Value>,
     materials: Vec<Value>,
     textures: Vec<Value>,
+    samplers: Vec<Value>,
     images: Vec<ImageData>,
     nodes: Vec<Value>,
     cameras: Vec<Value>,
@@ -275,6 +276,17 @@ impl GltfBuilder {
             .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
             .unwrap();
         self.push_image(ImageData::Png(png))
+    }
+
+    /// Gives `texture` a sampler: glTF wrap codes (10497 repeat, 33071 clamp to edge, 33648
+    /// mirrored repeat) and magFilter (9728 nearest, 9729 linear).
+    pub fn sampler(&mut self, texture: usize, wrap_s: u32, wrap_t: u32, mag_filter: Option<u32>) {
+        let mut v = json!({"wrapS": wrap_s, "wrapT": wrap_t});
+        if let Some(m) = mag_filter {
+            v["magFilter"] = m.into();
+        }
+        self.samplers.push(v);
+        self.textures[texture]["sampler"] = (self.samplers.len() - 1).into();
     }
 
     /// A texture whose image file does not exist.
@@ -526,6 +538,7 @@ impl GltfBuilder {
         };
         put("materials", &self.materials);
         put("textures", &self.textures);
+        put("samplers", &self.samplers);
         put("images", &images);
         put("cameras", &self.cameras);
         if !self.lights.is_empty() {

@@ -395,8 +395,7 @@ impl Lumen {
         layout: &wgpu::PipelineLayout,
         clear: bool,
     ) -> Result<wgpu::RenderPipeline> {
-        let attributes =
-            wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Float32x2, 3 => Uint32];
+        let attributes = wgpu::vertex_attr_array![0 => Float32x3];
         let targets: Vec<Option<wgpu::ColorTargetState>> = ATLAS_FORMATS
             .iter()
             .map(|f| {
