@@ -1389,6 +1389,27 @@ fn instanced_bvh_matches_brute_force() {
     overlapping.first_triangle += 5;
     instances.push(overlapping);
 
+    // Point queries prune by 1 / the largest singular value of the world-to-object matrix.
+    for (m, sigma) in [
+        (Mat4::IDENTITY, 1.0),
+        (
+            Mat4::from_scale_rotation_translation(
+                Vec3::new(2.0, 3.0, 0.5),
+                Quat::from_rotation_y(0.7),
+                Vec3::ONE,
+            ),
+            3.0,
+        ),
+        (Mat4::from_scale(Vec3::new(-0.25, 4.0, 1.0)), 4.0),
+    ] {
+        let r = bvh::InstanceRecord::new(m, 0, 0, 0);
+        let want = 1.0 / sigma;
+        assert!(
+            r.distance_scale <= want && r.distance_scale > want * 0.9999,
+            "{} vs {want}",
+            r.distance_scale
+        );
+    }
     let bvh = bvh::Bvh::build_instanced(&tris, &instances);
     assert_eq!(
         bvh.instances, 25,

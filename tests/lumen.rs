@@ -882,3 +882,83 @@ fn probe_debug_views_show_the_gather() {
         }
     }
 }
+
+/// The distance field is built by point queries through the BVH: with instances (a two-level
+/// tree: scaled, rotated spheres in the Cornell box) it must equal the field built through a
+/// flat tree over the same triangles.
+#[test]
+fn sdf_through_instances_equals_sdf_through_a_flat_tree() {
+    use gilab::scene::MeshInstance;
+    use glam::{Mat4, Quat};
+    let mut scene = builtin::cornell();
+    let material = scene.triangle_material[0];
+    // One sphere mesh at the origin, placed four times (non-uniform scales, rotations).
+    let mut proto = Scene::new("sphere");
+    builtin::add_uv_sphere(&mut proto, Vec3::ZERO, 1.0, material, 8, 12);
+    let (lo, hi) = scene.bounds();
+    let size = hi - lo;
+    for k in 0..4 {
+        let f = k as f32;
+        let at = lo
+            + size
+                * Vec3::new(
+                    0.25 + 0.5 * (k % 2) as f32,
+                    0.3 + 0.1 * f,
+                    0.3 + 0.4 * (k / 2) as f32,
+                );
+        let m = Mat4::from_scale_rotation_translation(
+            size.min_element() * Vec3::new(0.08 + 0.02 * f, 0.06, 0.1),
+            Quat::from_euler(glam::EulerRot::XYZ, f, 2.0 * f, 0.5 * f),
+            at,
+        );
+        let base = scene.positions.len() as u32;
+        let first = scene.triangles.len() as u32;
+        scene
+            .positions
+            .extend(proto.positions.iter().map(|&p| m.transform_point3(p)));
+        scene.normals.extend(
+            proto
+                .normals
+                .iter()
+                .map(|&n| m.transform_vector3(n).normalize_or_zero()),
+        );
+        scene.uvs.extend(&proto.uvs);
+        scene
+            .triangles
+            .extend(proto.triangles.iter().map(|t| t.map(|v| v + base)));
+        scene.triangle_material.extend(&proto.triangle_material);
+        scene.instances.push(MeshInstance {
+            mesh: 0,
+            transform: m,
+            first_triangle: first,
+            triangle_count: proto.triangles.len() as u32,
+        });
+    }
+    scene.validate().unwrap();
+    let mut flat = scene.clone();
+    flat.instances.clear();
+    let (lo, hi) = scene.bounds();
+    let mut rng = Rand(0x51ed);
+    let inputs: Vec<_> = (0..4000)
+        .map(|_| (rng.in_box(lo, hi).to_array(), [0.0; 3]))
+        .collect();
+    let field = |scene: Scene| {
+        let mut e = engine("lumen", small(toml::Table::new()), scene, [32, 32], 1);
+        frames(&mut e, 1);
+        let data = &e.gpu_scene.data;
+        let levels = (data.bvh.instances, lumen(&e).clipmaps().unwrap().voxel(0));
+        (query(&e, QueryMode::SdfDistance, &inputs), levels)
+    };
+    let (a, (instances, voxel)) = field(scene);
+    let (b, (none, _)) = field(flat);
+    assert_eq!((instances, none), (4, 0));
+    let mut worst = 0.0f32;
+    for (qa, qb) in a.iter().zip(&b) {
+        assert_eq!(qa[1][2], qb[1][2], "same clipmap level answers");
+        worst = worst.max((qa[1][0] - qb[1][0]).abs());
+    }
+    eprintln!(
+        "SDF through instances vs flat: worst difference {worst:.2e} (finest voxel {voxel:.3})"
+    );
+    assert!(worst <= 1e-3 * voxel, "fields differ by {worst}");
+}

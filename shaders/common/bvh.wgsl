@@ -57,6 +57,31 @@ fn safe_inv_dir(dir: vec3<f32>) -> vec3<f32> {
 // Top-level leaf: `tris >> 8` is the node index of an instance record (src/scene/bvh.rs).
 const INSTANCE_LEAF: u32 = 0xffu;
 
+// An instance (src/scene/bvh.rs InstanceRecord), stored as the two nodes from `at` on: the
+// world-to-object columns and translation in their float slots, the tree's node range, the
+// first triangle and the distance scale in their integer slots.
+struct Instance {
+    to_object_x: vec3<f32>,
+    to_object_y: vec3<f32>,
+    to_object_z: vec3<f32>,
+    translation: vec3<f32>,
+    root: u32,
+    end: u32,
+    tri_offset: u32,
+    // Lower bound of world length per object length (point queries).
+    distance_scale: f32,
+}
+
+fn instance_at(at: u32) -> Instance {
+    let a = bvh_nodes[at];
+    let b = bvh_nodes[at + 1u];
+    return Instance(a.bounds_min, a.bounds_max, b.bounds_min, b.bounds_max, a.skip, a.tris, b.skip, bitcast<f32>(b.tris));
+}
+
+fn to_object_vector(inst: Instance, v: vec3<f32>) -> vec3<f32> {
+    return inst.to_object_x * v.x + inst.to_object_y * v.y + inst.to_object_z * v.z;
+}
+
 // Walks the BVH for hits in (t_min, t_max): the closest one, or with `any_hit` the first one
 // found (shadow rays need no more). hit.tri == NO_HIT on a miss.
 // With INSTANCES (a two-level BVH, src/scene/instancing.rs) a top-level leaf moves the ray into
@@ -113,16 +138,13 @@ fn traverse(origin: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32, any_hit: 
         }
 #ifdef INSTANCES
         if count == INSTANCE_LEAF {
-            // InstanceRecord: world-to-object columns and translation in the float slots,
-            // tree start/end and first triangle in the integer slots.
-            let a = bvh_nodes[node.tris >> 8u];
-            let b = bvh_nodes[(node.tris >> 8u) + 1u];
-            o = a.bounds_min * origin.x + a.bounds_max * origin.y + b.bounds_min * origin.z + b.bounds_max;
-            inv = safe_inv_dir(a.bounds_min * dir.x + a.bounds_max * dir.y + b.bounds_min * dir.z);
+            let inst = instance_at(node.tris >> 8u);
+            o = to_object_vector(inst, origin) + inst.translation;
+            inv = safe_inv_dir(to_object_vector(inst, dir));
             resume = node.skip;
-            i = a.skip;
-            end = a.tris;
-            tri_base = b.skip;
+            i = inst.root;
+            end = inst.end;
+            tri_base = inst.tri_offset;
             inside = true;
             continue;
         }

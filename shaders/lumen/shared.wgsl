@@ -6,7 +6,7 @@
 
 #import gilab::math::{PI, INV_PI}
 #import gilab::scene::{materials, tri_geom, tri_material, scene_triangle}
-#import gilab::bvh::{trace_closest, NO_HIT}
+#import gilab::bvh::{trace_closest, NO_HIT, INSTANCE_LEAF, instance_at, to_object_vector}
 #import gilab::scene::bvh_nodes
 #import gilab::ray::{offset_point, unoccluded, INFINITE_DISTANCE}
 #import gilab::lights::{LightSample, light_shadow_ray}
@@ -584,15 +584,49 @@ struct Closest {
 }
 
 // The nearest triangle within `radius` of p: the stackless BVH walk with nodes farther than the
-// best distance so far skipped.
+// best distance so far skipped. With INSTANCES (a two-level BVH) an instance's tree is walked
+// with p in its object space, its boxes' distances scaled to a lower bound of the world
+// distance (`distance_scale`); triangle distances are world distances to the flattened
+// world-space triangles, as with a flat tree.
 fn closest_triangle(p: vec3<f32>, radius: f32) -> Closest {
     var best = Closest(radius, NO_HIT);
     let node_count = arrayLength(&bvh_nodes);
+#ifdef INSTANCES
+    var top_end = 0u;
+    if node_count > 0u {
+        top_end = bvh_nodes[0].skip;
+    }
+    var q_p = p;
+    var scale = 1.0;
+    var end = top_end;
+    var resume = 0u;
+    var tri_base = 0u;
+    var inside = false;
+#else
+    let q_p = p;
+    let scale = 1.0;
+    let end = node_count;
+    let tri_base = 0u;
+#endif
     var i = 0u;
-    while i < node_count {
+    loop {
+        if i >= end {
+#ifdef INSTANCES
+            if inside {
+                i = resume;
+                end = top_end;
+                q_p = p;
+                scale = 1.0;
+                tri_base = 0u;
+                inside = false;
+                continue;
+            }
+#endif
+            break;
+        }
         let node = bvh_nodes[i];
-        let q = clamp(p, node.bounds_min, node.bounds_max);
-        if length(q - p) >= best.dist {
+        let q = clamp(q_p, node.bounds_min, node.bounds_max);
+        if length(q - q_p) * scale >= best.dist {
             i = node.skip;
             continue;
         }
@@ -601,7 +635,20 @@ fn closest_triangle(p: vec3<f32>, radius: f32) -> Closest {
             i++;
             continue;
         }
-        let first = node.tris >> 8u;
+#ifdef INSTANCES
+        if count == INSTANCE_LEAF {
+            let inst = instance_at(node.tris >> 8u);
+            q_p = to_object_vector(inst, p) + inst.translation;
+            scale = inst.distance_scale;
+            resume = node.skip;
+            i = inst.root;
+            end = inst.end;
+            tri_base = inst.tri_offset;
+            inside = true;
+            continue;
+        }
+#endif
+        let first = tri_base + (node.tris >> 8u);
         for (var k = 0u; k < count; k++) {
             let d = length(closest_point_on_triangle(p, first + k) - p);
             if d < best.dist {

@@ -377,6 +377,30 @@ impl Bvh {
     }
 }
 
+/// The spectral norm of `m`: the square root of the largest eigenvalue of the symmetric mᵀm
+/// (closed form, Smith 1961, in f64), rounded up a little so that 1 / it stays a lower bound;
+/// 1 for the identity.
+fn largest_singular_value(m: glam::Mat3) -> f32 {
+    if m == glam::Mat3::IDENTITY {
+        return 1.0;
+    }
+    let a = (m.transpose() * m).as_dmat3();
+    let (a00, a11, a22) = (a.x_axis.x, a.y_axis.y, a.z_axis.z);
+    let (a01, a02, a12) = (a.y_axis.x, a.z_axis.x, a.z_axis.y);
+    let p1 = a01 * a01 + a02 * a02 + a12 * a12;
+    let largest = if p1 <= 0.0 {
+        a00.max(a11).max(a22)
+    } else {
+        let q = (a00 + a11 + a22) / 3.0;
+        let p2 = (a00 - q).powi(2) + (a11 - q).powi(2) + (a22 - q).powi(2) + 2.0 * p1;
+        let p = (p2 / 6.0).sqrt();
+        let b = (a - glam::DMat3::from_diagonal(glam::DVec3::splat(q))) * (1.0 / p);
+        let phi = (b.determinant() / 2.0).clamp(-1.0, 1.0).acos() / 3.0;
+        q + 2.0 * p * phi.cos()
+    };
+    ((largest.max(0.0).sqrt() * (1.0 + 1e-5)) as f32).max(f32::MIN_POSITIVE)
+}
+
 /// `BvhNode::tri_count` of a top-level leaf: `first_tri` is then the node index of an
 /// `InstanceRecord` (triangle leaves hold at most MAX_LEAF triangles).
 pub const INSTANCE_LEAF: u32 = 0xff;
@@ -398,7 +422,9 @@ pub struct InstanceRecord {
     /// Added to the bottom-level leaves' triangle indices.
     pub tri_offset: u32,
     pub translation: [f32; 3],
-    pub flags: u32,
+    /// A lower bound of world length per object length (1 / the largest singular value of the
+    /// world-to-object matrix): point queries prune object-space boxes with it.
+    pub distance_scale: f32,
 }
 
 impl InstanceRecord {
@@ -412,7 +438,7 @@ impl InstanceRecord {
             column_z: c(world_to_object.z_axis),
             tri_offset,
             translation: c(world_to_object.w_axis),
-            flags: 0,
+            distance_scale: 1.0 / largest_singular_value(glam::Mat3::from_mat4(world_to_object)),
         }
     }
     pub fn to_object_vector(&self, v: Vec3) -> Vec3 {

@@ -52,7 +52,8 @@ pub const TRI_HAS_TANGENTS: u32 = 2;
 pub const TRI_BITANGENT_NEG_SHIFT: u32 = 2;
 
 /// A material's use of a texture on the GPU: the rows of its UV transform, the texture index
-/// (`transform_u[3]`, bits; `NO_TEXTURE` when unused) and the UV set (`transform_v[3]`, bits).
+/// (`transform_u[3]`, bits; `NO_TEXTURE` when unused), the UV set (bit 0 of `transform_v[3]`'s
+/// bits) and the sampler above it (`Sampler::gpu_bits`).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct GpuTexSlot {

@@ -4,8 +4,10 @@
 //! What is shared and what is not: the trees are per mesh (build time and node memory scale
 //! with the distinct geometry), but the triangle records the shaders read stay flattened in
 //! world space, one copy per instance (`tri_geom`/`tri_attr`, 144 bytes a triangle), so every
-//! reader of a hit (surfaces, light pool, Lumen's point queries, the raster passes) works
-//! unchanged and a hit is the same triangle, same `t`, as with a flat tree. Traversal moves the
+//! reader of a hit (surfaces, light pool, Lumen's card lookups, the raster passes) works
+//! unchanged and a hit is the same triangle, same `t`, as with a flat tree. Point queries
+//! (Lumen's distance field, `closest_triangle`) walk the same two levels, pruning an object-space
+//! box by its distance times the record's `distance_scale`. Traversal moves the
 //! ray into an instance's object space for its node tests only and intersects the world-space
 //! triangles (`t` is one parameter in both spaces, the transform being affine).
 //!
@@ -195,7 +197,9 @@ fn usable_meshes(tris: &[[Vec3; 3]], instances: &[MeshInstance]) -> Vec<Mesh> {
     for (j, i) in instances.iter().enumerate() {
         let (first, count) = (i.first_triangle as usize, i.triangle_count as usize);
         let in_range = count > 0 && first.checked_add(count).is_some_and(|e| e <= tris.len());
-        let invertible = i.transform.is_finite() && i.transform.determinant().abs() > 1e-12;
+        let invertible = i.transform.is_finite()
+            && i.transform.determinant() != 0.0
+            && i.transform.inverse().is_finite();
         if !in_range || !invertible || claimed[first..first + count].iter().any(|&c| c) {
             dropped += 1;
             continue;
