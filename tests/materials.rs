@@ -1437,6 +1437,44 @@ fn mip_chain_halves_sizes_and_averages_colour_in_linear_light() {
 /// reads the same grey at 1 spp; read at the finest level the pixels would be black or white.
 #[test]
 fn gpu_ray_cones_pick_blurred_levels_for_distant_texels() {
+    let (mean, std, _) = distant_checker(10.0);
+    println!("checker seen from afar, 1 spp: mean {mean:.4}, std {std:.4}");
+    assert!(
+        (mean - 0.5).abs() < 0.03,
+        "mean {mean}: linear average of the checker is 0.5"
+    );
+    assert!(std < 0.05, "std {std}: finest-level reads would give ~0.5");
+}
+
+/// Trilinear filtering: where the ray cone asks for level ~0.7 (1.62 texels per pixel: camera
+/// 2.23 m above the checker) a pixel is 0.3 x level 0 (the checker, bilinear) + 0.7 x level 1
+/// (uniform grey): values within 0.5 +- 0.15 but a contrast left; reading the nearest level
+/// (1) would leave none. At level ~0.3 (1.69 m) 0.7 x the checker: values within 0.5 +- 0.35,
+/// where level 0 alone reaches 0 and 1.
+#[test]
+fn gpu_trilinear_blends_the_two_levels_around_the_cone() {
+    for (height, lod, half_range) in [(2.23, 0.7, 0.15), (1.69, 0.3, 0.35)] {
+        let (mean, std, range) = distant_checker(height);
+        println!(
+            "checker at level ~{lod}, 1 spp: mean {mean:.4}, std {std:.4}, range {:.3}..{:.3}",
+            range.0, range.1
+        );
+        assert!((mean - 0.5).abs() < 0.03, "mean {mean}");
+        assert!(
+            std > 0.02,
+            "level ~{lod}: std {std}: no contrast left, level 1 alone"
+        );
+        assert!(
+            range.0 > 0.5 - half_range - 0.03 && range.1 < 0.5 + half_range + 0.03,
+            "level ~{lod}: range {range:?} wider than the blend allows"
+        );
+    }
+}
+
+/// A 1-texel checker (256 texels over an 8 m plane) seen straight down from `height` m at
+/// 32 x 32 px, 40 degrees, 1 spp, lit by a white sky: (mean, std, (min, max)) of the central
+/// 16 x 16 pixels.
+fn distant_checker(height: f32) -> (f64, f64, (f64, f64)) {
     use gilab::scene::{Camera, Material, Texture};
     let n = 256u32;
     let rgba8: Vec<u8> = (0..n * n)
@@ -1479,7 +1517,7 @@ fn gpu_ray_cones_pick_blurred_levels_for_distant_texels() {
     s.sky = Vec3::ONE;
     // 10 m above, 40 degrees: about 7 texels per pixel at 32 px, level 3 (8x8 texels, grey).
     s.camera = Some(Camera {
-        position: Vec3::new(0.0, 10.0, 0.0),
+        position: Vec3::new(0.0, height, 0.0),
         target: Vec3::ZERO,
         up: Vec3::NEG_Z,
         fov_y: 40.0,
@@ -1494,10 +1532,8 @@ fn gpu_ray_cones_pick_blurred_levels_for_distant_texels() {
     }
     let mean = values.iter().sum::<f64>() / values.len() as f64;
     let std = (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / values.len() as f64).sqrt();
-    println!("checker seen from afar, 1 spp: mean {mean:.4}, std {std:.4}");
-    assert!(
-        (mean - 0.5).abs() < 0.03,
-        "mean {mean}: linear average of the checker is 0.5"
-    );
-    assert!(std < 0.05, "std {std}: finest-level reads would give ~0.5");
+    let range = values
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+    (mean, std, range)
 }

@@ -220,11 +220,9 @@ fn fetch_texel(t: TextureInfo, level: u32, x: i32, y: i32, srgb: bool, sampler: 
     return c;
 }
 
-// Bilinear (or nearest: `sampler` bit 4) lookup at the mip level nearest to `lod` (log2 of
-// texels per footprint at level 0; <= 0 reads level 0), wrapped as `sampler` says.
-fn sample_texture(index: u32, uv: vec2<f32>, lod: f32, srgb: bool, sampler: u32) -> vec4<f32> {
-    let t = texture_info(index);
-    let level = u32(clamp(round(lod), 0.0, f32(max(t.levels, 1u) - 1u)));
+// Bilinear (or nearest: `sampler` bit 4) lookup in mip level `level`, wrapped as `sampler`
+// says. No branch: the alpha test calls it from inside BVH traversal.
+fn sample_level(t: TextureInfo, level: u32, uv: vec2<f32>, srgb: bool, sampler: u32) -> vec4<f32> {
     let size = vec2<f32>(f32(max(t.width >> level, 1u)), f32(max(t.height >> level, 1u)));
     let p = uv * size - 0.5;
     let f = floor(p);
@@ -235,6 +233,21 @@ fn sample_texture(index: u32, uv: vec2<f32>, lod: f32, srgb: bool, sampler: u32)
     let a = mix(fetch_texel(t, level, x, y, srgb, sampler), fetch_texel(t, level, x + 1, y, srgb, sampler), s.x);
     let b = mix(fetch_texel(t, level, x, y + 1, srgb, sampler), fetch_texel(t, level, x + 1, y + 1, srgb, sampler), s.x);
     return mix(a, b, s.y);
+}
+
+// Trilinear lookup at `lod` (log2 of texels per footprint at level 0; <= 0 reads level 0): the
+// two levels around it, blended.
+fn sample_texture(index: u32, uv: vec2<f32>, lod: f32, srgb: bool, sampler: u32) -> vec4<f32> {
+    let t = texture_info(index);
+    let last = max(t.levels, 1u) - 1u;
+    let l = clamp(lod, 0.0, f32(last));
+    let level = u32(floor(l));
+    let blend = l - floor(l);
+    let c = sample_level(t, level, uv, srgb, sampler);
+    if blend <= 0.0 {
+        return c;
+    }
+    return mix(c, sample_level(t, min(level + 1u, last), uv, srgb, sampler), blend);
 }
 
 // The sampler bits of a slot (Sampler::gpu_bits, above its UV set bit).
@@ -270,7 +283,8 @@ fn material_alpha(m: Material, uvs: vec4<f32>) -> f32 {
     var a = m.base_color.w;
     let slot = m.tex[SLOT_BASE_COLOR];
     if slot_used(slot) {
-        a *= sample_texture(bitcast<u32>(slot.transform_u.w), slot_uv(slot, uvs), 0.0, false, slot_sampler(slot)).w;
+        let t = texture_info(bitcast<u32>(slot.transform_u.w));
+        a *= sample_level(t, 0u, slot_uv(slot, uvs), false, slot_sampler(slot)).w;
     }
     return a;
 }
