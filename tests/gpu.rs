@@ -691,3 +691,93 @@ fn instanced_traversal_matches_the_flat_tree() {
     eprintln!("direct light mean: instanced {ma:.5}, flat {mb:.5}");
     assert!((ma - mb).abs() <= 0.03 * mb, "{ma} vs {mb}");
 }
+
+/// Sizing the clock-calibration kernel stops within its wall-clock bound when the timestamps
+/// are wrong (read back as zeros): sized by timestamps alone, the loop once doubled to 1M
+/// iterations (minutes per kernel on lavapipe) and hung the suite. The clock check then says
+/// it used the wall clock.
+#[test]
+fn calibration_sizing_stops_with_zero_timestamps() {
+    use gilab::gpu::calibrate::{Calibration, KERNEL_WALL_LIMIT_MS};
+    use gilab::gpu::timing::TimingSource;
+    let gpu = gpu();
+    let shaders = gilab::gpu::shaders::ShaderLibrary::discover();
+    let start = std::time::Instant::now();
+    let mut c = Calibration::new_with_zero_timestamps(&gpu, &shaders).unwrap();
+    let sizing_s = start.elapsed().as_secs_f64();
+    // Each doubling at most doubles the kernel, which stays under the bound: the whole sizing
+    // is a few bounds' worth of batches (and a batch of up to 30 ms to judge the timestamps).
+    assert!(sizing_s < 10.0, "sizing took {sizing_s:.1} s");
+    assert!(c.iterations < 1 << 20, "iterations {}", c.iterations);
+    eprintln!(
+        "sized to {} iterations in {sizing_s:.2} s: {:?}",
+        c.iterations, c.timing
+    );
+    assert_eq!(c.timing, TimingSource::WallTimestampsImplausible);
+    let t = std::time::Instant::now();
+    let ms = c.measure(&gpu).unwrap();
+    let wall_per_kernel = t.elapsed().as_secs_f64() * 1e3 / 8.0;
+    assert!(ms > 0.0, "wall-clock kernel time {ms}");
+    assert!(
+        wall_per_kernel < 2.0 * KERNEL_WALL_LIMIT_MS,
+        "a kernel of {} iterations takes {wall_per_kernel:.1} ms",
+        c.iterations
+    );
+    let check = c.check(ms, ms, 0.0, ("unknown".into(), "unknown".into()));
+    assert!(
+        check
+            .summary()
+            .contains("timestamps implausible: using wall time"),
+        "{}",
+        check.summary()
+    );
+    eprintln!(
+        "zero timestamps: sized to {} iterations in {sizing_s:.2} s, {ms:.3} ms per kernel (wall)",
+        c.iterations
+    );
+}
+
+/// A wait for the GPU is bounded: past its timeout it is an error naming what was in flight
+/// (the kernel, or the frame and its passes), not a hang. Its own device: the timeout is
+/// per device and other tests share theirs.
+#[test]
+fn gpu_wait_times_out_naming_the_work_in_flight() {
+    use gilab::gpu::{calibrate::Calibration, BackendChoice, Gpu};
+    use std::time::Duration;
+    let gpu = std::sync::Arc::new(Gpu::new(BackendChoice::Auto).unwrap());
+    let shaders = gilab::gpu::shaders::ShaderLibrary::discover();
+    let mut c = Calibration::new(&gpu, &shaders).unwrap();
+    // 8 kernels of 2048 iterations: seconds on lavapipe, far past a 1 ms wait.
+    c.iterations = 2048;
+    gpu.set_wait_timeout(Duration::from_millis(1));
+    let err = c.measure(&gpu).unwrap_err().to_string();
+    assert!(
+        err.contains("did not finish") && err.contains("clock calibration kernel"),
+        "{err}"
+    );
+    gpu.set_wait_timeout(Duration::from_secs(300));
+    gpu.wait().unwrap();
+
+    let mut engine = gilab::render::engine::Engine::new(
+        gpu.clone(),
+        shaders,
+        builtin::cornell(),
+        gilab::techniques::create_technique("reference").unwrap(),
+        gilab::render::engine::EngineSettings {
+            extent: [64, 64],
+            seed: 1,
+            camera: builtin::cornell().default_camera(),
+        },
+    )
+    .unwrap();
+    engine.render_frame().unwrap();
+    gpu.set_wait_timeout(Duration::from_nanos(1));
+    let err = engine.render_frame().unwrap_err();
+    let err = format!("{err:#}");
+    assert!(
+        err.contains("did not finish") && err.contains("of reference (passes: "),
+        "{err}"
+    );
+    gpu.set_wait_timeout(Duration::from_secs(300));
+    gpu.wait().unwrap();
+}

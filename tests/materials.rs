@@ -1347,6 +1347,67 @@ fn loader_refuses_unknown_required_extensions_and_skips_missing_images() {
     gltf_load::load(&b.write(&dir("required-supported"), "scene")).unwrap();
 }
 
+/// Validation refuses only what the scene needs: an unused texture whose `source` points past
+/// the end of `images` (or with no `images` array at all) is dropped with a warning naming it,
+/// and the file renders exactly as the same file without that texture; the same fault in a
+/// texture a material uses refuses the file, naming the texture.
+#[test]
+fn loader_drops_invalid_unused_textures_and_refuses_used_ones() {
+    capture_logs();
+    let mut b = GltfBuilder::new();
+    let t = b.texture_rgba8(2, 2, &solid_rgba8(2, 2, [200, 120, 40, 255]));
+    let m = b.material(&MaterialDesc {
+        base_color_texture: Some(tex(t)),
+        ..lambert("m", 0.5)
+    });
+    let mesh = b.mesh(&MeshData::quad_xz(1.0, 0.0, Vec2::new), Some(m));
+    b.node(mesh, Place::IDENTITY);
+    b.point_light(Vec3::Y, [1.0; 3], 1.0);
+    b.camera(Vec3::new(0.0, 2.0, 0.0), Vec3::ZERO, Vec3::NEG_Z, 60.0);
+    let clean = b.write(&dir("unused-invalid"), "clean");
+    let broken = b.write_with(&dir("unused-invalid"), "broken", |j| {
+        let bad = serde_json::json!({"name": "stray", "source": 7});
+        j["textures"].as_array_mut().unwrap().push(bad);
+    });
+    let a = gltf_load::load(&clean).unwrap();
+    let s = gltf_load::load(&broken).unwrap();
+    assert_eq!(a.materials, s.materials);
+    assert_eq!(a.textures.len(), s.textures.len());
+    let w = warnings_with(&broken.display().to_string());
+    assert!(
+        w.iter()
+            .any(|w| w.contains("textures[1] ('stray')") && w.contains("dropped")),
+        "{w:#?}"
+    );
+    assert_eq!(render(a, 32, 4).rgb, render(s, 32, 4).rgb);
+
+    // No `images` array at all, and an unused texture pointing into it.
+    let mut b = GltfBuilder::new();
+    let m = b.material(&lambert("plain", 0.5));
+    let mesh = b.mesh(&MeshData::quad_xz(1.0, 0.0, Vec2::new), Some(m));
+    b.node(mesh, Place::IDENTITY);
+    b.point_light(Vec3::Y, [1.0; 3], 1.0);
+    let no_images = b.write_with(&dir("unused-invalid"), "no-images", |j| {
+        j["textures"] = serde_json::json!([{"source": 0}]);
+    });
+    let s = gltf_load::load(&no_images).unwrap();
+    assert_eq!(s.triangles.len(), 2);
+    let w = warnings_with(&no_images.display().to_string());
+    assert!(w.iter().any(|w| w.contains("textures[0]")), "{w:#?}");
+
+    // The same fault in a texture the material reads refuses the file and names it.
+    let used = b.write_with(&dir("unused-invalid"), "used", |j| {
+        j["textures"] = serde_json::json!([{"name": "needed", "source": 3}]);
+        j["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] =
+            serde_json::json!({"index": 0});
+    });
+    let err = format!("{:#}", gltf_load::load(&used).unwrap_err());
+    assert!(
+        err.contains("textures[0] ('needed') is used by the scene") && err.contains("source"),
+        "{err}"
+    );
+}
+
 /// Invalid optional parts: a malformed texture transform on the normal texture (raw JSON) is
 /// dropped with a warning, an invalid IOR falls back to 1.5.
 #[test]

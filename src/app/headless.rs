@@ -96,7 +96,10 @@ impl HeadlessViewer {
             });
             renderer.render(&mut pass.forget_lifetime(), &jobs, &screen);
         }
-        queue.submit(extra.into_iter().chain([enc.finish()]));
+        self.gpu.submit_all(
+            "viewer: egui frame",
+            extra.into_iter().chain([enc.finish()]),
+        );
         for id in &output.textures_delta.free {
             renderer.free_texture(id);
         }

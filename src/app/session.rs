@@ -132,7 +132,8 @@ impl Run {
             let mut enc = gpu.device.create_command_encoder(&Default::default());
             let (mean, _) = self.engine.output_buffers();
             if compare.record_metrics(&gpu, &mut enc, mean, r, &mut self.metrics, key) {
-                let submission = gpu.queue.submit([enc.finish()]);
+                let submission =
+                    gpu.submit("viewer: error metrics against the reference", enc.finish());
                 GpuCompare::start_metrics_read(&mut self.metrics, &submission);
             }
         }
@@ -279,7 +280,7 @@ impl ReferenceRun {
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         let (mean, _) = self.engine.output_buffers();
         enc.copy_buffer_to_buffer(mean, 0, &self.gpu_image, 0, mean.size());
-        gpu.queue.submit([enc.finish()]);
+        gpu.submit("viewer: reference image copy", enc.finish());
         self.on_gpu = true;
         if self.engine.samples >= self.target_spp {
             self.source = ReferenceSource::Done;
@@ -984,7 +985,9 @@ impl Session {
         if asked.is_empty() {
             return;
         }
-        let submission = self.gpu.queue.submit([enc.finish()]);
+        let submission = self
+            .gpu
+            .submit("viewer: pixel inspector probes", enc.finish());
         for i in asked {
             self.runs[i].probe.start(submission.clone());
         }

@@ -118,7 +118,7 @@ impl PaneTextures {
                         let mut enc = s.gpu.device.create_command_encoder(&Default::default());
                         if s.record_pane_display(&mut enc, &p, &settings, target) {
                             let histogram = s.compare.record_histogram_copy(&mut enc, target);
-                            let submission = s.gpu.queue.submit([enc.finish()]);
+                            let submission = s.gpu.submit("viewer: pane display", enc.finish());
                             if histogram {
                                 GpuCompare::start_histogram_read(target, submission);
                             }

@@ -314,7 +314,7 @@ pub fn run(gpu: Arc<Gpu>, extent: [u32; 2], frames: u32, scenes: &[String]) -> R
         e.set_params(&bounces_table(BENCH_BOUNCES))?;
         let bounced = timed_series(&mut e, WARMUP_FRAMES, frames)?;
         let after = calibration.measure(&gpu)?;
-        let check = Calibration::check(before, after, warm_ms, (clock_before, calibration.clock()));
+        let check = calibration.check(before, after, warm_ms, (clock_before, calibration.clock()));
         drop(e);
 
         let primary_mrays = mrays(primary.per_frame(CAMERA), primary.median_ms());
@@ -508,12 +508,7 @@ pub fn preset(
         let after = calibration.measure(&gpu)?;
         e.finish_frames()?;
         results.extend(e.take_completed());
-        let check = crate::gpu::calibrate::Calibration::check(
-            before,
-            after,
-            warm_ms,
-            (clock_before, calibration.clock()),
-        );
+        let check = calibration.check(before, after, warm_ms, (clock_before, calibration.clock()));
         let rays_after = results.last().map(|r| r.rays).unwrap_or_default();
         let mut names: Vec<String> = Vec::new();
         for r in &results {

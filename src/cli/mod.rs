@@ -93,7 +93,7 @@ pub enum Command {
     /// model and a side-by-side PNG, from the WGSL every technique shades with.
     BrdfSlice(brdf_slice::SliceArgs),
     /// Print every technique's parameters (name, what it does, higher/lower, range, default) as
-    /// the Markdown tables of the README's "Technique parameters" section.
+    /// the Markdown tables of docs/parameters.md.
     Params,
     /// Benchmarks: BVH traversal Mrays/s and reference path tracer ms/frame.
     Bench {

@@ -179,7 +179,7 @@ impl BrdfProbe {
             pass.set_bind_group(0, &bind, &[]);
             pass.dispatch_workgroups(groups.min(MAX_GROUPS_X), groups.div_ceil(MAX_GROUPS_X), 1);
         }
-        gpu.queue.submit([enc.finish()]);
+        gpu.submit("BRDF slice probe", enc.finish());
         let raw: Vec<[f32; 4]> = read_buffer(gpu, &out, queries.len())?;
         Ok(raw
             .into_iter()

@@ -584,7 +584,7 @@ fn run_one(
     }
     // Queued right behind the last frame: the clock state the run ended in.
     let after = calibration.measure(gpu)?;
-    let clock_check = crate::gpu::calibrate::Calibration::check(
+    let clock_check = calibration.check(
         before,
         after,
         warm_up_ms,

@@ -99,7 +99,16 @@ pub struct Gpu {
     pub errors: ErrorLog,
     /// Nanoseconds per timestamp tick; `None` when timestamp queries are unavailable.
     pub timestamp_period: Option<f32>,
+    /// What the last submission through [`Gpu::submit`] ran (named when a wait times out).
+    last_submitted: Mutex<String>,
+    /// How long a wait for the GPU may take before it is an error ([`Gpu::wait`]).
+    wait_timeout: Mutex<std::time::Duration>,
 }
+
+/// Default bound of one wait for the GPU. Generous on purpose: lavapipe on 2 cores takes
+/// seconds for a large frame; a GPU dispatch that runs this long is stuck (or would trip a
+/// driver watchdog on a real GPU). `GILAB_GPU_TIMEOUT_S` changes it.
+pub const DEFAULT_WAIT_TIMEOUT_S: f64 = 300.0;
 
 /// Storage buffers one compute stage binds at most: the scene's 6, the ray counters and up to 8
 /// of a technique's own (ReSTIR). lavapipe offers 32, GL llvmpipe 16.
@@ -121,6 +130,23 @@ pub fn device_descriptor(adapter: &wgpu::Adapter) -> wgpu::DeviceDescriptor<'sta
         memory_hints: wgpu::MemoryHints::Performance,
         trace: wgpu::Trace::Off,
     }
+}
+
+/// `GILAB_GPU_TIMEOUT_S` (seconds, > 0) or [`DEFAULT_WAIT_TIMEOUT_S`].
+fn wait_timeout_from_env() -> std::time::Duration {
+    let s = std::env::var("GILAB_GPU_TIMEOUT_S")
+        .ok()
+        .and_then(|v| match v.trim().parse::<f64>() {
+            Ok(s) if s.is_finite() && s > 0.0 => Some(s),
+            _ => {
+                log::warn!(
+                    "GILAB_GPU_TIMEOUT_S='{v}' is not a positive number of seconds: ignored"
+                );
+                None
+            }
+        })
+        .unwrap_or(DEFAULT_WAIT_TIMEOUT_S);
+    std::time::Duration::from_secs_f64(s)
 }
 
 /// Sets `XDG_RUNTIME_DIR` when missing (lavapipe prints an error line without it).
@@ -241,15 +267,69 @@ impl Gpu {
             summary,
             errors,
             timestamp_period,
+            last_submitted: Mutex::new("nothing yet".into()),
+            wait_timeout: Mutex::new(wait_timeout_from_env()),
         }
     }
 
-    /// Waits for all submitted work.
+    /// Submits one command buffer and remembers `what` it runs (a frame and its passes, a
+    /// kernel), so that a wait that times out can name it.
+    pub fn submit(&self, what: &str, commands: wgpu::CommandBuffer) -> wgpu::SubmissionIndex {
+        self.submit_all(what, [commands])
+    }
+
+    /// [`Gpu::submit`] of several command buffers in one submission.
+    pub fn submit_all(
+        &self,
+        what: &str,
+        commands: impl IntoIterator<Item = wgpu::CommandBuffer>,
+    ) -> wgpu::SubmissionIndex {
+        *self.last_submitted.lock().expect("gpu label") = what.to_string();
+        self.queue.submit(commands)
+    }
+
+    /// What the last [`Gpu::submit`] ran.
+    pub fn last_submitted(&self) -> String {
+        self.last_submitted.lock().expect("gpu label").clone()
+    }
+
+    /// The bound on one wait for the GPU.
+    pub fn wait_timeout(&self) -> std::time::Duration {
+        *self.wait_timeout.lock().expect("gpu timeout")
+    }
+
+    pub fn set_wait_timeout(&self, timeout: std::time::Duration) {
+        *self.wait_timeout.lock().expect("gpu timeout") = timeout;
+    }
+
+    /// Waits for all submitted work, at most [`Gpu::wait_timeout`]: a stuck dispatch becomes an
+    /// error naming what was in flight, not a hang.
     pub fn wait(&self) -> Result<()> {
-        self.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| anyhow!("device poll failed: {e}"))?;
-        Ok(())
+        self.wait_for(None, None)
+    }
+
+    /// Waits for one submission (all of them with None), at most the wait timeout; `what`
+    /// names it in the error (default: the last submission's label).
+    pub fn wait_for(
+        &self,
+        submission: Option<wgpu::SubmissionIndex>,
+        what: Option<&str>,
+    ) -> Result<()> {
+        let timeout = self.wait_timeout();
+        match self.device.poll(wgpu::PollType::Wait {
+            submission_index: submission,
+            timeout: Some(timeout),
+        }) {
+            Ok(_) => Ok(()),
+            Err(wgpu::PollError::Timeout) => Err(anyhow!(
+                "the GPU did not finish within {:.1} s: in flight: {} ({}; set \
+                 GILAB_GPU_TIMEOUT_S to wait longer)",
+                timeout.as_secs_f64(),
+                what.map_or_else(|| self.last_submitted(), str::to_string),
+                self.summary.name
+            )),
+            Err(e) => Err(anyhow!("device poll failed: {e}")),
+        }
     }
 
     /// Runs `f` inside a validation error scope and turns a captured error into `Err`.

@@ -13,12 +13,17 @@ pub fn read_buffer_bytes(gpu: &Gpu, buffer: &wgpu::Buffer, size: u64) -> Result<
     });
     let mut enc = gpu.device.create_command_encoder(&Default::default());
     enc.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
-    gpu.queue.submit([enc.finish()]);
+    // Not relabelled: if the wait times out, what is stuck is the work queued before the copy.
+    let submission = gpu.queue.submit([enc.finish()]);
     let (tx, rx) = std::sync::mpsc::channel();
     staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
         let _ = tx.send(r);
     });
-    gpu.wait()?;
+    let what = format!(
+        "{} (a readback copy queued behind it)",
+        gpu.last_submitted()
+    );
+    gpu.wait_for(Some(submission), Some(&what))?;
     rx.recv()
         .map_err(|_| anyhow!("readback callback dropped"))?
         .map_err(|e| anyhow!("readback map failed: {e}"))?;
@@ -48,6 +53,8 @@ pub struct StagingRead {
     buffer: wgpu::Buffer,
     state: std::sync::Arc<std::sync::Mutex<MapState>>,
     submission: Option<wgpu::SubmissionIndex>,
+    /// What that submission ran (named when the wait times out).
+    what: String,
 }
 
 #[derive(Debug)]
@@ -68,6 +75,7 @@ impl StagingRead {
             }),
             state: std::sync::Arc::new(std::sync::Mutex::new(MapState::Idle)),
             submission: None,
+            what: String::new(),
         }
     }
 
@@ -82,6 +90,12 @@ impl StagingRead {
 
     /// Asks for the mapping once `submission` (which copied into the buffer) has run.
     pub fn start(&mut self, submission: wgpu::SubmissionIndex) {
+        self.start_named(submission, String::new());
+    }
+
+    /// `start`, naming what the submission runs for a wait that times out.
+    pub fn start_named(&mut self, submission: wgpu::SubmissionIndex, what: String) {
+        self.what = what;
         *self.state.lock().expect("map state") = MapState::Pending;
         let state = self.state.clone();
         self.buffer
@@ -98,17 +112,14 @@ impl StagingRead {
         if self.is_idle() {
             return Ok(None);
         }
-        let poll = if wait {
-            wgpu::PollType::Wait {
-                submission_index: self.submission.clone(),
-                timeout: None,
-            }
+        if wait {
+            let what = (!self.what.is_empty()).then_some(self.what.as_str());
+            gpu.wait_for(self.submission.clone(), what)?;
         } else {
-            wgpu::PollType::Poll
-        };
-        gpu.device
-            .poll(poll)
-            .map_err(|e| anyhow!("device poll failed: {e}"))?;
+            gpu.device
+                .poll(wgpu::PollType::Poll)
+                .map_err(|e| anyhow!("device poll failed: {e}"))?;
+        }
         let take = |state: &std::sync::Mutex<MapState>| {
             let mut s = state.lock().expect("map state");
             match std::mem::replace(&mut *s, MapState::Pending) {

@@ -41,7 +41,7 @@ pub enum ShaderSource {
 pub struct ShaderVariant {
     /// `ALPHA_TEST`: BVH traversal runs the any-hit alpha test of alpha-tested triangles.
     /// Off for opaque scenes: on lavapipe the test alone made traversal ~3x slower even where
-    /// no triangle was tagged (README, Known issues).
+    /// no triangle was tagged (docs/known-issues.md).
     pub alpha_test: bool,
     /// `INSTANCES`: BVH traversal enters instances' bottom-level trees (a two-level BVH,
     /// src/scene/instancing.rs); off for a flat tree.

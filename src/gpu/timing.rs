@@ -3,6 +3,52 @@
 use super::Gpu;
 use anyhow::Result;
 
+/// Where a measured time comes from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum TimingSource {
+    /// Timestamp queries around each pass.
+    #[default]
+    Timestamps,
+    /// No timestamp queries on this adapter: wall time of submit-to-idle.
+    Wall,
+    /// Timestamps came out implausibly short against the waited wall time (lavapipe: beside
+    /// egui's graphics work, and end stamps that are not after their begin, which read as 0):
+    /// wall time, no per-pass split.
+    WallTimestampsImplausible,
+}
+
+/// Timestamps that add up to less than this share of the wall time are not believed.
+pub const IMPLAUSIBLE_SHARE: f64 = 0.1;
+/// ... once the wall time is at least this long: below it, submission and polling latency
+/// (a viewer polls once per displayed frame) can dwarf short GPU work honestly.
+pub const IMPLAUSIBLE_MIN_WALL_MS: f64 = 20.0;
+
+impl TimingSource {
+    /// The one plausibility check for every timed piece of GPU work (engine frames, the clock
+    /// calibration kernel): `stamped_ms` is the sum of the timestamped passes (None without
+    /// timestamp queries), `wall_ms` the wall time from when the GPU could start the work to
+    /// when its completion was seen. The wall clock cannot be ten times the GPU work it waited
+    /// for, so timestamps that say so are wrong.
+    pub fn judge(stamped_ms: Option<f64>, wall_ms: f64) -> TimingSource {
+        match stamped_ms {
+            None => TimingSource::Wall,
+            Some(s) if wall_ms >= IMPLAUSIBLE_MIN_WALL_MS && s < IMPLAUSIBLE_SHARE * wall_ms => {
+                TimingSource::WallTimestampsImplausible
+            }
+            Some(_) => TimingSource::Timestamps,
+        }
+    }
+
+    /// Words for reports, e.g. in the clock check.
+    pub fn describe(self) -> &'static str {
+        match self {
+            TimingSource::Timestamps => "timestamps",
+            TimingSource::Wall => "no timestamps: using wall time",
+            TimingSource::WallTimestampsImplausible => "timestamps implausible: using wall time",
+        }
+    }
+}
+
 /// Timed passes per frame (the surfel technique records about 20).
 pub const MAX_PASSES: u32 = 64;
 

@@ -227,7 +227,7 @@ impl Denoiser {
         ] {
             enc.clear_buffer(b, 0, None);
         }
-        gpu.queue.submit([enc.finish()]);
+        gpu.submit("denoiser history clear", enc.finish());
     }
 
     /// The technique's accumulation restarted (the engine cleared its output): forget the

@@ -6,6 +6,8 @@ use super::{
     RenderContext, Technique, COUNTER_SLOTS,
 };
 use crate::compare::Image;
+/// Re-exported: frames and the clock check share one plausibility check (`TimingSource::judge`).
+pub use crate::gpu::timing::TimingSource;
 use crate::gpu::{readback, shaders::ShaderLibrary, timing::PassTimer, Gpu};
 use crate::scene::{gpu_scene::GpuScene, Camera, Scene};
 use anyhow::{Context, Result};
@@ -65,19 +67,6 @@ struct InFlight {
     frame_index: u32,
     submitted: Instant,
     names: Vec<&'static str>,
-}
-
-/// Where a frame's time comes from.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
-pub enum TimingSource {
-    /// Timestamp queries around each pass.
-    #[default]
-    Timestamps,
-    /// No timestamp queries on this adapter: wall time of submit-to-idle.
-    Wall,
-    /// Timestamps came out implausibly short against the waited wall time (seen on lavapipe
-    /// when egui's graphics work runs between frames): wall time, no per-pass split.
-    WallTimestampsImplausible,
 }
 
 pub struct Engine {
@@ -397,7 +386,7 @@ impl Engine {
         if let Some(d) = &self.denoiser {
             d.restart_accumulation(&mut enc);
         }
-        self.gpu.queue.submit([enc.finish()]);
+        self.gpu.submit("accumulation restart", enc.finish());
     }
 
     pub fn set_camera(&mut self, camera: Camera) {
@@ -622,8 +611,14 @@ impl Engine {
         if let Some(dst) = output_copy {
             enc.copy_buffer_to_buffer(&self.accum_mean, 0, dst, 0, self.accum_mean.size());
         }
-        let submission = self.gpu.queue.submit([enc.finish()]);
-        self.slots[slot].start(submission);
+        let what = format!(
+            "frame {} of {} (passes: {})",
+            self.frame_index,
+            self.technique.id(),
+            self.timer.names().join(", ")
+        );
+        let submission = self.gpu.submit(&what, enc.finish());
+        self.slots[slot].start_named(submission, what);
         self.in_flight.push_back(InFlight {
             slot,
             frame_index: self.frame_index,
@@ -685,14 +680,11 @@ impl Engine {
         );
         let passes = PassTimer::ms_from_ticks(&self.gpu, &f.names, &ticks);
         let stamped: f64 = passes.iter().map(|p| p.1).sum();
-        let (gpu_ms, timing, passes) = if passes.is_empty() {
-            (wall_ms, TimingSource::Wall, Vec::new())
-        } else if wall_ms > 20.0 && stamped < 0.1 * wall_ms {
-            // Wall time counts from when the GPU could start this frame, so its GPU work
-            // cannot be a tenth of it (lavapipe's timestamps beside egui's work are).
-            (wall_ms, TimingSource::WallTimestampsImplausible, Vec::new())
-        } else {
-            (stamped, TimingSource::Timestamps, passes)
+        // Wall time counts from when the GPU could start this frame (see `TimingSource::judge`).
+        let timing = TimingSource::judge((!passes.is_empty()).then_some(stamped), wall_ms);
+        let (gpu_ms, passes) = match timing {
+            TimingSource::Timestamps => (stamped, passes),
+            TimingSource::Wall | TimingSource::WallTimestampsImplausible => (wall_ms, Vec::new()),
         };
         self.total_gpu_ms += gpu_ms;
         self.total_wall_ms += wall_ms;
@@ -735,7 +727,7 @@ impl Engine {
         let mut timer = PassTimer::new(&self.gpu);
         let gbuffer = self.gbuffer.as_ref().expect("created above");
         gbuffer.render(&self.gpu_scene, &mut enc, &mut timer);
-        self.gpu.queue.submit([enc.finish()]);
+        self.gpu.submit("G-buffer", enc.finish());
         self.gpu.wait()?;
         self.gpu.check_errors()?;
         Ok(gbuffer)

@@ -210,7 +210,7 @@ impl GBuffer {
                 depth_or_array_layers: 1,
             },
         );
-        gpu.queue.submit([enc.finish()]);
+        gpu.submit("G-buffer read", enc.finish());
         let bytes = crate::gpu::readback::read_buffer_bytes(gpu, &buf, (row * h) as u64)?;
         let mut out = Vec::with_capacity((w * h) as usize);
         for y in 0..h {

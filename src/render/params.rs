@@ -1,6 +1,6 @@
 //! Declarative technique parameters: one table per technique of {name, what it does, what
 //! higher and lower values do, range or choices, default}. Validation, preset round-trips, the
-//! viewer's widgets and the README's parameter tables all come from that one table, so they
+//! viewer's widgets and the parameter tables of docs/parameters.md all come from that one table, so they
 //! cannot disagree.
 
 use anyhow::{bail, Result};
@@ -172,7 +172,7 @@ impl Params {
     }
 }
 
-/// The README's parameter table of one technique (Markdown), generated from its specs.
+/// The parameter table of one technique (docs/parameters.md) (Markdown), generated from its specs.
 pub fn markdown_table(specs: &[ParamSpec]) -> String {
     let mut out = String::from(
         "| parameter | what it does | higher | lower | range | default |\n| --- | --- | --- | --- | --- | --- |\n",

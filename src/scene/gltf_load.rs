@@ -24,7 +24,7 @@
 //! Samplers: wrap modes (repeat, clamp to edge, mirrored repeat) per axis and magFilter
 //! (nearest or bilinear); minFilter is not read (ray cones pick the mip level).
 //!
-//! Not read (left out on purpose, listed in the README): UV sets past 1 (a texture using one is dropped with a warning), KHR_materials_specular's
+//! Not read (left out on purpose, listed in docs/scenes.md): UV sets past 1 (a texture using one is dropped with a warning), KHR_materials_specular's
 //! colour and textures, the other material extensions (transmission, clearcoat, sheen, ...),
 //! skins, morph targets, animations, cameras after the first, orthographic cameras.
 //! Lenient where a part is optional: an unreadable image, an invalid texture transform or
@@ -32,6 +32,7 @@
 //! warning naming it; an extension the file requires but this loader does not read is refused.
 //! A file with no light at all gets a default sky.
 
+use super::gltf_validate::{self, Usage};
 use super::{
     tangents, AlphaMode, Camera, Material, MeshInstance, PunctualKind, PunctualLight, Sampler,
     Scene, Texture, TextureRef, UvTransform, Wrap,
@@ -65,8 +66,9 @@ pub const SUPPORTED_EXTENSIONS: [&str; 6] = [
 
 /// Parses and validates the file. The gltf crate refuses every required extension it does not
 /// know itself (EXT_mesh_gpu_instancing and KHR_materials_specular among them), so required
-/// extensions are checked here against [`SUPPORTED_EXTENSIONS`] before its validation.
-fn open(path: &Path) -> Result<(gltf::Document, Option<Vec<u8>>)> {
+/// extensions are checked here against [`SUPPORTED_EXTENSIONS`] before its validation, which
+/// refuses only invalid objects the scene uses ([`gltf_validate`]).
+fn open(path: &Path) -> Result<(gltf::Document, Option<Vec<u8>>, Usage)> {
     let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
     let gltf::Gltf { document, blob } =
         gltf::Gltf::from_slice_without_validation(&bytes).map_err(|e| anyhow!("{e}"))?;
@@ -85,12 +87,12 @@ fn open(path: &Path) -> Result<(gltf::Document, Option<Vec<u8>>)> {
         }
     }
     root.extensions_required.clear();
-    let doc = gltf::Document::from_json(root).map_err(|e| anyhow!("{e}"))?;
-    Ok((doc, blob))
+    let (doc, usage) = gltf_validate::validate(root, &path.display().to_string())?;
+    Ok((doc, blob, usage))
 }
 
 fn load_inner(path: &Path, environment: bool) -> Result<Scene> {
-    let (doc, blob) = open(path)?;
+    let (doc, blob, usage) = open(path)?;
     let base = path.parent();
     let buffers = gltf::import_buffers(&doc, base, blob).map_err(|e| anyhow!("{e}"))?;
     let mut scene = Scene::new(
@@ -103,8 +105,13 @@ fn load_inner(path: &Path, environment: bool) -> Result<Scene> {
 
     // Lenient: an image that cannot be read is skipped (its textures fall back to the factors)
     // with a warning naming it, instead of refusing the whole scene.
+    // Images no used material reads are not decoded.
     let mut texture_of_image = Vec::new();
     for image in doc.images() {
+        if !usage.uses("images", image.index()) {
+            texture_of_image.push(None);
+            continue;
+        }
         let loaded = gltf::image::Data::from_source(image.source(), base, &buffers)
             .map_err(|e| anyhow!("{e}"))
             .and_then(|img| to_rgba8(&img));
@@ -130,6 +137,31 @@ fn load_inner(path: &Path, environment: bool) -> Result<Scene> {
         }
     }
     for m in doc.materials() {
+        let i = m.index().expect("a material of the document has an index");
+        // Only a valid material's texture indices may be followed.
+        let reads_dropped = || {
+            let pbr = m.pbr_metallic_roughness();
+            [
+                pbr.base_color_texture().map(|t| t.texture().index()),
+                pbr.metallic_roughness_texture()
+                    .map(|t| t.texture().index()),
+                m.normal_texture().map(|t| t.texture().index()),
+                m.occlusion_texture().map(|t| t.texture().index()),
+                m.emissive_texture().map(|t| t.texture().index()),
+            ]
+            .into_iter()
+            .flatten()
+            .any(|t| usage.dropped("textures", t))
+        };
+        if usage.dropped("materials", i) || reads_dropped() {
+            // Unused (validation refused the file otherwise): a placeholder keeps the indices.
+            let name = m.name().unwrap_or("unnamed");
+            log::warn!(
+                "{file}: material {i} ('{name}') is unused and invalid or reads an invalid texture: read as plain white"
+            );
+            scene.materials.push(Material::lambert(name, Vec3::ONE));
+            continue;
+        }
         scene
             .materials
             .push(read_material(&m, &texture_of_image, &file)?);
@@ -150,7 +182,7 @@ fn load_inner(path: &Path, environment: bool) -> Result<Scene> {
         .ok_or_else(|| anyhow!("file has no scene"))?;
     // Meshes drawn more than once (several nodes, or instancing) are read once and kept.
     let mut uses = vec![0usize; doc.meshes().len()];
-    for node in doc.nodes() {
+    for node in doc.nodes().filter(|n| !usage.dropped("nodes", n.index())) {
         if let Some(mesh) = node.mesh() {
             uses[mesh.index()] += 1 + node.extension_value(INSTANCING).is_some() as usize;
         }

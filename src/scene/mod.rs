@@ -7,6 +7,7 @@ pub mod bvh;
 pub mod environment;
 pub mod features;
 pub mod gltf_load;
+pub mod gltf_validate;
 pub mod gpu_scene;
 pub mod instancing;
 pub mod shading;
@@ -18,7 +19,7 @@ use serde::{Deserialize, Serialize};
 
 /// glTF alpha modes. `Blend` is traced as `Mask` with the material's cutoff (0.5 unless the
 /// file says otherwise): a path tracer has no draw order to blend in, and stochastic
-/// transparency would add noise to every technique alike (stated in the README).
+/// transparency would add noise to every technique alike (stated in docs/scenes.md).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum AlphaMode {
     #[default]

@@ -59,7 +59,7 @@ pub fn create_technique(name: &str) -> Result<Box<dyn Technique>> {
     }
 }
 
-/// Every technique's parameter table in Markdown (`gilab params`; the README's section).
+/// Every technique's parameter table in Markdown (`gilab params`; docs/parameters.md).
 pub fn params_markdown() -> String {
     let mut out = String::new();
     for t in REGISTRY {

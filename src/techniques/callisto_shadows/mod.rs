@@ -341,7 +341,7 @@ impl Technique for CallistoShadows {
         for b in &r.clear_on_reset {
             enc.clear_buffer(b, 0, None);
         }
-        gpu.queue.submit([enc.finish()]);
+        gpu.submit("callisto-shadows: history reset", enc.finish());
     }
 
     /// Tile lists, rates and the shadow mask carry over, as they would in a game.

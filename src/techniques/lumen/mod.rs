@@ -628,7 +628,7 @@ impl Lumen {
         let empty_table = vec![u32::MAX; (res.buffer(4).size() / 4) as usize];
         gpu.queue
             .write_buffer(res.buffer(4), 0, bytemuck::cast_slice(&empty_table));
-        gpu.queue.submit([enc.finish()]);
+        gpu.submit("lumen: distance field brick pool reset", enc.finish());
         self.direct_tiles = nd;
         self.probe_tiles = np;
         self.direct_cursor = 0;
@@ -768,7 +768,7 @@ impl Lumen {
             pass.set_bind_group(2, &r.bind_group, &[]);
             pass.dispatch_workgroups((inputs.len() as u32).div_ceil(64), 1, 1);
         }
-        gpu.queue.submit([enc.finish()]);
+        gpu.submit("lumen: distance-field point queries", enc.finish());
         gpu.queue
             .write_buffer(&r.params_buffer, 0, bytemuck::bytes_of(&r.gpu_params));
         let out: Vec<[f32; 4]> = readback::read_buffer(gpu, queries, inputs.len() * 2)?;
@@ -1306,7 +1306,7 @@ impl Technique for Lumen {
         for b in [12usize, 13, 14, 16, 17] {
             enc.clear_buffer(r.buffer(b), 0, None);
         }
-        gpu.queue.submit([enc.finish()]);
+        gpu.submit("lumen: history reset", enc.finish());
     }
 
     /// The cache and the distance field carry over, as in a game: the cache catches up through

@@ -103,7 +103,7 @@ pub const PARAMS: &[ParamSpec] = &[
         name: "world_cache",
         what: "the world radiance cache: clipmaps of 16x16-cell probes around the camera; probe rays stop at world_cache_distance and a miss reads it",
         higher: "on: distant and small bright sources seen by 256 directions per probe, cheaper probe rays",
-        lower: "off (default until its energy loss is found: README, Known gaps): probe rays go the whole way",
+        lower: "off (default until its energy loss is found: docs/known-issues.md): probe rays go the whole way",
         kind: ParamKind::Bool,
         default: 0.0,
     },

@@ -298,12 +298,12 @@ impl ScreenProbes {
         enc.clear_buffer(&self.state, 0, None);
         enc.clear_buffer(&self.buffers[0], 0, None);
         enc.clear_buffer(&self.buffers[1], 0, None);
-        gpu.queue.submit([enc.finish()]);
+        gpu.submit("lumen: screen probe reset", enc.finish());
         // World probes: no texel traced, headers "never traced" (w = -1).
         let slots = self.sizes.world_slots as u64;
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         enc.clear_buffer(&self.buffers[2], 0, Some(slots * WORLD_CELLS * 16));
-        gpu.queue.submit([enc.finish()]);
+        gpu.submit("lumen: screen probe reset", enc.finish());
         let headers = vec![[0.0f32, 0.0, 0.0, -1.0]; slots as usize];
         gpu.queue.write_buffer(
             &self.buffers[2],

@@ -190,7 +190,7 @@ impl RestirLighting {
     pub fn reset(&self, gpu: &Gpu) {
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         self.di.reset(&mut enc);
-        gpu.queue.submit([enc.finish()]);
+        gpu.submit("restir: reservoir reset", enc.finish());
     }
 
     fn gpu_params(&self, pixels: u32) -> RestirParamsGpu {

@@ -597,7 +597,7 @@ impl Technique for Surfels {
         for b in &r.clear_on_reset {
             enc.clear_buffer(b, 0, None);
         }
-        gpu.queue.submit([enc.finish()]);
+        gpu.submit("surfels: history reset", enc.finish());
         // Every slot free, popped from the top: slot 0 first.
         let max = r.gpu_params.max_surfels;
         let stack: Vec<u32> = (0..max).rev().collect();
