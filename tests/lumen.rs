@@ -360,11 +360,18 @@ fn scrolled_sdf_equals_a_fresh_build() {
 #[test]
 fn cache_direct_light_matches_reference() {
     let size = [64, 64];
-    let mut truth = render_reference(builtin::cornell(), size, 256, 16, 3, 1);
-    truth.engine.flags = gilab::render::FLAG_NO_PRIMARY_EMISSION;
-    truth.engine.reset();
-    frames(&mut truth.engine, 16);
-    let reference = truth.engine.read_output().unwrap();
+    let mut truth = engine(
+        "reference",
+        toml::toml! { samples_per_frame = 16
+        max_depth = 1 },
+        builtin::cornell(),
+        size,
+        3,
+    );
+    truth.flags = gilab::render::FLAG_NO_PRIMARY_EMISSION;
+    truth.reset();
+    frames(&mut truth, 16);
+    let reference = truth.read_output().unwrap();
     let px = (size[0] * size[1]) as usize;
     let mut results = Vec::new();
     for mode in ["bvh", "sdf"] {
@@ -534,7 +541,7 @@ fn kind(rays: &gilab::render::RayCounts, name: &str) -> u64 {
         .map_or(0, |(_, c)| *c)
 }
 
-/// Cornell box at 128² against a 2,048-spp reference.
+/// Cornell box at 128² against a 1,024-spp reference.
 ///
 /// Part 1's per-pixel gather at default budgets in both tracing modes: energy within 10%. The
 /// bias comes from the cache (diffuse only, texel resolution, probe interpolation, 4-frame
@@ -546,7 +553,9 @@ fn kind(rays: &gilab::render::RayCounts, name: &str) -> u64 {
 /// on the mean; screen traces take rays off the world trace and leave the energy within 2%.
 #[test]
 fn cornell_against_reference_both_gathers() {
-    let truth = render_reference(builtin::cornell(), [128, 128], 2048, 64, 11, 0).image;
+    // 1,024 spp (2,048 before 2026-11-25, for CI time): the checks are image means and
+    // single-frame errors, far above the reference's own noise either way.
+    let truth = render_reference(builtin::cornell(), [128, 128], 1024, 64, 11, 0).image;
     let report = |label: &str, img: &Image, rays: &gilab::render::RayCounts| {
         let m = metrics::compare(img, &truth).unwrap();
         let ratio = energy(img) / energy(&truth);
@@ -626,10 +635,7 @@ fn cornell_against_reference_both_gathers() {
         agree.abs() < 0.015,
         "product and uniform sampling disagree by {agree:+.4}"
     );
-    let (img, rays) = cornell_run(converged(
-        toml::toml! { tracing = "bvh" world_cache = true },
-    ));
-    report("screen probes (bvh), world cache", &img, &rays);
+    // The world cache's energy is checked on the furnace (furnace_converges_in_both_modes).
     let (img, rays) = cornell_run(converged(
         toml::toml! { tracing = "bvh" screen_traces = false },
     ));

@@ -1354,6 +1354,7 @@ fn loader_refuses_unknown_required_extensions_and_skips_missing_images() {
 #[test]
 fn loader_drops_invalid_unused_textures_and_refuses_used_ones() {
     capture_logs();
+    let folder = dir("unused-invalid");
     let mut b = GltfBuilder::new();
     let t = b.texture_rgba8(2, 2, &solid_rgba8(2, 2, [200, 120, 40, 255]));
     let m = b.material(&MaterialDesc {
@@ -1364,8 +1365,8 @@ fn loader_drops_invalid_unused_textures_and_refuses_used_ones() {
     b.node(mesh, Place::IDENTITY);
     b.point_light(Vec3::Y, [1.0; 3], 1.0);
     b.camera(Vec3::new(0.0, 2.0, 0.0), Vec3::ZERO, Vec3::NEG_Z, 60.0);
-    let clean = b.write(&dir("unused-invalid"), "clean");
-    let broken = b.write_with(&dir("unused-invalid"), "broken", |j| {
+    let clean = b.write(&folder, "clean");
+    let broken = b.write_with(&folder, "broken", |j| {
         let bad = serde_json::json!({"name": "stray", "source": 7});
         j["textures"].as_array_mut().unwrap().push(bad);
     });
@@ -1387,7 +1388,7 @@ fn loader_drops_invalid_unused_textures_and_refuses_used_ones() {
     let mesh = b.mesh(&MeshData::quad_xz(1.0, 0.0, Vec2::new), Some(m));
     b.node(mesh, Place::IDENTITY);
     b.point_light(Vec3::Y, [1.0; 3], 1.0);
-    let no_images = b.write_with(&dir("unused-invalid"), "no-images", |j| {
+    let no_images = b.write_with(&folder, "no-images", |j| {
         j["textures"] = serde_json::json!([{"source": 0}]);
     });
     let s = gltf_load::load(&no_images).unwrap();
@@ -1396,7 +1397,7 @@ fn loader_drops_invalid_unused_textures_and_refuses_used_ones() {
     assert!(w.iter().any(|w| w.contains("textures[0]")), "{w:#?}");
 
     // The same fault in a texture the material reads refuses the file and names it.
-    let used = b.write_with(&dir("unused-invalid"), "used", |j| {
+    let used = b.write_with(&folder, "used", |j| {
         j["textures"] = serde_json::json!([{"name": "needed", "source": 3}]);
         j["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] =
             serde_json::json!({"index": 0});

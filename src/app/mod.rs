@@ -38,6 +38,9 @@ pub struct ViewerOptions {
     pub cache_dir: PathBuf,
     /// Watch shaders, presets and the scene file for changes.
     pub watch: bool,
+    /// Take a screenshot of the whole window this many seconds after start, write it to the
+    /// path and close (`gilab view --window-shot-after S --window-shot PATH`).
+    pub window_shot: Option<(f64, PathBuf)>,
     /// Used only when eframe gives no wgpu device (never with the wgpu renderer).
     pub backend: BackendChoice,
 }
@@ -51,6 +54,7 @@ impl ViewerOptions {
             out_dir: PathBuf::from("out/viewer"),
             cache_dir: PathBuf::from("cache/reference"),
             watch: true,
+            window_shot: None,
             backend: BackendChoice::Auto,
         }
     }
@@ -78,6 +82,12 @@ pub struct ViewerApp {
     /// Set by tests that step rendering themselves.
     pub render_in_ui: bool,
     pub last_screenshot: Option<PathBuf>,
+    /// A whole-window screenshot asked for (F11, the button or `window_shot`): its pixels
+    /// arrive through this channel a frame later, and go to this path.
+    window_shot_pending: Option<(std::sync::mpsc::Receiver<Arc<egui::ColorImage>>, PathBuf)>,
+    /// `ViewerOptions::window_shot`, and when the viewer started.
+    auto_window_shot: Option<(f64, PathBuf)>,
+    started: std::time::Instant,
     /// UI frame times (ms) of the last frames, for the status line.
     pub ui_frame_ms: f64,
     /// egui's wgpu renderer, to draw the panes' GPU textures (None: CPU upload path).
@@ -155,6 +165,9 @@ impl ViewerApp {
             outside_ms: 0.0,
             render_in_ui: true,
             last_screenshot: None,
+            window_shot_pending: None,
+            auto_window_shot: options.window_shot,
+            started: std::time::Instant::now(),
             ui_frame_ms: 0.0,
             egui_renderer: None,
             brdf_window: Default::default(),
@@ -209,6 +222,67 @@ impl ViewerApp {
     }
 }
 
+impl ViewerApp {
+    /// Asks egui for a screenshot of the whole window (panels, panes, plots), written to `path`
+    /// (default: `out/viewer/window-<time>.png`) when its pixels arrive.
+    pub fn request_window_shot(&mut self, ctx: &egui::Context, path: Option<PathBuf>) {
+        let path = path.unwrap_or_else(|| {
+            let stamp = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map(|d| d.as_millis())
+                .unwrap_or(0);
+            self.out_dir.join(format!("window-{stamp}.png"))
+        });
+        let (tx, rx) = std::sync::mpsc::channel();
+        ctx.request_screenshot(move |image| {
+            let _ = tx.send(image);
+        });
+        self.window_shot_pending = Some((rx, path));
+    }
+
+    /// Writes a window screenshot whose pixels have arrived; closes the window after an
+    /// automatic one.
+    fn poll_window_shot(&mut self, ctx: &egui::Context) {
+        let auto_due = self
+            .auto_window_shot
+            .as_ref()
+            .is_some_and(|(after, _)| self.started.elapsed().as_secs_f64() >= *after);
+        if auto_due && self.window_shot_pending.is_none() {
+            let path = self.auto_window_shot.as_ref().map(|a| a.1.clone());
+            self.request_window_shot(ctx, path);
+        }
+        let Some((rx, path)) = &self.window_shot_pending else {
+            return;
+        };
+        ctx.request_repaint();
+        let Ok(image) = rx.try_recv() else {
+            return;
+        };
+        let result = screenshot::save_window(&image, path);
+        let path = path.clone();
+        self.window_shot_pending = None;
+        let s = self.session.as_mut();
+        match result {
+            Ok(()) => {
+                if let Some(s) = s {
+                    s.note(format!("window screenshot saved to {}", path.display()));
+                    s.errors.remove("screenshot");
+                }
+                self.last_screenshot = Some(path);
+            }
+            Err(e) => {
+                log::error!("{e:#}");
+                if let Some(s) = s {
+                    s.errors.insert("screenshot".into(), format!("{e:#}"));
+                }
+            }
+        }
+        if auto_due {
+            ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+        }
+    }
+}
+
 impl eframe::App for ViewerApp {
     fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
         self.show(ui);
@@ -241,6 +315,10 @@ impl ViewerApp {
         if ui.input(|i| i.key_pressed(egui::Key::F12)) {
             self.save_screenshot();
         }
+        if ui.input(|i| i.key_pressed(egui::Key::F11)) {
+            self.request_window_shot(ui.ctx(), None);
+        }
+        self.poll_window_shot(ui.ctx());
         panels::side_panel(self, ui);
         panels::bottom_panel(self, ui);
         views::central_panel(self, ui);

@@ -376,6 +376,9 @@ fn side_contents(app: &mut ViewerApp, ui: &mut egui::Ui) {
     if ui.button("Save A/B screenshot (F12)").clicked() {
         app.save_screenshot();
     }
+    if ui.button("Save window screenshot (F11)").clicked() {
+        app.request_window_shot(ui.ctx(), None);
+    }
     if let Some(d) = &app.last_screenshot {
         ui.small(format!("last: {}", d.display()));
     }

@@ -8,6 +8,21 @@ use crate::jobs;
 use anyhow::{Context, Result};
 use std::path::{Path, PathBuf};
 
+/// Writes a whole-window screenshot (egui's pixels, sRGB) as PNG.
+pub fn save_window(image: &egui::ColorImage, path: &Path) -> Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let [w, h] = image.size;
+    let rgba = image::RgbaImage::from_raw(w as u32, h as u32, image.as_raw().to_vec())
+        .context("window screenshot: pixel count does not match its size")?;
+    // The window is opaque: drop alpha so viewers do not show egui's premultiplied edges.
+    image::DynamicImage::ImageRgba8(rgba)
+        .to_rgb8()
+        .save(path)
+        .with_context(|| format!("writing {}", path.display()))
+}
+
 /// Writes the files into a new folder under `out_dir` and returns it.
 pub fn save_ab(session: &Session, out_dir: &Path) -> Result<PathBuf> {
     let stamp = std::time::SystemTime::now()

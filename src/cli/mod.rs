@@ -36,6 +36,12 @@ pub enum Command {
         /// Do not watch shaders/ and presets/ for changes.
         #[arg(long)]
         no_watch: bool,
+        /// Save a screenshot of the whole window this many seconds after start, then close.
+        #[arg(long, value_name = "SECONDS")]
+        window_shot_after: Option<f64>,
+        /// Where that screenshot goes (default: out/viewer/window.png).
+        #[arg(long, value_name = "PNG", requires = "window_shot_after")]
+        window_shot: Option<PathBuf>,
         #[command(flatten)]
         overrides: Overrides,
     },
@@ -135,6 +141,7 @@ fn preset_and_gpu(
 fn view(
     preset: Option<PathBuf>,
     no_watch: bool,
+    window_shot: Option<(f64, PathBuf)>,
     overrides: &Overrides,
     backend: BackendChoice,
 ) -> Result<()> {
@@ -145,18 +152,27 @@ fn view(
     p.apply(overrides)?;
     let mut options = crate::app::ViewerOptions::new(p);
     options.watch = !no_watch;
+    options.window_shot = window_shot;
     options.backend = backend;
     crate::app::run(options)
 }
 
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        None => view(None, false, &Overrides::default(), cli.backend),
+        None => view(None, false, None, &Overrides::default(), cli.backend),
         Some(Command::View {
             preset,
             no_watch,
+            window_shot_after,
+            window_shot,
             overrides,
-        }) => view(preset, no_watch, &overrides, cli.backend),
+        }) => {
+            let shot = window_shot_after.map(|s| {
+                let path = window_shot.unwrap_or_else(|| PathBuf::from("out/viewer/window.png"));
+                (s, path)
+            });
+            view(preset, no_watch, shot, &overrides, cli.backend)
+        }
         Some(Command::Shot {
             preset,
             out,
