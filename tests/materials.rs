@@ -1300,6 +1300,17 @@ fn loader_reads_mesh_instancing_as_instances() {
     );
 }
 
+/// A 2 m quad on y = 0 whose material reads `texture` as base colour, under a point light.
+fn lit_textured_quad(b: &mut GltfBuilder, texture: usize) {
+    let m = b.material(&MaterialDesc {
+        base_color_texture: Some(tex(texture)),
+        ..lambert("m", 0.5)
+    });
+    let mesh = b.mesh(&MeshData::quad_xz(1.0, 0.0, Vec2::new), Some(m));
+    b.node(mesh, Place::IDENTITY);
+    b.point_light(Vec3::Y, [1.0; 3], 1.0);
+}
+
 /// An unknown required extension refuses the file naming it; an unknown used one and a
 /// missing image are skipped with warnings naming them.
 #[test]
@@ -1308,13 +1319,7 @@ fn loader_refuses_unknown_required_extensions_and_skips_missing_images() {
     let build = || {
         let mut b = GltfBuilder::new();
         let t = b.texture_missing("no-such-image.png");
-        let m = b.material(&MaterialDesc {
-            base_color_texture: Some(tex(t)),
-            ..lambert("m", 0.5)
-        });
-        let mesh = b.mesh(&MeshData::quad_xz(1.0, 0.0, Vec2::new), Some(m));
-        b.node(mesh, Place::IDENTITY);
-        b.point_light(Vec3::Y, [1.0; 3], 1.0);
+        lit_textured_quad(&mut b, t);
         b
     };
     let mut b = build();
@@ -1357,13 +1362,7 @@ fn loader_drops_invalid_unused_textures_and_refuses_used_ones() {
     let folder = dir("unused-invalid");
     let mut b = GltfBuilder::new();
     let t = b.texture_rgba8(2, 2, &solid_rgba8(2, 2, [200, 120, 40, 255]));
-    let m = b.material(&MaterialDesc {
-        base_color_texture: Some(tex(t)),
-        ..lambert("m", 0.5)
-    });
-    let mesh = b.mesh(&MeshData::quad_xz(1.0, 0.0, Vec2::new), Some(m));
-    b.node(mesh, Place::IDENTITY);
-    b.point_light(Vec3::Y, [1.0; 3], 1.0);
+    lit_textured_quad(&mut b, t);
     b.camera(Vec3::new(0.0, 2.0, 0.0), Vec3::ZERO, Vec3::NEG_Z, 60.0);
     let clean = b.write(&folder, "clean");
     let broken = b.write_with(&folder, "broken", |j| {
