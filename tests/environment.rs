@@ -67,7 +67,7 @@ fn lum(c: Vec3) -> f64 {
     (0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z) as f64
 }
 
-/// The mapping convention the README and the module state.
+/// The mapping convention docs/scenes.md and the module state.
 #[test]
 fn mapping_convention() {
     let env = Environment::new(8, 4, vec![[1.0; 3]; 32]).unwrap();

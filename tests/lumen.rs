@@ -418,7 +418,7 @@ fn cache_direct_light_matches_reference() {
 #[test]
 fn cache_lookups_at_hits_find_the_surface() {
     // Lost share allowed per (scene, mode): SDF hits on the Cornell box measured 7.0% (back faces
-    // where a probe sits in a concave corner, stops beside a grazed edge): README, Known gaps.
+    // where a probe sits in a concave corner, stops beside a grazed edge): docs/lumen.md, Known gaps.
     let cases = [
         (builtin::furnace(0.8, 1.0, 2), [0.01, 0.01]),
         (builtin::cornell(), [0.08, 0.01]),
@@ -514,7 +514,7 @@ fn furnace_converges_in_both_modes() {
     }
     // Measured: SDF 4.837 (-3.3%), BVH 4.856 (-2.9%) with the per-pixel gather: the rest of the
     // feedback's bounces. The probes' temporal filters slow the feedback further; the world
-    // radiance cache loses more (README, Known gaps). Measured: probes 4.543, with the cache 4.164.
+    // radiance cache loses more (docs/lumen.md, Known gaps). Measured: probes 4.543, with the cache 4.164.
     for ((label, _, tolerance), mean) in runs.iter().zip(&means) {
         assert!((mean / 5.0 - 1.0).abs() < *tolerance, "{label}: {mean}");
     }
