@@ -8,6 +8,7 @@ pub mod compare;
 pub mod experiment;
 pub mod gpu;
 pub mod jobs;
+pub mod parts;
 pub mod preset;
 pub mod render;
 pub mod scene;

@@ -196,8 +196,10 @@ fn converge_columns_match_compare_are_deterministic_and_shards_merge() {
 
 /// An unbiased estimator's expected error falls as 1/N. One run's log-log slope is too noisy to
 /// show it (over seeds it ranged from -0.80 to -1.11 at 32², 64 frames: relMSE follows a few
-/// bright pixels), so the slope is fitted to the relMSE averaged over 16 seeds against one
-/// reference: its expected value is 1/N up to the reference's own noise (4,096 spp here).
+/// bright pixels), so the slope is fitted to the relMSE averaged over 8 seeds against one
+/// reference: its expected value is 1/N up to the reference's own noise (4,096 spp here). (16
+/// seeds before 2026-11-26, for CI time: the mean's noise grows by √2, to about a third of the
+/// ±0.1 bound.)
 #[test]
 fn reference_error_falls_as_one_over_n() {
     let _serial = common::serial();
@@ -213,11 +215,11 @@ name = "reference"
 params = { samples_per_frame = 1 }
 [experiment]
 frames = 64
-seeds = [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16]
+seeds = [1, 2, 3, 4, 5, 6, 7, 8]
 "#;
     let p = LoadedPreset::from_text(text, None).unwrap();
     let (summary, rows) = converge(&p, &tmp("slope"), None);
-    assert_eq!(summary.runs.len(), 16);
+    assert_eq!(summary.runs.len(), 8);
     let mut by_frame = std::collections::BTreeMap::<u32, (f64, usize)>::new();
     for r in &rows {
         let e = by_frame.entry(r.frame).or_default();
@@ -236,7 +238,7 @@ seeds = [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16]
     );
     let slope = pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum::<f64>()
         / pts.iter().map(|p| (p.0 - mx).powi(2)).sum::<f64>();
-    eprintln!("slope of log mean relMSE (16 seeds) vs log frames: {slope:.3}");
+    eprintln!("slope of log mean relMSE (8 seeds) vs log frames: {slope:.3}");
     assert!((-1.1..=-0.9).contains(&slope), "slope {slope}");
 }
 

@@ -40,7 +40,9 @@ source = "cornell"
 [render]
 size = [64, 64]
 seed = 1
-reference_spp = 1024
+# 256 spp (1,024 before 2026-11-26, for CI time: each of the 8 frames has its own reference).
+# Its noise adds 16/256 to the k = 16 error, moving the slope by about 0.02.
+reference_spp = 256
 [[techniques]]
 name = "reference"
 [experiment]
@@ -71,8 +73,9 @@ values = [1, 4, 16]
             hi / lo
         );
         // Nothing is kept from frame to frame: no frame is much better than another (an
-        // accumulating run would fall 4x over these frames).
-        assert!(hi / lo < 1.5, "k = {k}: per-frame errors drift: {errors:?}");
+        // accumulating run would fall 4x over these frames; one 1-spp frame's relMSE, which a
+        // few bright pixels dominate, varied 1.6x between frames against 256-spp references).
+        assert!(hi / lo < 2.5, "k = {k}: per-frame errors drift: {errors:?}");
         points.push((k.ln(), mean.ln()));
     }
     // Least-squares slope of log(mean relMSE) against log(k).

@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{engine, luminance, render_reference};
+use common::{engine, luminance, render_reference, shared_reference};
 use gilab::compare::{metrics, Image};
 use gilab::render::engine::Engine;
 use gilab::scene::{builtin, Camera, PunctualKind, PunctualLight, Scene};
@@ -60,21 +60,25 @@ fn surfels_furnace_matches_closed_form() {
     assert_eq!(e.ray_counts().unwrap().invalid_samples, 0);
 }
 
-/// Cornell box at 128²: energy within 5% of a 2,048-spp reference after 256 frames, relMSE bounded.
+/// Cornell box at 128²: energy within 5% of a 1,024-spp reference after 128 frames, relMSE bounded.
 #[test]
 fn surfels_converge_near_reference_on_cornell() {
     let size = [128, 128];
-    let truth = render_reference(builtin::cornell(), size, 2048, 64, 11, 0).image;
+    // The Cornell truth Lumen's and ReSTIR's tests share (1,024 spp; 2,048 before 2026-11-26:
+    // its own relMSE is far under the bound either way).
+    let truth = shared_reference(builtin::cornell(), size, 1024, 11, 0, 0);
     let mut e = engine("surfels", toml::Table::new(), builtin::cornell(), size, 1);
-    frames(&mut e, 256);
+    // 128 frames (256 before 2026-11-26, for CI time): measured at 256, energy 0.986 and relMSE
+    // 9.5e-4 against bounds of 5% and 2e-2.
+    frames(&mut e, 128);
     let img = e.read_output().unwrap();
     let rays = e.ray_counts().unwrap();
     let ratio = energy(&img) / energy(&truth);
     let m = metrics::compare(&img, &truth).unwrap();
     eprintln!(
-        "surfels, cornell 128², 256 frames: energy ratio {ratio:.4}, relMSE {:.3e}, {:.2} rays/px/frame ({:?})",
+        "surfels, cornell 128², 128 frames: energy ratio {ratio:.4}, relMSE {:.3e}, {:.2} rays/px/frame ({:?})",
         m.rel_mse,
-        rays.total() as f64 / (128.0 * 128.0 * 256.0),
+        rays.total() as f64 / (128.0 * 128.0 * 128.0),
         rays.named()
     );
     assert!((ratio - 1.0).abs() < 0.05, "energy ratio {ratio}");

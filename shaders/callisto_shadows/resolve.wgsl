@@ -10,13 +10,15 @@
 // While t is small the current values are first blurred, bilaterally, over a footprint that
 // halves with every frame since the disocclusion (the seed's hierarchical blur: radius
 // `blur_radius` >> t, 5x5 taps at stride radius / 2). With `gi`, ReSTIR GI's resampled sample
-// (group 2) adds indirect light as in ReSTIR's shading pass. Then the engine's progressive average.
+// (group 2) adds indirect light as in ReSTIR's shading pass. With `direct = "restir"` the
+// direct-light part's per-pixel result replaces all of the above. Then the engine's progressive
+// average.
 #import gilab::frame::{frame, FLAG_NO_PRIMARY_EMISSION}
 #import gilab::counters::{flush_counts, no_counts, RAY_SHADOW, COUNT_INVALID_SAMPLES}
 #import gilab::accumulate::accumulate_sample
 #import gilab::primary::{current_surface, previous_surface, previous_pixel_position, GSurface}
 #import gilab::restir::{gi_reservoirs, gi_sky, reservoir_index, gi_contribution, gi_visible}
-#import gilab::callisto::{params, current, history, debug_out, parity}
+#import gilab::callisto::{params, current, history, debug_out, pixel_direct, parity}
 
 // Last frame's surface at the reprojected pixel is the same surface: normals within ~25 degrees
 // and on this surface's plane (1% of the depth). No depth-difference test: the jittered camera
@@ -76,58 +78,64 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         }
         var frames = 0.0;
         if s.pos.w > 0.5 {
-            let unshadowed = current[params.pixels + idx].xyz;
-            var direct = current[idx].xyz;
-            if params.denoise == 1u {
-                var t = 0.0;
-                var past = Pair(vec3<f32>(0.0), vec3<f32>(0.0));
-                // Last frame's history at the pixel the point reprojects to; if that pixel
-                // holds another surface (at edges the jittered camera rays move a pixel's hit
-                // between surfaces), the nearest of its 8 neighbours that holds this one. No
-                // bilinear resampling: repeated every frame it would blur the mask.
-                let f = previous_pixel_position(s.pos.xyz);
-                let centre = vec2<i32>(floor(f));
-                var best = 1e30;
-                for (var k = 0; k < 9 && frame.frame_index > 0u && f.x >= 0.0; k++) {
-                    // The centre first (k = 4 is swapped to 0).
-                    var kk = k;
-                    if k == 0 {
-                        kk = 4;
-                    } else if k == 4 {
-                        kk = 0;
-                    }
-                    let q = centre + vec2<i32>(kk % 3 - 1, kk / 3 - 1);
-                    if q.x < 0 || q.y < 0 || q.x >= i32(frame.size.x) || q.y >= i32(frame.size.y) {
-                        continue;
-                    }
-                    let d = length(vec2<f32>(q) + 0.5 - f);
-                    let pidx = u32(q.y) * frame.size.x + u32(q.x);
-                    let h = 2u * ((1u - parity()) * params.pixels + pidx);
-                    if d < best && history[h].w > 0.0 && same_surface(s, previous_surface(pidx)) {
-                        best = d;
-                        t = history[h].w;
-                        past = Pair(history[h].xyz, history[h + 1u].xyz);
+            if params.direct_restir == 1u {
+                // `direct = "restir"`: the direct-light part's result (src/parts/), its rays
+                // counted there; the tile shadows did not run.
+                l += pixel_direct[idx].xyz;
+            } else {
+                let unshadowed = current[params.pixels + idx].xyz;
+                var direct = current[idx].xyz;
+                if params.denoise == 1u {
+                    var t = 0.0;
+                    var past = Pair(vec3<f32>(0.0), vec3<f32>(0.0));
+                    // Last frame's history at the pixel the point reprojects to; if that pixel
+                    // holds another surface (at edges the jittered camera rays move a pixel's hit
+                    // between surfaces), the nearest of its 8 neighbours that holds this one. No
+                    // bilinear resampling: repeated every frame it would blur the mask.
+                    let f = previous_pixel_position(s.pos.xyz);
+                    let centre = vec2<i32>(floor(f));
+                    var best = 1e30;
+                    for (var k = 0; k < 9 && frame.frame_index > 0u && f.x >= 0.0; k++) {
+                        // The centre first (k = 4 is swapped to 0).
+                        var kk = k;
                         if k == 0 {
-                            break;
+                            kk = 4;
+                        } else if k == 4 {
+                            kk = 0;
+                        }
+                        let q = centre + vec2<i32>(kk % 3 - 1, kk / 3 - 1);
+                        if q.x < 0 || q.y < 0 || q.x >= i32(frame.size.x) || q.y >= i32(frame.size.y) {
+                            continue;
+                        }
+                        let d = length(vec2<f32>(q) + 0.5 - f);
+                        let pidx = u32(q.y) * frame.size.x + u32(q.x);
+                        let h = 2u * ((1u - parity()) * params.pixels + pidx);
+                        if d < best && history[h].w > 0.0 && same_surface(s, previous_surface(pidx)) {
+                            best = d;
+                            t = history[h].w;
+                            past = Pair(history[h].xyz, history[h + 1u].xyz);
+                            if k == 0 {
+                                break;
+                            }
                         }
                     }
+                    var now = Pair(direct, unshadowed);
+                    let radius = i32(params.blur_radius >> min(u32(t), 31u));
+                    if radius >= 1 {
+                        now = blurred(vec2<i32>(gid.xy), s, radius);
+                    }
+                    let alpha = 1.0 - 1.0 / (min(t, params.max_history - 1.0) + 1.0);
+                    let acc = Pair(mix(now.shadowed, past.shadowed, alpha), mix(now.unshadowed, past.unshadowed, alpha));
+                    frames = t + 1.0;
+                    let h = 2u * (parity() * params.pixels + idx);
+                    history[h] = vec4<f32>(acc.shadowed, frames);
+                    history[h + 1u] = vec4<f32>(acc.unshadowed, 0.0);
+                    // The mask, per channel: 1 where no light reached the history (nothing to scale).
+                    let mask = select(vec3<f32>(1.0), acc.shadowed / max(acc.unshadowed, vec3<f32>(1e-30)), acc.unshadowed > vec3<f32>(0.0));
+                    direct = min(mask, vec3<f32>(1.0)) * unshadowed;
                 }
-                var now = Pair(direct, unshadowed);
-                let radius = i32(params.blur_radius >> min(u32(t), 31u));
-                if radius >= 1 {
-                    now = blurred(vec2<i32>(gid.xy), s, radius);
-                }
-                let alpha = 1.0 - 1.0 / (min(t, params.max_history - 1.0) + 1.0);
-                let acc = Pair(mix(now.shadowed, past.shadowed, alpha), mix(now.unshadowed, past.unshadowed, alpha));
-                frames = t + 1.0;
-                let h = 2u * (parity() * params.pixels + idx);
-                history[h] = vec4<f32>(acc.shadowed, frames);
-                history[h + 1u] = vec4<f32>(acc.unshadowed, 0.0);
-                // The mask, per channel: 1 where no light reached the history (nothing to scale).
-                let mask = select(vec3<f32>(1.0), acc.shadowed / max(acc.unshadowed, vec3<f32>(1e-30)), acc.unshadowed > vec3<f32>(0.0));
-                direct = min(mask, vec3<f32>(1.0)) * unshadowed;
+                l += direct + current[2u * params.pixels + idx].xyz;
             }
-            l += direct + current[2u * params.pixels + idx].xyz;
             if params.gi == 1u {
                 // Indirect light: this frame's sky sample plus the resampled GI sample, visibility re-checked.
                 l += gi_sky[idx].xyz;

@@ -38,7 +38,7 @@ struct CallistoParams {
     pixels: u32,
     // Samples per pixel of the lights outside the tile's list, picked by power.
     tail_samples: u32,
-    pad_a: u32,
+    direct_restir: u32,
     pad_b: u32,
     pad_c: u32,
 }
@@ -72,6 +72,8 @@ const NO_SLOT: u32 = 0xffffffffu;
 // shadow mask.
 @group(3) @binding(5) var<storage, read_write> history: array<vec4<f32>>;
 @group(3) @binding(6) var<storage, read_write> debug_out: array<vec4<f32>>;
+// Direct light per pixel from the direct-light part (`direct = "restir"`; src/parts/).
+@group(3) @binding(7) var<storage, read_write> pixel_direct: array<vec4<f32>>;
 
 fn parity() -> u32 {
     return frame.frame_index & 1u;

@@ -1,4 +1,5 @@
-// Per pixel: emission + direct light (NEE through the BVH, one light by power) + diffuse albedo
+// Per pixel: emission + direct light (NEE through the BVH, one light by power, or the ReSTIR DI
+// part's result with `direct = "restir"`) + diffuse albedo
 // x gathered irradiance / pi. With `gather_downsample` > 1 the four nearest gather samples are
 // blended by bilinear, normal and depth weights (the nearest valid one where all fail). Writes
 // the debug planes (with `debug_views`) and accumulates. With screen probes the irradiance comes
@@ -13,7 +14,7 @@
 #import gilab::brdf::diffuse_color
 #import gilab::nee::direct_light
 #import gilab::lumen_probes::{pixel_data, lit_index, parity, probes_flag, PROBES_ACTIVE}
-#import gilab::lumen::{params, gather_out, debug_out, tri_object, has_flag, sample_cache, cache_radiance, sdf_trace, sdf_sample, sdf_bias, level_voxel, FLAG_ACCUMULATE, FLAG_DEBUG, FLAG_LIGHTS, EMPTY}
+#import gilab::lumen::{params, gather_out, debug_out, pixel_direct, tri_object, has_flag, sample_cache, cache_radiance, sdf_trace, sdf_sample, sdf_bias, level_voxel, FLAG_ACCUMULATE, FLAG_DEBUG, FLAG_LIGHTS, FLAG_DIRECT_RESTIR, EMPTY}
 
 fn gathered_irradiance(pixel: vec2<u32>, s: GSurface) -> vec3<f32> {
     let ds = params.gather_downsample;
@@ -66,7 +67,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         if s.pos.w > 0.5 {
             let n = s.normal_alpha.xyz;
             let m = surface_material(s);
-            if has_flag(FLAG_LIGHTS) {
+            if has_flag(FLAG_DIRECT_RESTIR) {
+                // The direct-light part's pass wrote it this frame (its rays counted there).
+                l += pixel_direct[idx].xyz;
+            } else if has_flag(FLAG_LIGHTS) {
                 var rng = rng_init(gid.xy, frame.frame_index, STREAM_LUMEN_PIXEL, frame.seed);
                 let d = direct_light(s.pos.xyz, s.geo_specular.xyz, n, m, s.wo_dist.xyz, rand(&rng), rand_pair(&rng));
                 l += d.radiance;

@@ -15,7 +15,10 @@
 #import gilab::math::{to_world, luminance, INV_PI}
 #import gilab::sampling::sample_cosine_hemisphere
 #import gilab::rng::{rng_init, rand_pair, STREAM_LUMEN_QUERY}
-#import gilab::lumen::{params, queries, sdf_distance, sdf_object, sdf_trace, finest_level, trace_scene, hit_cache_sample, EMPTY}
+#import gilab::lumen::{params, sdf_distance, sdf_object, sdf_trace, finest_level, trace_scene, hit_cache_sample, EMPTY}
+
+// Group 1 of the query pipeline only (it has no frame group): inputs in, answers out.
+@group(1) @binding(0) var<storage, read_write> queries: array<vec4<f32>>;
 
 @compute @workgroup_size(64, 1, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {

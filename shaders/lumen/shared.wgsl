@@ -34,6 +34,7 @@ const FLAG_SKY: u32 = 2u;
 const FLAG_ACCUMULATE: u32 = 4u;
 const FLAG_DEBUG: u32 = 8u;
 const FLAG_LIGHTS: u32 = 16u;
+const FLAG_DIRECT_RESTIR: u32 = 32u;
 
 struct Level {
     // xyz: world position of the level's minimum corner, w: voxel size.
@@ -114,7 +115,8 @@ struct Probe {
 // Final gather per downsampled pixel: rgb irradiance, w: 1 valid.
 @group(2) @binding(16) var<storage, read_write> gather_out: array<vec4<f32>>;
 @group(2) @binding(17) var<storage, read_write> debug_out: array<vec4<f32>>;
-@group(2) @binding(18) var<storage, read_write> queries: array<vec4<f32>>;
+// Direct light per pixel from the direct-light part (`direct = "restir"`; src/parts/).
+@group(2) @binding(18) var<storage, read_write> pixel_direct: array<vec4<f32>>;
 @group(2) @binding(19) var atlas_albedo: texture_2d<f32>;
 @group(2) @binding(20) var atlas_normal: texture_2d<f32>;
 @group(2) @binding(21) var atlas_emissive: texture_2d<f32>;

@@ -97,6 +97,118 @@ pub fn render_reference(
     }
 }
 
+/// A converged reference image (the reference path tracer, `spp` samples per pixel in frames of
+/// at most 64, `max_depth` 0 = unbounded, FrameUniforms `flags`), rendered once and shared by
+/// every test and every test binary: kept in memory per binary and as a lossless float EXR under
+/// cargo's `target/tmp/gilab-references/`. The file name hashes the scene's content, the
+/// arguments and every file of `src/` and `shaders/`, so a code change renders it again. On
+/// lavapipe a 128² Cornell box at 1,024 spp costs about 110 s: several binaries share it.
+pub fn shared_reference(
+    scene: Scene,
+    size: [u32; 2],
+    spp: u32,
+    seed: u32,
+    max_depth: u32,
+    flags: u32,
+) -> Image {
+    use std::hash::{Hash, Hasher};
+    static MEMORY: std::sync::Mutex<Vec<(u64, Image)>> = std::sync::Mutex::new(Vec::new());
+    let mut h = fnv::FnvHasher::default();
+    source_hash().hash(&mut h);
+    scene.name.hash(&mut h);
+    for p in &scene.positions {
+        p.to_array().map(f32::to_bits).hash(&mut h);
+    }
+    scene.triangles.hash(&mut h);
+    scene.triangle_material.hash(&mut h);
+    format!(
+        "{:?} {:?} {:?} {:?} {}",
+        scene.materials,
+        scene.lights,
+        scene.camera,
+        scene.sky,
+        scene.environment.is_some()
+    )
+    .hash(&mut h);
+    (size, spp, seed, max_depth, flags).hash(&mut h);
+    let key = h.finish();
+    // Held while rendering: a second test asking for the same truth waits for it.
+    let mut memory = MEMORY.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some((_, img)) = memory.iter().find(|(k, _)| *k == key) {
+        return img.clone();
+    }
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("gilab-references");
+    let file = dir.join(format!("{key:016x}.exr"));
+    let img = match gilab::compare::io::read_exr(&file) {
+        Ok(img) if [img.width, img.height] == size => img,
+        _ => {
+            let (img, _) = reference_render(scene, size, spp, seed, max_depth, flags);
+            // Written under another name and renamed: a reader never sees half a file.
+            std::fs::create_dir_all(&dir).unwrap();
+            let part = dir.join(format!("{key:016x}.{}.part.exr", std::process::id()));
+            gilab::compare::io::write_exr(&part, &img).unwrap();
+            std::fs::rename(&part, &file).unwrap();
+            img
+        }
+    };
+    memory.push((key, img.clone()));
+    img
+}
+
+/// The reference path tracer at `spp` samples per pixel (in frames of at most 64), `max_depth`
+/// (0 = unbounded) and FrameUniforms `flags`: the image and its ray counts.
+pub fn reference_render(
+    scene: Scene,
+    size: [u32; 2],
+    spp: u32,
+    seed: u32,
+    max_depth: u32,
+    flags: u32,
+) -> (Image, RayCounts) {
+    let spf = spp.min(64);
+    let mut params = toml::Table::new();
+    params.insert("samples_per_frame".into(), (spf as i64).into());
+    params.insert("max_depth".into(), (max_depth as i64).into());
+    render_technique(
+        "reference",
+        params,
+        scene,
+        size,
+        spp.div_ceil(spf),
+        seed,
+        flags,
+    )
+}
+
+/// Hash of every file under `src/` and `shaders/` (paths and contents), once per binary.
+fn source_hash() -> u64 {
+    static HASH: OnceLock<u64> = OnceLock::new();
+    *HASH.get_or_init(|| {
+        use std::hash::Hasher;
+        fn walk(dir: &std::path::Path, files: &mut Vec<std::path::PathBuf>) {
+            for entry in std::fs::read_dir(dir).unwrap().flatten() {
+                let path = entry.path();
+                if path.is_dir() {
+                    walk(&path, files);
+                } else {
+                    files.push(path);
+                }
+            }
+        }
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let mut files = Vec::new();
+        walk(&root.join("src"), &mut files);
+        walk(&root.join("shaders"), &mut files);
+        files.sort();
+        let mut h = fnv::FnvHasher::default();
+        for f in files {
+            h.write(f.strip_prefix(root).unwrap().to_string_lossy().as_bytes());
+            h.write(&std::fs::read(&f).unwrap());
+        }
+        h.finish()
+    })
+}
+
 pub fn luminance(p: [f64; 3]) -> f64 {
     0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]
 }

@@ -32,6 +32,7 @@ mod params;
 pub use params::{CallistoParamsGpu, CallistoSettings, MAX_LIGHTS_PER_TILE, PARAMS, RATES};
 
 use crate::gpu::{timing::PassTimer, Gpu};
+use crate::parts::RestirDirect;
 use crate::render::params::Params;
 use crate::render::primary::FrameInputs;
 use crate::render::{pipelines, DebugView, PassInfo, RenderContext, Technique};
@@ -55,6 +56,8 @@ struct Pipelines {
 
 struct Resources {
     bind_group: wgpu::BindGroup,
+    /// `pixel_direct` (binding 7) for the direct-light part's pass to write.
+    direct_bind_group: wgpu::BindGroup,
     /// Cleared on a history reset: tile lists, rates, stats, shadow-mask history.
     clear_on_reset: Vec<wgpu::Buffer>,
     debug: wgpu::Buffer,
@@ -68,6 +71,8 @@ pub struct CallistoShadows {
     /// `resolve`'s group 2).
     restir: RestirLighting,
     restir_built: bool,
+    /// The direct-light part for `direct = "restir"` (built the first time it is needed).
+    restir_direct: RestirDirect,
     layout: Option<wgpu::BindGroupLayout>,
     empty: Option<(wgpu::BindGroupLayout, wgpu::BindGroup)>,
     pipelines: Option<Pipelines>,
@@ -83,6 +88,7 @@ impl Default for CallistoShadows {
         CallistoShadows {
             restir: RestirLighting::new(restir_gi_settings(settings.gi)),
             restir_built: false,
+            restir_direct: RestirDirect::default(),
             settings,
             params,
             layout: None,
@@ -110,7 +116,7 @@ impl CallistoShadows {
         self.layout
             .get_or_insert_with(|| {
                 let mut entries = vec![pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE)];
-                for b in 1..=6 {
+                for b in 1..=7 {
                     entries.push(pipelines::storage_entry(b, false));
                 }
                 pipelines::layout(gpu, "callisto", &entries)
@@ -138,7 +144,18 @@ impl CallistoShadows {
         } else {
             self.restir.build_resources(ctx);
         }
+        if self.settings.direct_restir && !self.restir_direct.is_built() {
+            self.restir_direct.build(ctx)?;
+        }
+        if self.restir_direct.is_built() {
+            self.restir_direct.build_resources(ctx);
+        }
         Ok(())
+    }
+
+    /// The tile shadows run (lights, and not replaced by the direct-light part).
+    fn tile_shadows(&self) -> bool {
+        self.lights > 0 && !self.settings.direct_restir
     }
 
     /// Light slots per tile: the setting, or fewer where the rate buffer (2 x tiles x slots x
@@ -169,7 +186,8 @@ impl CallistoShadows {
             gi: s.gi as u32,
             pixels,
             tail_samples: s.tail_samples,
-            pad: [0; 3],
+            direct_restir: (s.direct_restir && self.lights > 0) as u32,
+            pad: [0; 2],
         }
     }
 
@@ -188,6 +206,7 @@ impl CallistoShadows {
         let current = buf("callisto current", 3 * px * 16);
         let history = buf("callisto history", 2 * px * 32);
         let debug = buf("callisto debug", 2 * px * 16);
+        let pixel_direct = buf("callisto pixel direct", px * 16);
         let uniform = wgpu::util::DeviceExt::create_buffer_init(
             &gpu.device,
             &wgpu::util::BufferInitDescriptor {
@@ -201,10 +220,23 @@ impl CallistoShadows {
             gpu,
             "callisto",
             &layout,
-            &[&uniform, &lists, &rates, &stats, &current, &history, &debug],
+            &[
+                &uniform,
+                &lists,
+                &rates,
+                &stats,
+                &current,
+                &history,
+                &debug,
+                &pixel_direct,
+            ],
         );
+        let output = self.restir_direct.output_layout(gpu).clone();
+        let direct_bind_group =
+            pipelines::buffers_bind_group(gpu, "callisto pixel direct", &output, &[&pixel_direct]);
         self.res = Some(Resources {
             bind_group,
+            direct_bind_group,
             clear_on_reset: vec![lists, rates, stats, history],
             debug,
             tiles,
@@ -239,8 +271,10 @@ impl Technique for CallistoShadows {
         let mut v = vec![
             PassInfo {
                 name: "cull",
-                runs: lights > 0,
-                why: if lights > 0 {
+                runs: self.tile_shadows(),
+                why: if s.direct_restir {
+                    "direct = \"restir\": the direct-light part replaces the tile shadows".into()
+                } else if lights > 0 {
                     format!(
                         "{lights} lights ({} emissive triangles, {} point, {} spot, {} directional) against 16x16 tiles: {}, depth bounds{}, at most {} per tile",
                         f.emissive_triangle_count,
@@ -261,8 +295,10 @@ impl Technique for CallistoShadows {
             },
             PassInfo {
                 name: "shadows",
-                runs: lights > 0,
-                why: if lights > 0 {
+                runs: self.tile_shadows(),
+                why: if s.direct_restir {
+                    "direct = \"restir\": the direct-light part replaces the tile shadows".into()
+                } else if lights > 0 {
                     format!(
                         "one shadow ray per light per traced pixel, rate {} per 2x2 quad, bilateral reconstruction",
                         RATES[s.rate as usize]
@@ -273,7 +309,7 @@ impl Technique for CallistoShadows {
             },
             PassInfo {
                 name: "luminance_mean",
-                runs: lights > 0 && self.weighting(),
+                runs: self.tile_shadows() && self.weighting(),
                 why: if self.weighting() {
                     "mean scene luminance for next frame's perceptual weighting".into()
                 } else {
@@ -285,7 +321,9 @@ impl Technique for CallistoShadows {
                 runs: true,
                 why: format!(
                     "{}, emission{}, accumulation",
-                    if s.denoise {
+                    if s.direct_restir {
+                        "the direct-light part's result"
+                    } else if s.denoise {
                         "shadow mask accumulated over frames (disocclusion blur)"
                     } else {
                         "shadow mask as traced (denoise = false)"
@@ -294,6 +332,19 @@ impl Technique for CallistoShadows {
                 ),
             },
         ];
+        if s.direct_restir {
+            let mut direct = self.restir_direct.passes(f);
+            direct.push(PassInfo {
+                name: "direct",
+                runs: lights > 0,
+                why: if lights > 0 {
+                    RestirDirect::describe()
+                } else {
+                    no_lights()
+                },
+            });
+            v.splice(0..0, direct);
+        }
         v.extend(self.restir.gi_passes());
         v
     }
@@ -320,6 +371,10 @@ impl Technique for CallistoShadows {
             // Rebuild ReSTIR's pipelines too (hot reload of its shaders).
             self.restir_built = false;
         }
+        if self.restir_direct.is_built() {
+            // And the direct-light part's (on an error its old pipelines stay).
+            self.restir_direct.build(ctx)?;
+        }
         self.ensure_restir(ctx)?;
         self.pipelines = Some(built);
         self.build_resources(ctx);
@@ -334,6 +389,7 @@ impl Technique for CallistoShadows {
 
     fn reset_history(&mut self, gpu: &Gpu) {
         self.restir.reset(gpu);
+        self.restir_direct.reset(gpu);
         let Some(r) = &self.res else {
             return;
         };
@@ -366,7 +422,11 @@ impl Technique for CallistoShadows {
         }
         let tiles = [r.tiles[0], r.tiles[1], 1];
         let groups = &[empty, &r.bind_group];
-        if self.lights > 0 {
+        if self.settings.direct_restir && self.lights > 0 {
+            self.restir_direct
+                .record(ctx, enc, timer, &r.direct_bind_group);
+        }
+        if self.tile_shadows() {
             pipelines::technique_pass(ctx, enc, timer, "cull", &p.cull, groups, tiles);
             pipelines::technique_pass(ctx, enc, timer, "shadows", &p.shadows, groups, tiles);
             if self.weighting() {
@@ -435,6 +495,8 @@ impl Technique for CallistoShadows {
             "restir/spatial.wgsl",
             "restir/gi_temporal.wgsl",
             "restir/gi_spatial.wgsl",
+            // The direct-light part's shading (its ReSTIR passes are listed above).
+            "parts/restir_direct.wgsl",
         ]
     }
 

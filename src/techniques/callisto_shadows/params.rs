@@ -27,7 +27,8 @@ pub struct CallistoParamsGpu {
     pub gi: u32,
     pub pixels: u32,
     pub tail_samples: u32,
-    pub pad: [u32; 3],
+    pub direct_restir: u32,
+    pub pad: [u32; 2],
 }
 
 /// Rate choices, in the order of `rate_mode` on the GPU.
@@ -146,6 +147,14 @@ pub const PARAMS: &[ParamSpec] = &[
         kind: ParamKind::Bool,
         default: 0.0,
     },
+    ParamSpec {
+        name: "direct",
+        what: "direct light per pixel: this technique's tile-culled, variable-rate shadow rays, or ReSTIR DI (the restir technique's passes with GI off, the shared direct-light part), for A/B at equal everything else",
+        higher: "restir: reservoir resampling over every light, one visibility ray per pixel; cull, shadows and the shadow mask do not run",
+        lower: "tiles: the seed's ray-traced shadows (one ray per light per traced pixel)",
+        kind: ParamKind::Choice(&["tiles", "restir"]),
+        default: 0.0,
+    },
 ];
 
 #[derive(Clone, Debug, PartialEq)]
@@ -164,6 +173,8 @@ pub struct CallistoSettings {
     pub blur_radius: u32,
     pub accumulate: bool,
     pub gi: bool,
+    /// `direct = "restir"`: the direct-light part replaces the tile shadows.
+    pub direct_restir: bool,
 }
 
 impl CallistoSettings {
@@ -183,6 +194,7 @@ impl CallistoSettings {
             blur_radius: p.u32("blur_radius"),
             accumulate: p.bool("accumulate"),
             gi: p.bool("gi"),
+            direct_restir: p.u32("direct") == 1,
         }
     }
 }

@@ -43,6 +43,7 @@ pub use screen_probes::ProbeStats;
 use screen_probes::{ProbePipelines, ScreenProbes};
 
 use crate::gpu::{readback, timing::PassTimer, Gpu};
+use crate::parts::RestirDirect;
 use crate::render::params::Params;
 use crate::render::primary::FrameInputs;
 use crate::render::{pipelines, DebugView, PassInfo, RenderContext, Technique};
@@ -125,8 +126,10 @@ struct Layouts {
     fill_level: wgpu::BindGroupLayout,
     /// Group 1 of the capture raster pipelines: the cards.
     capture: wgpu::BindGroupLayout,
-    /// An empty group 1 for the query pipeline (it needs no frame).
-    empty: wgpu::BindGroupLayout,
+    /// Group 1 of the query pipeline (it needs no frame): the query buffer.
+    queries: wgpu::BindGroupLayout,
+    /// Group 3 of the direct-light part's pass: `pixel_direct` (binding 18), which apply reads.
+    direct: wgpu::BindGroupLayout,
     /// Group 3 of the final gather's passes and `apply`: screen probes, world cache.
     probes: wgpu::BindGroupLayout,
 }
@@ -164,7 +167,10 @@ struct Resources {
     args_bind_group: wgpu::BindGroup,
     fill_bind_groups: Vec<wgpu::BindGroup>,
     capture_bind_group: wgpu::BindGroup,
-    empty_bind_group: wgpu::BindGroup,
+    query_bind_group: wgpu::BindGroup,
+    queries: wgpu::Buffer,
+    /// `pixel_direct` for the direct-light part's pass to write.
+    direct_bind_group: wgpu::BindGroup,
     args: wgpu::Buffer,
     index_buffer: wgpu::Buffer,
     capture_depth_view: wgpu::TextureView,
@@ -276,6 +282,8 @@ pub struct Lumen {
     extent: [u32; 2],
     /// The settings the GPU resources were sized for.
     built_with: Option<LumenSettings>,
+    /// The direct-light part for `direct = "restir"` (built the first time it is needed).
+    restir_direct: RestirDirect,
 }
 
 impl Default for Lumen {
@@ -296,6 +304,7 @@ impl Default for Lumen {
             probe_cursor: 0,
             scene_tris: Vec::new(),
             built_with: None,
+            restir_direct: RestirDirect::default(),
             scene_materials: Vec::new(),
             features: SceneFeatures::default(),
             sky: false,
@@ -366,7 +375,12 @@ impl Lumen {
                     &[pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE)],
                 ),
                 capture: pipelines::layout(gpu, "lumen capture", &[capture]),
-                empty: pipelines::layout(gpu, "lumen empty", &[]),
+                queries: pipelines::layout(
+                    gpu,
+                    "lumen queries",
+                    &[pipelines::storage_entry(0, false)],
+                ),
+                direct: self.restir_direct.output_layout(gpu).clone(),
                 probes: ScreenProbes::layout(gpu),
             }
         })
@@ -381,6 +395,7 @@ impl Lumen {
             (s.accumulate, FLAG_ACCUMULATE),
             (s.debug_views, FLAG_DEBUG),
             (self.features.light_count() > 0, FLAG_LIGHTS),
+            (self.direct_restir(), FLAG_DIRECT_RESTIR),
         ] {
             if on {
                 flags |= flag;
@@ -477,8 +492,9 @@ impl Lumen {
                 l.args.clone(),
                 l.fill_level.clone(),
                 l.capture.clone(),
-                l.empty.clone(),
+                l.queries.clone(),
                 l.probes.clone(),
+                l.direct.clone(),
             ]
         };
         let max_binding = gpu.device.limits().max_storage_buffer_binding_size;
@@ -546,8 +562,9 @@ impl Lumen {
             tiles,
             buf("lumen gather", 2 * gather[0] as u64 * gather[1] as u64 * 16),
             buf("lumen debug", 3 * pixels * 16),
-            buf("lumen queries", QUERY_CAPACITY as u64 * 32),
+            buf("lumen pixel direct", pixels * 16),
         ];
+        let queries = buf("lumen queries", QUERY_CAPACITY as u64 * 32);
         let size = wgpu::Extent3d {
             width: s.atlas_size,
             height: s.atlas_size,
@@ -595,11 +612,10 @@ impl Lumen {
             .collect();
         let capture_bind_group =
             pipelines::buffers_bind_group(gpu, "lumen capture", &layouts[3], &[&buffers[1]]);
-        let empty_bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("lumen empty"),
-            layout: &layouts[4],
-            entries: &[],
-        });
+        let query_bind_group =
+            pipelines::buffers_bind_group(gpu, "lumen queries", &layouts[4], &[&queries]);
+        let direct_bind_group =
+            pipelines::buffers_bind_group(gpu, "lumen pixel direct", &layouts[6], &[&buffers[18]]);
         let res = Resources {
             params_buffer,
             buffers,
@@ -608,7 +624,9 @@ impl Lumen {
             args_bind_group,
             fill_bind_groups,
             capture_bind_group,
-            empty_bind_group,
+            query_bind_group,
+            queries,
+            direct_bind_group,
             args,
             index_buffer,
             capture_depth_view,
@@ -710,6 +728,16 @@ impl Lumen {
         self.res.as_ref().map(|r| r.probes.stats(gpu)).transpose()
     }
 
+    /// This frame's direct light per pixel from the direct-light part (`direct = "restir"`; with
+    /// NEE apply computes it inline and this holds zeros).
+    pub fn pixel_direct(&self, gpu: &Gpu) -> Result<Option<Vec<[f32; 4]>>> {
+        let Some(r) = &self.res else {
+            return Ok(None);
+        };
+        let pixels = (self.extent[0] * self.extent[1]) as usize;
+        readback::read_buffer(gpu, r.buffer(18), pixels).map(Some)
+    }
+
     /// The clipmaps' placement as of the last frame.
     pub fn clipmaps(&self) -> Option<&Clipmaps> {
         self.clipmaps.as_ref()
@@ -751,7 +779,7 @@ impl Lumen {
             data.push([a[0], a[1], a[2], 0.0]);
             data.push([b[0], b[1], b[2], 0.0]);
         }
-        let queries = r.buffer(18);
+        let queries = &r.queries;
         gpu.queue
             .write_buffer(queries, 0, bytemuck::cast_slice(&data));
         let mut params = r.gpu_params;
@@ -764,7 +792,7 @@ impl Lumen {
             let mut pass = enc.begin_compute_pass(&Default::default());
             pass.set_pipeline(&p.query);
             pass.set_bind_group(0, &ctx.scene.bind_group, &[]);
-            pass.set_bind_group(1, &r.empty_bind_group, &[]);
+            pass.set_bind_group(1, &r.query_bind_group, &[]);
             pass.set_bind_group(2, &r.bind_group, &[]);
             pass.dispatch_workgroups((inputs.len() as u32).div_ceil(64), 1, 1);
         }
@@ -781,13 +809,21 @@ impl Lumen {
         texels as f64 * a * a
     }
 
-    /// Rays per pixel per frame besides the gather: the shared camera ray and NEE's shadow ray.
+    /// Rays per pixel per frame besides the gather: the shared camera ray and the direct
+    /// light's (NEE's shadow ray, or ReSTIR DI's with the part).
     fn fixed_rays_per_pixel(&self) -> f64 {
-        1.0 + if self.features.light_count() > 0 {
-            1.0
-        } else {
+        1.0 + if self.features.light_count() == 0 {
             0.0
+        } else if self.direct_restir() {
+            self.restir_direct.rays_per_pixel()
+        } else {
+            1.0
         }
+    }
+
+    /// Pixels take their direct light from the ReSTIR DI part (`direct = "restir"`, lights).
+    fn direct_restir(&self) -> bool {
+        self.settings.direct_restir && self.features.light_count() > 0
     }
 
     /// Records the distance-field update of this frame's plan, if anything changed.
@@ -1136,13 +1172,18 @@ impl Technique for Lumen {
                 ),
             ));
         }
+        if s.direct_restir {
+            v.extend(self.restir_direct.passes(f));
+        }
         v.push(pass(
             "direct",
             lights,
-            if lights {
-                "NEE per pixel: one light by power, one BVH shadow ray".into()
-            } else {
+            if !lights {
                 "no lights in the pool".into()
+            } else if s.direct_restir {
+                RestirDirect::describe()
+            } else {
+                "NEE per pixel in apply: one light by power, one BVH shadow ray".into()
             },
         ));
         v.push(pass(
@@ -1168,14 +1209,14 @@ impl Technique for Lumen {
 
     fn build(&mut self, ctx: &RenderContext) -> Result<()> {
         let gpu = ctx.gpu;
-        let (lumen, args, fill_level, capture_layout, empty, probe_layout) = {
+        let (lumen, args, fill_level, capture_layout, query_layout, probe_layout) = {
             let l = self.layouts(gpu);
             (
                 l.lumen.clone(),
                 l.args.clone(),
                 l.fill_level.clone(),
                 l.capture.clone(),
-                l.empty.clone(),
+                l.queries.clone(),
                 l.probes.clone(),
             )
         };
@@ -1214,7 +1255,7 @@ impl Technique for Lumen {
             gpu,
             ctx.shaders,
             COMPUTE[8].1,
-            &[&ctx.scene.layout, &empty, &lumen],
+            &[&ctx.scene.layout, &query_layout, &lumen],
         )?;
         compute.push(query.clone());
         let module = pipelines::shader_module(gpu, ctx.shaders, CAPTURE)?;
@@ -1232,6 +1273,12 @@ impl Technique for Lumen {
             .position(|(n, _)| *n == "apply")
             .expect("apply")]
         .clone();
+        // The direct-light part is rebuilt too (shader change); if that fails, its old
+        // pipelines and Lumen's stay.
+        if self.restir_direct.is_built() || self.settings.direct_restir {
+            self.restir_direct.build(ctx)?;
+            self.restir_direct.build_resources(ctx);
+        }
         self.pipelines = Some(Pipelines {
             compute,
             sdf_args,
@@ -1254,6 +1301,12 @@ impl Technique for Lumen {
     /// mode relights the cache from scratch.
     fn apply_params(&mut self, ctx: &RenderContext) -> Result<()> {
         self.settings.check()?;
+        if self.settings.direct_restir && !self.restir_direct.is_built() {
+            self.restir_direct.build(ctx)?;
+        }
+        if self.restir_direct.is_built() {
+            self.restir_direct.build_resources(ctx);
+        }
         let sized = |s: &LumenSettings| {
             (
                 s.clipmap_levels,
@@ -1307,6 +1360,7 @@ impl Technique for Lumen {
             enc.clear_buffer(r.buffer(b), 0, None);
         }
         gpu.submit("lumen: history reset", enc.finish());
+        self.restir_direct.reset(gpu);
     }
 
     /// The cache and the distance field carry over, as in a game: the cache catches up through
@@ -1368,6 +1422,7 @@ impl Technique for Lumen {
         if !captures.is_empty() {
             self.record_capture(ctx, enc, timer, &captures);
         }
+        let direct_restir = self.direct_restir() && self.restir_direct.is_built();
         let (Some(p), Some(r)) = (&self.pipelines, self.res.as_mut()) else {
             return;
         };
@@ -1417,6 +1472,10 @@ impl Technique for Lumen {
                 &[bg],
                 [gp.gather_width.div_ceil(8), gp.gather_height.div_ceil(8), 1],
             );
+        }
+        if direct_restir {
+            self.restir_direct
+                .record(ctx, enc, timer, &r.direct_bind_group);
         }
         pipelines::technique_pass(
             ctx,
@@ -1510,6 +1569,11 @@ impl Technique for Lumen {
             "lumen/probe_resolve.wgsl",
             "lumen/probe_filter.wgsl",
             "lumen/integrate.wgsl",
+            // The direct-light part (crate::parts::restir_direct::SHADER_FILES).
+            "parts/restir_direct.wgsl",
+            "restir/regir_build.wgsl",
+            "restir/initial_temporal.wgsl",
+            "restir/spatial.wgsl",
         ]
     }
 

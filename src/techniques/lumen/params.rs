@@ -188,6 +188,14 @@ pub const PARAMS: &[ParamSpec] = &[
         default: 16.0,
     },
     ParamSpec {
+        name: "direct",
+        what: "direct light per pixel: next-event estimation of one light by power, or ReSTIR DI (the restir technique's passes with GI off, the shared direct-light part); the surface cache's own direct light is unchanged",
+        higher: "restir: far less noise with many lights (ReGIR where the scene has them), more passes",
+        lower: "nee: one shadow ray in apply, no extra passes",
+        kind: ParamKind::Choice(&["nee", "restir"]),
+        default: 0.0,
+    },
+    ParamSpec {
         name: "accumulate",
         what: "average frames into the output (off: each frame alone, the real-time view)",
         higher: "on: a static view converges",
@@ -218,6 +226,8 @@ pub struct LumenSettings {
     pub rays_per_pixel: u32,
     pub sign_rays: u32,
     pub accumulate: bool,
+    /// `direct = "restir"`: pixels take direct light from the ReSTIR DI part.
+    pub direct_restir: bool,
     pub debug_views: bool,
     pub screen_probes: bool,
     pub probe_spacing: u32,
@@ -248,6 +258,7 @@ impl LumenSettings {
             rays_per_pixel: p.u32("rays_per_pixel"),
             sign_rays: p.u32("sign_rays"),
             accumulate: p.bool("accumulate"),
+            direct_restir: p.u32("direct") == 1,
             debug_views: p.bool("debug_views"),
             screen_probes: p.u32("final_gather") == 0,
             probe_spacing: p.u32("probe_spacing"),
@@ -332,3 +343,4 @@ pub const FLAG_SKY: u32 = 2;
 pub const FLAG_ACCUMULATE: u32 = 4;
 pub const FLAG_DEBUG: u32 = 8;
 pub const FLAG_LIGHTS: u32 = 16;
+pub const FLAG_DIRECT_RESTIR: u32 = 32;

@@ -33,11 +33,11 @@ mod scan;
 pub use params::{SurfelParamsGpu, SurfelSettings, MAX_RAYS_PER_SURFEL, PARAMS};
 
 use crate::gpu::{readback, timing::PassTimer, Gpu};
+use crate::parts::RestirDirect;
 use crate::render::params::Params;
 use crate::render::primary::FrameInputs;
 use crate::render::{pipelines, DebugView, PassInfo, RenderContext, Technique};
 use crate::scene::features::SceneFeatures;
-use crate::techniques::restir::{self, RestirLighting, RestirSettings};
 use anyhow::Result;
 use params::*;
 use scan::{ScanJob, ScanPipelines};
@@ -72,7 +72,6 @@ const ENTRIES: [(&str, &str); 12] = [
     ("apply", "surfels/apply.wgsl"),
 ];
 const RAY_OWNER: &str = "surfels/ray_owner.wgsl";
-const DIRECT_RESTIR: &str = "surfels/direct_restir.wgsl";
 
 /// Pipelines in ENTRIES order, plus the ones with other layouts.
 struct Pipelines {
@@ -96,7 +95,7 @@ struct Layouts {
     surfels: wgpu::BindGroupLayout,
     /// Group 3 of `ray_owner`: the trace pass's indirect arguments (writable only there).
     args: wgpu::BindGroupLayout,
-    /// Group 3 of `direct_restir`: the per-pixel direct light it writes.
+    /// Group 3 of the direct-light part's pass: the per-pixel direct light it writes.
     direct: wgpu::BindGroupLayout,
     scan: wgpu::BindGroupLayout,
 }
@@ -117,6 +116,8 @@ struct Resources {
     cell_cursor: wgpu::Buffer,
     states: wgpu::Buffer,
     debug: wgpu::Buffer,
+    /// Direct light per pixel (this frame's; the NEE pass or the direct-light part writes it).
+    pixel_direct: wgpu::Buffer,
     scans: [ScanJob; 4],
     gpu_params: SurfelParamsGpu,
     tiles: [u32; 2],
@@ -148,9 +149,8 @@ pub struct Surfels {
     layouts: Option<Layouts>,
     pipelines: Option<Pipelines>,
     res: Option<Resources>,
-    /// ReSTIR DI for `direct = "restir"` (built the first time it is needed), and its shading.
-    restir: RestirLighting,
-    restir_direct: Option<wgpu::ComputePipeline>,
+    /// The direct-light part for `direct = "restir"` (built the first time it is needed).
+    restir_direct: RestirDirect,
     features: SceneFeatures,
     /// Largest component of the sky radiance.
     sky_radiance: f32,
@@ -166,21 +166,12 @@ impl Default for Surfels {
             layouts: None,
             pipelines: None,
             res: None,
-            restir: RestirLighting::new(restir_direct_settings()),
-            restir_direct: None,
+            restir_direct: RestirDirect::default(),
             features: SceneFeatures::default(),
             sky_radiance: 0.0,
             extent: [0, 0],
         }
     }
-}
-
-/// ReSTIR's defaults with GI off: it supplies direct light only (sky through surfel rays).
-fn restir_direct_settings() -> RestirSettings {
-    let mut s = RestirSettings::from_params(&Params::new("restir", restir::PARAMS));
-    s.gi = false;
-    s.sky_candidates = 0;
-    s
 }
 
 impl Surfels {
@@ -197,11 +188,7 @@ impl Surfels {
                     "surfel ray args",
                     &[pipelines::storage_entry(0, false)],
                 ),
-                direct: pipelines::layout(
-                    gpu,
-                    "surfel direct",
-                    &[pipelines::storage_entry(0, false)],
-                ),
+                direct: self.restir_direct.output_layout(gpu).clone(),
                 scan: scan::layout(gpu),
             }
         })
@@ -232,35 +219,26 @@ impl Surfels {
     }
 
     /// Rays per pixel per frame the technique spends besides surfel rays: the shared camera
-    /// ray and (with lights) the direct-light shadow ray.
+    /// ray and (with lights) the direct light's: one shadow ray with NEE, ReSTIR DI's with the
+    /// part.
     fn fixed_rays_per_pixel(&self) -> f64 {
-        1.0 + if self.features.light_count() > 0 {
-            1.0
-        } else {
+        1.0 + if self.features.light_count() == 0 {
             0.0
+        } else if self.settings.direct_restir {
+            self.restir_direct.rays_per_pixel()
+        } else {
+            1.0
         }
     }
 
-    /// Builds ReSTIR's passes for `direct = "restir"` if not built yet.
+    /// Builds the direct-light part for `direct = "restir"` if not built yet (its resources
+    /// follow the image and the scene when it is).
     fn ensure_restir(&mut self, ctx: &RenderContext) -> Result<()> {
-        if self.settings.direct_restir && self.restir_direct.is_none() {
-            let direct_layout = self.layouts(ctx.gpu).direct.clone();
-            let restir_layout = self.restir.layout(ctx.gpu).clone();
-            let pipeline = pipelines::compute_pipeline(
-                ctx.gpu,
-                ctx.shaders,
-                DIRECT_RESTIR,
-                &[
-                    &ctx.scene.layout,
-                    ctx.frame_layout,
-                    &restir_layout,
-                    &direct_layout,
-                ],
-            )?;
-            self.restir.build(ctx)?;
-            self.restir_direct = Some(pipeline);
-        } else if self.restir_direct.is_some() {
-            self.restir.build_resources(ctx);
+        if self.settings.direct_restir && !self.restir_direct.is_built() {
+            self.restir_direct.build(ctx)?;
+            self.restir_direct.build_resources(ctx);
+        } else if self.restir_direct.is_built() {
+            self.restir_direct.build_resources(ctx);
         }
         Ok(())
     }
@@ -394,9 +372,10 @@ impl Surfels {
                 cell_cursor.clone(),
                 cell_surfels,
                 pool.clone(),
-                pixel_direct,
+                pixel_direct.clone(),
                 debug.clone(),
             ],
+            pixel_direct,
             surfels,
             pool,
             free_stack,
@@ -428,6 +407,15 @@ impl Surfels {
             spawned_last_frame: words[3],
             recycled_last_frame: words[4],
         }))
+    }
+
+    /// This frame's direct light per pixel (no emission), as `apply` adds it.
+    pub fn pixel_direct(&self, gpu: &Gpu) -> Result<Option<Vec<[f32; 4]>>> {
+        let Some(r) = &self.res else {
+            return Ok(None);
+        };
+        let pixels = (self.extent[0] * self.extent[1]) as usize;
+        readback::read_buffer(gpu, &r.pixel_direct, pixels).map(Some)
     }
 
     /// Every live surfel's integrator state.
@@ -500,8 +488,7 @@ impl Technique for Surfels {
             },
         ));
         if s.direct_restir {
-            v.extend(self.restir.di_passes(f));
-            v.push(self.restir.regir_pass(f));
+            v.extend(self.restir_direct.passes(f));
         }
         v.push(pass(
             "direct",
@@ -509,7 +496,7 @@ impl Technique for Surfels {
             if !lights {
                 "no lights in the pool".into()
             } else if s.direct_restir {
-                "ReSTIR DI reservoir, one visibility ray".into()
+                RestirDirect::describe()
             } else {
                 "NEE: one light by power, one shadow ray".into()
             },
@@ -550,12 +537,11 @@ impl Technique for Surfels {
             ],
         )?;
         let scan = ScanPipelines::build(gpu, ctx.shaders, &scan_layout)?;
-        // ReSTIR's direct-light pass is rebuilt too (shader change); if that fails, the old
-        // one and the old surfel pipelines stay.
-        let old_direct = self.restir_direct.take();
-        if let Err(e) = self.ensure_restir(ctx) {
-            self.restir_direct = old_direct;
-            return Err(e);
+        // The direct-light part is rebuilt too (shader change); if that fails, its old
+        // pipelines and the old surfel pipelines stay.
+        if self.restir_direct.is_built() || self.settings.direct_restir {
+            self.restir_direct.build(ctx)?;
+            self.restir_direct.build_resources(ctx);
         }
         self.pipelines = Some(Pipelines {
             passes,
@@ -582,7 +568,6 @@ impl Technique for Surfels {
     }
 
     fn apply_params(&mut self, ctx: &RenderContext) -> Result<()> {
-        self.restir.settings = restir_direct_settings();
         self.ensure_restir(ctx)?;
         self.build_resources(ctx)?;
         self.reset_history(ctx.gpu);
@@ -605,7 +590,7 @@ impl Technique for Surfels {
             .write_buffer(&r.free_stack, 0, bytemuck::cast_slice(&stack));
         gpu.queue
             .write_buffer(&r.pool, 0, bytemuck::cast_slice(&[max, 0u32]));
-        self.restir.reset(gpu);
+        self.restir_direct.reset(gpu);
     }
 
     /// Surfels and their irradiance carry over, as in a game: the estimator has to catch up.
@@ -664,22 +649,11 @@ impl Technique for Surfels {
         );
         pass(enc, timer, "integrate", per_slot);
         let image = [ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1];
-        match (&self.restir_direct, self.settings.direct_restir) {
-            (Some(direct), true) => {
-                self.restir.record(ctx, enc, timer);
-                if let Some(restir_bg) = self.restir.bind_group() {
-                    pipelines::technique_pass(
-                        ctx,
-                        enc,
-                        timer,
-                        "direct",
-                        direct,
-                        &[restir_bg, &r.direct_bind_group],
-                        image,
-                    );
-                }
-            }
-            _ => pass(enc, timer, "direct", image),
+        if self.settings.direct_restir && self.restir_direct.is_built() {
+            self.restir_direct
+                .record(ctx, enc, timer, &r.direct_bind_group);
+        } else {
+            pass(enc, timer, "direct", image);
         }
         pass(enc, timer, "apply", image);
     }
@@ -728,7 +702,11 @@ impl Technique for Surfels {
             "surfels/trace.wgsl",
             "surfels/integrate.wgsl",
             "surfels/direct_nee.wgsl",
-            "surfels/direct_restir.wgsl",
+            // The direct-light part (crate::parts::restir_direct::SHADER_FILES).
+            "parts/restir_direct.wgsl",
+            "restir/regir_build.wgsl",
+            "restir/initial_temporal.wgsl",
+            "restir/spatial.wgsl",
             "surfels/apply.wgsl",
             "surfels/scan.wgsl",
         ]

@@ -1,6 +1,8 @@
-// Direct light per pixel (`direct = "restir"`): the pixel's ReSTIR DI reservoir (ReSTIR's
-// passes ran before, with GI off) shaded with one visibility ray (gilab::restir::shade_reservoir).
-// Group 2 is ReSTIR's; group 3 holds only the output the surfel apply pass reads.
+// The direct-light part's shading (src/parts/restir_direct.rs): each pixel's ReSTIR DI reservoir
+// (ReSTIR's own passes ran before in this frame, GI off) shaded with one visibility ray
+// (gilab::restir::shade_reservoir): f · Le · G · V · W, no emission. Group 2 is ReSTIR's; group
+// 3 holds only the per-pixel output that the family's own pass reads (surfels' and Lumen's
+// `apply`). Counted as shadow rays, like the NEE it replaces.
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts, RAY_SHADOW}
 #import gilab::primary::current_surface
@@ -16,8 +18,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let s = current_surface(idx);
         let shaded = shade_reservoir(s, reservoir_index(parity(), idx));
         counts[RAY_SHADOW] += shaded.shadow_rays;
-        let l = shaded.radiance;
-        direct_out[idx] = vec4<f32>(l, 0.0);
+        direct_out[idx] = vec4<f32>(shaded.radiance, 0.0);
     }
     flush_counts(local_index, counts);
 }

@@ -1,0 +1,14 @@
+//! Parts: pieces of light transport that more than one technique family uses, built once per
+//! engine entry and plugged in by name ("Making Connections", shared/seeds/003; issue 34). A
+//! family names a part in its parameters (`direct = "restir"`) and holds it; the part owns its
+//! passes, buffers and bind groups, and hands the family one output to read. Techniques never
+//! import each other's modules or shaders: what they share lives here and in `shaders/parts/`.
+//! The design note with the diagram of who reads what: docs/parts.md.
+//!
+//! - [`restir_direct::RestirDirect`]: direct light at the primary surfaces by ReSTIR DI (the
+//!   `restir` technique's own DI and ReGIR passes, GI off), shaded into one radiance value per
+//!   pixel. Used by `surfels` and `lumen` (`direct = "restir"`).
+
+pub mod restir_direct;
+
+pub use restir_direct::RestirDirect;
