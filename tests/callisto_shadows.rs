@@ -41,21 +41,27 @@ fn courtyard_no_sky() -> Scene {
 
 /// With every rate forced to full, infinite ranges and no temporal filtering, each frame is an
 /// unbiased estimate of direct light (exact for punctual lights, one area sample per emissive
-/// triangle): 256 frames must match the reference's direct light.
+/// triangle): 128 frames must match the reference's direct light. Courtyard leaves out the
+/// emission the camera sees (in both), so its truth is the one `variable_rate_traces_fewer_rays`
+/// uses; Cornell's is the one ReSTIR DI's test uses.
 #[test]
 fn full_rate_equals_reference_direct_light() {
     let size = [64, 64];
     let params: toml::Table = toml::toml! { rate = "full"
     range_cutoff = 0.0
     denoise = false };
-    for (name, scene) in [
-        ("cornell", builtin::cornell as fn() -> Scene),
-        ("courtyard (sky 0)", courtyard_no_sky),
+    for (name, scene, flags) in [
+        ("cornell", builtin::cornell as fn() -> Scene, 0),
+        (
+            "courtyard (sky 0)",
+            courtyard_no_sky,
+            FLAG_NO_PRIMARY_EMISSION,
+        ),
     ] {
-        let truth = direct_reference(scene(), size, 1024, 7, 0);
+        let truth = direct_reference(scene(), size, 1024, 7, flags);
         // 128 frames (256 before 2026-11-26, for CI time; measured at 256: relMSE 2.5e-4 on
         // Cornell, 2.9e-2 on courtyard, mostly the reference's own noise).
-        let (img, rays) = callisto(scene(), size, 128, params.clone(), 0);
+        let (img, rays) = callisto(scene(), size, 128, params.clone(), flags);
         let ratio = energy(&img) / energy(&truth);
         let m = metrics::compare(&img, &truth).unwrap();
         let shadow = rays.by_kind[1] as f64 / (size[0] * size[1] * 128) as f64;
@@ -92,10 +98,12 @@ fn variable_rate_traces_fewer_rays() {
         full_params.insert("range_cutoff".into(), cutoff.into());
         let mut var_params = full_params.clone();
         var_params.insert("rate".into(), "variable".into());
-        // The converged full-rate image at this cutoff: what reconstruction should reproduce.
+        // The converged full-rate image at this cutoff: what reconstruction should reproduce
+        // (64 frames, 128 before 2026-11-26 for CI time: its own noise is a quarter of the
+        // 16-frame images' and adds to both errors; measured ratio 1.03 against the 1.5 bound).
         let mut conv = full_params.clone();
         conv.insert("denoise".into(), false.into());
-        let (full_truth, _) = callisto(scene(), size, 128, conv, flags);
+        let (full_truth, _) = callisto(scene(), size, 64, conv, flags);
         let (full, full_rays) = callisto(scene(), size, frames, full_params, flags);
         let (var, var_rays) = callisto(scene(), size, frames, var_params, flags);
         let per = |r: &RayCounts| r.by_kind[1] as f64 / (size[0] * size[1] * frames) as f64;

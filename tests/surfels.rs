@@ -60,13 +60,13 @@ fn surfels_furnace_matches_closed_form() {
     assert_eq!(e.ray_counts().unwrap().invalid_samples, 0);
 }
 
-/// Cornell box at 128²: energy within 5% of a 1,024-spp reference after 128 frames, relMSE bounded.
+/// Cornell box at 128²: energy within 5% of a 512-spp reference after 128 frames, relMSE bounded.
 #[test]
 fn surfels_converge_near_reference_on_cornell() {
     let size = [128, 128];
-    // The Cornell truth Lumen's and ReSTIR's tests share (1,024 spp; 2,048 before 2026-11-26:
+    // The Cornell truth Lumen's and ReSTIR's tests share (512 spp; 2,048 before 2026-11-26:
     // its own relMSE is far under the bound either way).
-    let truth = shared_reference(builtin::cornell(), size, 1024, 11, 0, 0);
+    let truth = shared_reference(builtin::cornell(), size, 512, 11, 0, 0);
     let mut e = engine("surfels", toml::Table::new(), builtin::cornell(), size, 1);
     // 128 frames (256 before 2026-11-26, for CI time): measured at 256, energy 0.986 and relMSE
     // 9.5e-4 against bounds of 5% and 2e-2.
