@@ -1,6 +1,8 @@
 //! GPU-free tests: shaders validate with naga, CPU/GPU layouts agree, the BVH matches brute
 //! force, presets parse and round-trip, glTF loading and its errors, metrics.
 
+mod common;
+
 use gilab::compare::{metrics, Image};
 use gilab::gpu::shaders::{ShaderLibrary, ShaderVariant};
 use gilab::preset::{LoadedPreset, Overrides};
@@ -43,7 +45,7 @@ fn every_wgsl_entry_file_validates() {
 fn shader_errors_name_file_and_line() {
     let dir = std::env::temp_dir().join(format!("gilab-shader-err-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    copy_dir(Path::new("shaders"), &dir);
+    common::copy_dir(Path::new("shaders"), &dir);
     let path = dir.join("common/math.wgsl");
     let text = std::fs::read_to_string(&path).unwrap();
     std::fs::write(
@@ -54,10 +56,7 @@ fn shader_errors_name_file_and_line() {
         ),
     )
     .unwrap();
-    let lib = ShaderLibrary {
-        source: gilab::gpu::shaders::ShaderSource::Disk(dir.clone()),
-        variant: Default::default(),
-    };
+    let lib = ShaderLibrary::at(dir.clone());
     let err = lib.compose("reference/path_trace.wgsl").unwrap_err();
     assert!(
         err.location.contains("common/math.wgsl:"),
@@ -82,18 +81,6 @@ fn shader_errors_name_file_and_line() {
         .dependents("reference/path_trace.wgsl")
         .unwrap()
         .contains(&"bench/trace_rays.wgsl".to_string()));
-}
-
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for e in std::fs::read_dir(from).unwrap().flatten() {
-        let p = e.path();
-        if p.is_dir() {
-            copy_dir(&p, &to.join(e.file_name()));
-        } else {
-            std::fs::copy(&p, to.join(e.file_name())).unwrap();
-        }
-    }
 }
 
 /// Size naga computes for a struct of a composed module (naga_oil may mangle the name).

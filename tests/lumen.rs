@@ -540,10 +540,7 @@ fn rays_per_pixel_frame(rays: &gilab::render::RayCounts, frames: u32) -> f64 {
 }
 
 fn kind(rays: &gilab::render::RayCounts, name: &str) -> u64 {
-    rays.named()
-        .iter()
-        .find(|(n, _)| *n == name)
-        .map_or(0, |(_, c)| *c)
+    rays.kind(name)
 }
 
 /// Cornell box at 128² against a 512-spp reference (shared with ReSTIR's and the surfels' tests).

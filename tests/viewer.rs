@@ -19,19 +19,6 @@ fn tempdir(name: &str) -> PathBuf {
     d
 }
 
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for e in std::fs::read_dir(from).unwrap() {
-        let e = e.unwrap();
-        let target = to.join(e.file_name());
-        if e.path().is_dir() {
-            copy_dir(&e.path(), &target);
-        } else {
-            std::fs::copy(e.path(), target).unwrap();
-        }
-    }
-}
-
 /// Small presets: two techniques on the Cornell box, and a furnace.
 const CORNELL: &str = r#"
 [scene]
@@ -72,7 +59,7 @@ fn fixture(name: &str) -> Fixture {
     std::fs::write(presets.join("cornell.toml"), CORNELL).unwrap();
     std::fs::write(presets.join("furnace.toml"), FURNACE).unwrap();
     let shaders = dir.join("shaders");
-    copy_dir(
+    common::copy_dir(
         Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("shaders")
             .as_path(),
@@ -88,10 +75,7 @@ fn fixture(name: &str) -> Fixture {
 fn viewer(f: &Fixture, watch: bool) -> Harness<'static, ViewerApp> {
     let preset = LoadedPreset::load(&f.presets.join("cornell.toml")).unwrap();
     let mut options = ViewerOptions::new(preset);
-    options.shaders = ShaderLibrary {
-        source: gilab::gpu::shaders::ShaderSource::Disk(f.shaders.clone()),
-        variant: Default::default(),
-    };
+    options.shaders = ShaderLibrary::at(f.shaders.clone());
     options.presets_dir = f.presets.clone();
     options.out_dir = f.dir.join("out");
     options.cache_dir = f.dir.join("cache");
@@ -355,7 +339,7 @@ fn broken_shader_keeps_last_pipeline_and_fix_reloads() {
 fn broken_gltf_on_disk_while_running_keeps_the_scene() {
     let f = fixture("gltf");
     let scene_dir = f.dir.join("scene");
-    copy_dir(
+    common::copy_dir(
         Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("scenes/box-room")
             .as_path(),

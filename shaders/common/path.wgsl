@@ -18,6 +18,11 @@
 #import gilab::ray::INFINITE_DISTANCE
 #import gilab::sky::{sky_radiance, sample_sky, sky_pdf, sky_nee}
 #import gilab::sampling::power_heuristic
+#import gilab::surface_point::HitSurface
+#ifdef GI_TERMINATE_CACHE
+#import gilab::math::INV_PI
+#import gilab::surface_cache::cache_at_hit
+#endif
 
 // Hard safety cap on path length. With Russian roulette survival <= 0.95 the chance of
 // reaching it is below 0.95^1021 ~ 1e-23, so "unbounded" stays unbiased in practice.
@@ -37,7 +42,44 @@ struct PathResult {
     first_normal: vec3<f32>,
 }
 
-// Traces a path from `origin` along `dir`. `max_bounces` 0 = unbounded. With
+struct NextEvent {
+    radiance: vec3<f32>,
+    shadow_rays: u32,
+}
+
+// Next-event estimation at a path vertex (a pure mirror evaluates to 0 and traces no shadow
+// ray): the sky with probability p_sky, else one light of the pool; ls.pdf includes that
+// choice. With `mis` the sample is weighted against BSDF sampling (power heuristic), which the
+// path's continuation does; without it (a path that ends here) it counts in full.
+fn next_event(surf: HitSurface, wo: vec3<f32>, rng: ptr<function, Rng>, p_sky: f32, mis: bool) -> NextEvent {
+    var out = NextEvent(vec3<f32>(0.0), 0u);
+    let u_sel = rand(rng);
+    let u_light = rand_pair(rng);
+    var ls = no_light_sample();
+    if u_sel < p_sky {
+        let ss = sample_sky(u_light);
+        let le_sky = sky_radiance(ss.dir);
+        ls = LightSample(ss.dir, INFINITE_DISTANCE, le_sky, p_sky * ss.pdf, p_sky * ss.pdf, 1.0, false, ss.pdf > 0.0 && any(le_sky > vec3<f32>(0.0)), vec3<f32>(0.0));
+    } else if light_pool.count > 0u {
+        ls = sample_light(surf.position, (u_sel - p_sky) / (1.0 - p_sky), u_light);
+        ls.pdf *= 1.0 - p_sky;
+    }
+    if ls.valid && ls.pdf > 0.0 && dot(ls.wi, surf.geo_normal) > 0.0 {
+        let e = bsdf_eval(surf.material, surf.normal, wo, ls.wi);
+        if any(e.f > vec3<f32>(0.0)) {
+            out.shadow_rays = 1u;
+            if unoccluded(light_shadow_ray(surf.position, surf.geo_normal, ls)) {
+                let w = select(power_heuristic(ls.pdf, e.pdf), 1.0, ls.is_delta || !mis);
+                out.radiance = e.f * dot(surf.normal, ls.wi) * ls.radiance * (w / ls.pdf);
+            }
+        }
+    }
+    return out;
+}
+
+// Traces a path from `origin` along `dir`. `max_bounces` 0 = unbounded. With the shader def
+// GI_TERMINATE_CACHE (ReSTIR GI's `gi_terminate = "lumen-cards"`) the path ends in the surface
+// cache at hit `max_depth` (bound at group SURFACE_CACHE_GROUP by the caller). With
 // `skip_first_emission` the emission of the first hit is left out (ReSTIR GI: direct light
 // from emitters is ReSTIR DI's job).
 fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, max_depth: u32, skip_first_emission: bool) -> PathResult {
@@ -86,29 +128,24 @@ fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, 
         }
         let wo = -dir;
         let m = surf.material;
-        // Next-event estimation (a pure mirror evaluates to 0 and traces no shadow ray): the
-        // sky with probability p_sky, else one light of the pool; ls.pdf includes that choice.
-        let u_sel = rand(rng);
-        let u_light = rand_pair(rng);
-        var ls = no_light_sample();
-        if u_sel < p_sky {
-            let ss = sample_sky(u_light);
-            let le_sky = sky_radiance(ss.dir);
-            ls = LightSample(ss.dir, INFINITE_DISTANCE, le_sky, p_sky * ss.pdf, p_sky * ss.pdf, 1.0, false, ss.pdf > 0.0 && any(le_sky > vec3<f32>(0.0)), vec3<f32>(0.0));
-        } else if light_pool.count > 0u {
-            ls = sample_light(surf.position, (u_sel - p_sky) / (1.0 - p_sky), u_light);
-            ls.pdf *= 1.0 - p_sky;
-        }
-        if ls.valid && ls.pdf > 0.0 && dot(ls.wi, surf.geo_normal) > 0.0 {
-            let e = bsdf_eval(m, surf.normal, wo, ls.wi);
-            if any(e.f > vec3<f32>(0.0)) {
-                out.shadow_rays += 1u;
-                if unoccluded(light_shadow_ray(surf.position, surf.geo_normal, ls)) {
-                    let w = select(power_heuristic(ls.pdf, e.pdf), 1.0, ls.is_delta);
-                    out.radiance += throughput * e.f * dot(surf.normal, ls.wi) * ls.radiance * (w / ls.pdf);
-                }
+#ifdef GI_TERMINATE_CACHE
+        // The path ends in the surface cache at this hit (src/parts/surface_cache.rs): direct
+        // light by NEE at full weight (no BSDF-sampled continuation to share it with), every
+        // further bounce from the cache's indirect irradiance, reflected by its albedo.
+        if depth + 1u >= max_bounces {
+            let direct = next_event(surf, wo, rng, p_sky, false);
+            out.shadow_rays += direct.shadow_rays;
+            out.radiance += throughput * direct.radiance;
+            let c = cache_at_hit(hit.tri, surf.position, surf.geo_normal, hit.t);
+            if c.weight > 1e-4 {
+                out.radiance += throughput * c.albedo * c.indirect * INV_PI;
             }
+            break;
         }
+#endif
+        let direct = next_event(surf, wo, rng, p_sky, true);
+        out.shadow_rays += direct.shadow_rays;
+        out.radiance += throughput * direct.radiance;
         // Continue the path by sampling the BRDF.
         let bs = bsdf_sample(m, surf.normal, wo, rand(rng), rand_pair(rng));
         // Directions below the geometric surface would leak through thin walls.

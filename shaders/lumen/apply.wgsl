@@ -14,7 +14,8 @@
 #import gilab::brdf::diffuse_color
 #import gilab::nee::direct_light
 #import gilab::lumen_probes::{pixel_data, lit_index, parity, probes_flag, PROBES_ACTIVE}
-#import gilab::lumen::{params, gather_out, debug_out, pixel_direct, tri_object, has_flag, sample_cache, cache_radiance, sdf_trace, sdf_sample, sdf_bias, level_voxel, FLAG_ACCUMULATE, FLAG_DEBUG, FLAG_LIGHTS, FLAG_DIRECT_RESTIR, EMPTY}
+#import gilab::lumen::{params, gather_out, debug_out, pixel_direct, has_flag, sdf_trace, sdf_sample, sdf_bias, level_voxel, FLAG_ACCUMULATE, FLAG_DEBUG, FLAG_LIGHTS, FLAG_DIRECT_RESTIR, EMPTY}
+#import gilab::surface_cache::{tri_object, sample_cache, cache_radiance}
 
 fn gathered_irradiance(pixel: vec2<u32>, s: GSurface) -> vec3<f32> {
     let ds = params.gather_downsample;

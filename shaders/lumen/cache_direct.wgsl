@@ -6,7 +6,8 @@
 #import gilab::counters::{flush_counts, no_counts, RAY_CACHE}
 #import gilab::rng::{rng_init, rand, rand_pair, STREAM_LUMEN_DIRECT}
 #import gilab::lights::sample_light
-#import gilab::lumen::{params, tile_list, atlas_direct, atlas_index, cache_texel, light_visible, has_flag, FLAG_LIGHTS}
+#import gilab::lumen::{params, tile_list, light_visible, has_flag, FLAG_LIGHTS}
+#import gilab::surface_cache::{atlas_direct, atlas_index, cache_texel}
 
 const DIRECT_HISTORY: f32 = 32.0;
 

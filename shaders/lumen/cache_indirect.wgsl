@@ -3,7 +3,8 @@
 // weighted by its plane (texels behind a probe get nothing from it), by its mean hit distance
 // (a probe whose rays stop short of the texel is likely on the other side of something) and by
 // normal agreement; the result is blended into the indirect atlas over at most 4 frames.
-#import gilab::lumen::{params, cards, tile_list, probes, atlas_indirect, atlas_index, cache_texel}
+#import gilab::lumen::{params, tile_list, probes}
+#import gilab::surface_cache::{cards, atlas_indirect, atlas_index, cache_texel}
 
 const MAX_FRAMES: f32 = 4.0;
 

@@ -8,7 +8,8 @@
 #import gilab::sampling::sample_cosine_hemisphere
 #import gilab::counters::{flush_counts, no_counts, RAY_CACHE}
 #import gilab::rng::{rng_init, rand, rand_pair, STREAM_LUMEN_PROBE}
-#import gilab::lumen::{params, tile_list, probes, Probe, cache_texel, trace_scene, hit_radiance}
+#import gilab::lumen::{params, tile_list, probes, Probe, trace_scene, hit_radiance}
+#import gilab::surface_cache::{cache_texel}
 #import gilab::sky::sky_radiance
 
 const PROBE_RAYS: u32 = 16u;

@@ -5,7 +5,7 @@
 #import gilab::scene::{materials, alpha_hole, material_emission, tri_uvs, tri_material}
 #import gilab::surface_point::surface_at
 #import gilab::brdf::diffuse_color
-#import gilab::lumen_card::{Card, card_uv, card_depth, card_dir, card_axis}
+#import gilab::card::{Card, card_uv, card_depth, card_dir, card_axis}
 
 @group(1) @binding(0) var<storage, read> capture_cards: array<Card>;
 

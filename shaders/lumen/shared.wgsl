@@ -10,7 +10,7 @@
 #import gilab::scene::bvh_nodes
 #import gilab::ray::{offset_point, unoccluded, INFINITE_DISTANCE}
 #import gilab::lights::{LightSample, light_shadow_ray}
-#import gilab::lumen_card::{Card, card_dir, card_uv, card_depth, card_depth_range, card_texel_size, card_point}
+#import gilab::surface_cache::{cards, object_cards, tri_object, atlas_direct, atlas_indirect, atlas_albedo, atlas_normal, atlas_emissive, atlas_depth, CacheSample, sample_cache, cache_radiance}
 
 const MAX_LEVELS: u32 = 6u;
 const BRICK: u32 = 8u;
@@ -85,11 +85,9 @@ struct Probe {
 }
 
 @group(2) @binding(0) var<uniform> params: LumenParams;
-@group(2) @binding(1) var<storage, read> cards: array<Card>;
-// Per object: (first card, card count).
-@group(2) @binding(2) var<storage, read> object_cards: array<vec2<u32>>;
-// Per scene triangle: its object (connected component).
-@group(2) @binding(3) var<storage, read> tri_object: array<u32>;
+// Bindings 1-3 (cards, object_cards, tri_object), 12-13 (atlas lighting) and 19-22 (atlas
+// textures) are the surface cache's: declared in shaders/parts/surface_cache.wgsl, at group 2
+// here (SURFACE_CACHE_GROUP's default).
 // Per level and brick slot (toroidal): pool index or EMPTY.
 @group(2) @binding(4) var<storage, read_write> brick_table: array<u32>;
 // Per level and brick slot: the brick coordinate it holds (w: 1 once built).
@@ -106,9 +104,6 @@ struct Probe {
 @group(2) @binding(10) var<storage, read_write> fill_list: array<u32>;
 // Scene edits: world boxes (min, max) whose bricks are rebuilt.
 @group(2) @binding(11) var<storage, read> dirty_boxes: array<vec4<f32>>;
-// Atlas lighting, one vec4 per texel: direct irradiance (w: samples), indirect irradiance (w: frames).
-@group(2) @binding(12) var<storage, read_write> atlas_direct: array<vec4<f32>>;
-@group(2) @binding(13) var<storage, read_write> atlas_indirect: array<vec4<f32>>;
 @group(2) @binding(14) var<storage, read_write> probes: array<Probe>;
 // Direct-light 8x8 tiles then probe 4x4 tiles: (tile x | tile y << 16, card).
 @group(2) @binding(15) var<storage, read> tile_list: array<vec2<u32>>;
@@ -117,10 +112,6 @@ struct Probe {
 @group(2) @binding(17) var<storage, read_write> debug_out: array<vec4<f32>>;
 // Direct light per pixel from the direct-light part (`direct = "restir"`; src/parts/).
 @group(2) @binding(18) var<storage, read_write> pixel_direct: array<vec4<f32>>;
-@group(2) @binding(19) var atlas_albedo: texture_2d<f32>;
-@group(2) @binding(20) var atlas_normal: texture_2d<f32>;
-@group(2) @binding(21) var atlas_emissive: texture_2d<f32>;
-@group(2) @binding(22) var atlas_depth: texture_2d<f32>;
 
 fn has_flag(f: u32) -> bool {
     return (params.flags & f) != 0u;
@@ -427,92 +418,8 @@ fn trace_scene_on(p: vec3<f32>, n_geo: vec3<f32>, d: vec3<f32>, t_max: f32, trav
 }
 
 // ---------------------------------------------------------------------------------------------
-// Surface cache sampling (the seed's "Card Sampling").
-
-struct CacheSample {
-    albedo: vec3<f32>,
-    direct: vec3<f32>,
-    indirect: vec3<f32>,
-    emissive: vec3<f32>,
-    // Sum of the weights (0: no card covers the point; the caller loses that energy).
-    weight: f32,
-    // Card with the largest weight, or EMPTY.
-    best_card: u32,
-}
-
-fn atlas_index(t: vec2<u32>) -> u32 {
-    return t.y * params.atlas_size + t.x;
-}
-
-// The cache at point p (normal n) of `object`: project onto the object's cards facing n, four
-// texels each (manual bilinear), weighted by card-normal agreement and by how far the texel's
-// depth is from the point's (occluded texels drop out); invalid texels are skipped.
-fn sample_cache(p: vec3<f32>, n: vec3<f32>, object: u32, tolerance_in: f32) -> CacheSample {
-    var out = CacheSample(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0), 0.0, EMPTY);
-    if object >= arrayLength(&object_cards) {
-        return out;
-    }
-    let range = object_cards[object];
-    var best = 0.0;
-    for (var k = 0u; k < range.y; k++) {
-        let ci = range.x + k;
-        let c = cards[ci];
-        let facing = dot(n, card_dir(c));
-        if facing <= 0.1 {
-            continue;
-        }
-        let tolerance = max(tolerance_in, 2.0 * card_texel_size(c));
-        if any(p < c.box_min.xyz - tolerance) || any(p > c.box_max.xyz + tolerance) {
-            continue;
-        }
-        let uv = clamp(card_uv(c, p), vec2<f32>(0.0), vec2<f32>(1.0));
-        let depth = card_depth(c, p);
-        let range_w = card_depth_range(c);
-        let f = uv * vec2<f32>(c.rect.zw) - 0.5;
-        let i0 = vec2<i32>(floor(f));
-        let t = f - floor(f);
-        var card_weight = 0.0;
-        for (var j = 0u; j < 4u; j++) {
-            let o = vec2<i32>(i32(j & 1u), i32(j >> 1u));
-            let local = clamp(i0 + o, vec2<i32>(0), vec2<i32>(c.rect.zw) - 1);
-            let texel = vec2<u32>(local) + c.rect.xy;
-            let td = textureLoad(atlas_depth, texel, 0).x;
-            if td > 1.5 {
-                continue;
-            }
-            let bw = select(1.0 - t, t, vec2<bool>(o == vec2<i32>(1)));
-            let dw = clamp(1.0 - abs(td - depth) * range_w / tolerance, 0.0, 1.0);
-            let w = bw.x * bw.y * dw * facing;
-            if w <= 0.0 {
-                continue;
-            }
-            let ai = atlas_index(texel);
-            out.albedo += w * textureLoad(atlas_albedo, texel, 0).xyz;
-            out.emissive += w * textureLoad(atlas_emissive, texel, 0).xyz;
-            out.direct += w * atlas_direct[ai].xyz;
-            out.indirect += w * atlas_indirect[ai].xyz;
-            card_weight += w;
-        }
-        out.weight += card_weight;
-        if card_weight > best {
-            best = card_weight;
-            out.best_card = ci;
-        }
-    }
-    if out.weight > 1e-4 {
-        let inv = 1.0 / out.weight;
-        out.albedo *= inv;
-        out.emissive *= inv;
-        out.direct *= inv;
-        out.indirect *= inv;
-    }
-    return out;
-}
-
-// Diffuse radiance leaving a cached surface: albedo x (direct + indirect irradiance) / pi + emission.
-fn cache_radiance(s: CacheSample) -> vec3<f32> {
-    return s.albedo * (s.direct + s.indirect) * INV_PI + s.emissive;
-}
+// The surface cache at traced hits (its sampling, the seed's "Card Sampling", is the part's:
+// shaders/parts/surface_cache.wgsl).
 
 // Radiance a traced ray brings back: the cache's reflected light at a hit (nothing from the back
 // of a surface or where no card covers it), the sky on a miss.
@@ -685,27 +592,6 @@ fn brick_edited(l: u32, b: vec3<i32>) -> bool {
         }
     }
     return false;
-}
-
-// ---------------------------------------------------------------------------------------------
-// Atlas texels.
-
-struct CacheTexel {
-    valid: bool,
-    position: vec3<f32>,
-    normal: vec3<f32>,
-}
-
-// The surface a texel of card `ci` holds (invalid where the capture saw nothing).
-fn cache_texel(ci: u32, texel: vec2<u32>) -> CacheTexel {
-    let c = cards[ci];
-    let td = textureLoad(atlas_depth, texel, 0).x;
-    if td > 1.5 {
-        return CacheTexel(false, vec3<f32>(0.0), vec3<f32>(0.0));
-    }
-    let uv = (vec2<f32>(texel - c.rect.xy) + 0.5) / vec2<f32>(c.rect.zw);
-    let n = textureLoad(atlas_normal, texel, 0).xyz;
-    return CacheTexel(true, card_point(c, uv, td), normalize(n));
 }
 
 // Visibility of a light sample from point p (geometric normal n) in the `tracing` mode.

@@ -7,7 +7,7 @@ use super::Image;
 use crate::gpu::readback::read_buffer;
 use crate::gpu::shaders::ShaderLibrary;
 use crate::gpu::Gpu;
-use crate::render::pipelines::{entry_point_pipeline, shader_module, storage_entry};
+use crate::render::pipelines::{self, storage_entry};
 use crate::scene::shading::{BrdfModel, CallistoParams};
 use anyhow::Result;
 use glam::Vec3;
@@ -97,20 +97,16 @@ const MAX_GROUPS_X: u32 = 65535;
 
 impl BrdfProbe {
     pub fn new(gpu: &Gpu, shaders: &ShaderLibrary) -> Result<BrdfProbe> {
-        let module = shader_module(gpu, shaders, "brdf/probe.wgsl")?;
-        let layout = gpu
-            .device
-            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some("brdf probe"),
-                entries: &[
-                    storage_entry(0, true),
-                    storage_entry(1, true),
-                    storage_entry(2, false),
-                ],
-            });
-        let pipeline = gpu.scoped("compute pipeline shaders/brdf/probe.wgsl", || {
-            entry_point_pipeline(gpu, &module, "main", &[&layout])
-        })?;
+        let layout = pipelines::layout(
+            gpu,
+            "brdf probe",
+            &[
+                storage_entry(0, true),
+                storage_entry(1, true),
+                storage_entry(2, false),
+            ],
+        );
+        let pipeline = pipelines::compute_pipeline(gpu, shaders, "brdf/probe.wgsl", &[&layout])?;
         Ok(BrdfProbe { layout, pipeline })
     }
 

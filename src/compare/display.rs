@@ -267,13 +267,17 @@ impl GpuCompare {
                 pipelines::storage_entry(4, false),
             ],
         );
-        let module = pipelines::shader_module(gpu, shaders, "compare/metrics.wgsl")?;
-        let partials = gpu.scoped("compute pipeline compare/metrics.wgsl", || {
-            pipelines::entry_point_pipeline(gpu, &module, "partials_main", &[&metrics_layout])
-        })?;
-        let total = gpu.scoped("compute pipeline compare/metrics.wgsl", || {
-            pipelines::entry_point_pipeline(gpu, &module, "total_main", &[&metrics_layout])
-        })?;
+        let metrics = |entry_point| {
+            pipelines::compute_pipeline_at(
+                gpu,
+                shaders,
+                "compare/metrics.wgsl",
+                entry_point,
+                &[&metrics_layout],
+            )
+        };
+        let partials = metrics("partials_main")?;
+        let total = metrics("total_main")?;
         let colour_map = gpu
             .device
             .create_buffer_init(&wgpu::util::BufferInitDescriptor {

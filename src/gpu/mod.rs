@@ -2,6 +2,7 @@
 //! adapter's own limits, an error log instead of panics, timestamp queries and readback.
 
 pub mod calibrate;
+pub mod pipeline_cache;
 pub mod readback;
 pub mod shaders;
 pub mod timing;
@@ -103,6 +104,8 @@ pub struct Gpu {
     last_submitted: Mutex<String>,
     /// How long a wait for the GPU may take before it is an error ([`Gpu::wait`]).
     wait_timeout: Mutex<std::time::Duration>,
+    /// Layouts and compute pipelines shared by every engine on this device.
+    pub pipelines: pipeline_cache::PipelineCache,
 }
 
 /// Default bound of one wait for the GPU. Generous on purpose: lavapipe on 2 cores takes
@@ -269,6 +272,7 @@ impl Gpu {
             timestamp_period,
             last_submitted: Mutex::new("nothing yet".into()),
             wait_timeout: Mutex::new(wait_timeout_from_env()),
+            pipelines: Default::default(),
         }
     }
 

@@ -37,7 +37,7 @@ pub enum ShaderSource {
 
 /// Shader variants chosen by the scene (naga_oil shader defs): a feature the scene lacks is
 /// compiled out rather than branched over at run time.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct ShaderVariant {
     /// `ALPHA_TEST`: BVH traversal runs the any-hit alpha test of alpha-tested triangles.
     /// Off for opaque scenes: on lavapipe the test alone made traversal ~3x slower even where
@@ -58,6 +58,10 @@ impl Default for ShaderVariant {
     }
 }
 
+/// The bind group of the surface cache's lookup bindings (shaders/parts/surface_cache.wgsl) when
+/// a pipeline sets nothing else: Lumen's own group.
+pub const DEFAULT_SURFACE_CACHE_GROUP: u32 = 2;
+
 impl ShaderVariant {
     fn defs(self) -> std::collections::HashMap<String, ShaderDefValue> {
         let mut defs = std::collections::HashMap::new();
@@ -71,11 +75,26 @@ impl ShaderVariant {
     }
 }
 
+/// A composed entry file and the hash of everything it was composed from (its source, every
+/// module it imports, directly or not, and the shader defs): equal hashes, equal modules.
+pub struct Composed {
+    pub module: naga::Module,
+    pub version: u64,
+}
+
+/// Composed modules by (entry file, defs): composing parses every imported module with naga
+/// (~50 ms an entry), and engines compose the same entries again and again.
+type ComposeCache = std::collections::HashMap<(String, Vec<String>), (u64, naga::Module)>;
+static COMPOSED: std::sync::Mutex<Option<ComposeCache>> = std::sync::Mutex::new(None);
+
 #[derive(Clone, Debug)]
 pub struct ShaderLibrary {
     pub source: ShaderSource,
     /// Variant every `compose` builds (defaults to all features on).
     pub variant: ShaderVariant,
+    /// Defs a technique adds for some of its pipelines (`with_defs`): a part plugged in at
+    /// build time, such as a cache lookup, and the bind group its bindings sit at.
+    pub pipeline_defs: Vec<(String, u32)>,
 }
 
 impl ShaderLibrary {
@@ -91,10 +110,7 @@ impl ShaderLibrary {
         ];
         for c in candidates.into_iter().flatten() {
             if c.join("common").is_dir() {
-                return ShaderLibrary {
-                    source: ShaderSource::Disk(c),
-                    variant: ShaderVariant::default(),
-                };
+                return ShaderLibrary::at(c);
             }
         }
         ShaderLibrary::embedded()
@@ -104,15 +120,59 @@ impl ShaderLibrary {
         ShaderLibrary {
             source: ShaderSource::Embedded,
             variant: ShaderVariant::default(),
+            pipeline_defs: Vec::new(),
+        }
+    }
+
+    /// The shaders in folder `root` (a copy a test edits, a user's folder).
+    pub fn at(root: impl Into<PathBuf>) -> ShaderLibrary {
+        ShaderLibrary {
+            source: ShaderSource::Disk(root.into()),
+            ..ShaderLibrary::embedded()
         }
     }
 
     /// The same sources, composed as `variant`.
     pub fn with_variant(&self, variant: ShaderVariant) -> ShaderLibrary {
         ShaderLibrary {
-            source: self.source.clone(),
             variant,
+            ..self.clone()
         }
+    }
+
+    /// The same sources and variant with these defs added (a later value of a name wins).
+    pub fn with_defs(&self, defs: &[(&str, u32)]) -> ShaderLibrary {
+        let mut out = self.clone();
+        for (name, value) in defs {
+            out.pipeline_defs.retain(|(n, _)| n != name);
+            out.pipeline_defs.push((name.to_string(), *value));
+        }
+        out.pipeline_defs.sort();
+        out
+    }
+
+    /// Every def a `compose` sets: the scene variant's, the defaults, then `pipeline_defs`.
+    fn defs(&self) -> std::collections::HashMap<String, ShaderDefValue> {
+        let mut defs = self.variant.defs();
+        defs.insert(
+            "SURFACE_CACHE_GROUP".into(),
+            ShaderDefValue::UInt(DEFAULT_SURFACE_CACHE_GROUP),
+        );
+        for (name, value) in &self.pipeline_defs {
+            defs.insert(name.clone(), ShaderDefValue::UInt(*value));
+        }
+        defs
+    }
+
+    /// The defs as sorted `NAME=value` strings: part of a composed module's cache key.
+    pub fn def_names(&self) -> Vec<String> {
+        let mut names: Vec<String> = self
+            .defs()
+            .into_iter()
+            .map(|(k, v)| format!("{k}={v:?}"))
+            .collect();
+        names.sort();
+        names
     }
 
     pub fn root(&self) -> Option<&Path> {
@@ -145,19 +205,49 @@ impl ShaderLibrary {
 
     /// Composes `entry` (e.g. "reference/path_trace.wgsl") and its imports into one validated module.
     pub fn compose(&self, entry: &str) -> Result<naga::Module, ShaderError> {
+        Ok(self.compose_versioned(entry)?.module)
+    }
+
+    /// [`ShaderLibrary::compose`] with the version of its sources; taken from a process-wide
+    /// cache when no file it reads has changed since.
+    pub fn compose_versioned(&self, entry: &str) -> Result<Composed, ShaderError> {
         let files = self.files()?;
+        let defs = self.def_names();
+        let version = source_version(&files, entry, &defs);
+        let key = (entry.to_string(), defs);
+        if let Some((v, module)) = COMPOSED
+            .lock()
+            .expect("compose cache")
+            .as_ref()
+            .and_then(|c| c.get(&key))
+        {
+            if *v == version {
+                return Ok(Composed {
+                    module: module.clone(),
+                    version,
+                });
+            }
+        }
+        let module = self.compose_files(&files, entry)?;
+        COMPOSED
+            .lock()
+            .expect("compose cache")
+            .get_or_insert_with(Default::default)
+            .insert(key, (version, module.clone()));
+        Ok(Composed { module, version })
+    }
+
+    fn compose_files(
+        &self,
+        files: &BTreeMap<String, String>,
+        entry: &str,
+    ) -> Result<naga::Module, ShaderError> {
         let source = files.get(entry).ok_or_else(|| ShaderError {
             location: format!("shaders/{entry}"),
             message: "shader file not found".into(),
             report: String::new(),
         })?;
-        // Module name -> (file, source) for everything that declares an import path.
-        let mut modules: BTreeMap<String, (String, String)> = BTreeMap::new();
-        for (path, src) in &files {
-            if let (Some(name), _, _) = get_preprocessor_data(src) {
-                modules.insert(name, (path.clone(), src.clone()));
-            }
-        }
+        let modules = modules_of(files);
         let mut composer = Composer::default();
         let mut added = HashSet::new();
         let (_, imports, _) = get_preprocessor_data(source);
@@ -176,7 +266,7 @@ impl ShaderLibrary {
                 source,
                 file_path: &file_path,
                 shader_type: ShaderType::Wgsl,
-                shader_defs: self.variant.defs(),
+                shader_defs: self.defs(),
                 ..Default::default()
             })
             .map_err(|e| composer_error(&composer, &e))
@@ -185,43 +275,73 @@ impl ShaderLibrary {
     /// Entry files that import (directly or not) the given file: what hot reload must rebuild.
     pub fn dependents(&self, changed: &str) -> Result<Vec<String>, ShaderError> {
         let files = self.files()?;
-        let mut module_of_file = BTreeMap::new();
-        let mut modules = BTreeMap::new();
-        for (path, src) in &files {
-            if let (Some(name), _, _) = get_preprocessor_data(src) {
-                module_of_file.insert(path.clone(), name.clone());
-                modules.insert(name, (path.clone(), src.clone()));
-            }
-        }
+        let modules = modules_of(&files);
         let mut out = Vec::new();
         for entry in self.entry_files()? {
-            if entry == changed {
+            let imports_changed = || {
+                import_closure(&modules, &files[&entry])
+                    .iter()
+                    .any(|name| modules[name].0 == changed)
+            };
+            if entry == changed || imports_changed() {
                 out.push(entry);
-                continue;
-            }
-            let mut seen = HashSet::new();
-            let mut stack: Vec<String> = get_preprocessor_data(&files[&entry])
-                .1
-                .into_iter()
-                .map(|i| i.import)
-                .collect();
-            while let Some(imp) = stack.pop() {
-                let Some(name) = resolve_module(&modules, &imp) else {
-                    continue;
-                };
-                if !seen.insert(name.clone()) {
-                    continue;
-                }
-                let (file, src) = &modules[&name];
-                if file == changed {
-                    out.push(entry.clone());
-                    break;
-                }
-                stack.extend(get_preprocessor_data(src).1.into_iter().map(|i| i.import));
             }
         }
         Ok(out)
     }
+}
+
+/// A hash of `entry`'s source, every module it imports (directly or not) and `defs`.
+fn source_version(files: &BTreeMap<String, String>, entry: &str, defs: &[String]) -> u64 {
+    use std::hash::{Hash, Hasher};
+    let mut hasher = std::collections::hash_map::DefaultHasher::new();
+    (entry, defs).hash(&mut hasher);
+    if let Some(source) = files.get(entry) {
+        source.hash(&mut hasher);
+        let modules = modules_of(files);
+        for name in import_closure(&modules, source) {
+            modules[&name].hash(&mut hasher);
+        }
+    }
+    hasher.finish()
+}
+
+/// Module name -> (file, source) for every file that declares an import path.
+fn modules_of(files: &BTreeMap<String, String>) -> BTreeMap<String, (String, String)> {
+    let mut modules = BTreeMap::new();
+    for (path, src) in files {
+        if let (Some(name), _, _) = get_preprocessor_data(src) {
+            modules.insert(name, (path.clone(), src.clone()));
+        }
+    }
+    modules
+}
+
+/// The modules `source` imports, directly or not, in name order.
+fn import_closure(
+    modules: &BTreeMap<String, (String, String)>,
+    source: &str,
+) -> std::collections::BTreeSet<String> {
+    let mut seen = std::collections::BTreeSet::new();
+    let mut stack: Vec<String> = get_preprocessor_data(source)
+        .1
+        .into_iter()
+        .map(|i| i.import)
+        .collect();
+    while let Some(import) = stack.pop() {
+        let Some(name) = resolve_module(modules, &import) else {
+            continue;
+        };
+        if seen.insert(name.clone()) {
+            stack.extend(
+                get_preprocessor_data(&modules[&name].1)
+                    .1
+                    .into_iter()
+                    .map(|i| i.import),
+            );
+        }
+    }
+    seen
 }
 
 /// `gilab::scene::Light` imports item `Light` from module `gilab::scene`: longest known prefix wins.

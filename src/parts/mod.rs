@@ -7,8 +7,13 @@
 //!
 //! - [`restir_direct::RestirDirect`]: direct light at the primary surfaces by ReSTIR DI (the
 //!   `restir` technique's own DI and ReGIR passes, GI off), shaded into one radiance value per
-//!   pixel. Used by `surfels` and `lumen` (`direct = "restir"`).
+//!   pixel. Used by `surfels`, `lumen` and `callisto-shadows` (`direct = "restir"`).
+//! - [`surface_cache::SurfaceCache`]: Lumen's surface cache (cards, lit every frame with
+//!   multi-bounce feedback) and its lookup (`gilab::surface_cache`, at the bind group a pass
+//!   names with `SURFACE_CACHE_GROUP`). Used by ReSTIR GI (`gi_terminate = "lumen-cards"`).
 
 pub mod restir_direct;
+pub mod surface_cache;
 
 pub use restir_direct::RestirDirect;
+pub use surface_cache::SurfaceCache;

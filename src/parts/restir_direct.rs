@@ -95,13 +95,15 @@ impl RestirDirect {
     /// This frame's ReSTIR DI passes, then the `direct` pass into `output` (a bind group of
     /// [`Self::output_layout`]).
     pub fn record(
-        &self,
+        &mut self,
         ctx: &RenderContext,
         enc: &mut wgpu::CommandEncoder,
         timer: &mut PassTimer,
         output: &wgpu::BindGroup,
     ) {
-        let (Some(shade), Some(restir_bg)) = (&self.shade, self.lighting.bind_group()) else {
+        let (Some(shade), Some(restir_bg)) =
+            (self.shade.clone(), self.lighting.bind_group().cloned())
+        else {
             return;
         };
         self.lighting.record(ctx, enc, timer);
@@ -110,8 +112,8 @@ impl RestirDirect {
             enc,
             timer,
             "direct",
-            shade,
-            &[restir_bg, output],
+            &shade,
+            &[&restir_bg, output],
             [ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1],
         );
     }

@@ -34,15 +34,14 @@ impl GBuffer {
         uniforms: &wgpu::Buffer,
         extent: [u32; 2],
     ) -> Result<GBuffer> {
-        let frame_layout = gpu
-            .device
-            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some("gbuffer frame"),
-                entries: &[uniform_entry(
-                    0,
-                    wgpu::ShaderStages::VERTEX | wgpu::ShaderStages::FRAGMENT,
-                )],
-            });
+        let frame_layout = super::pipelines::layout(
+            gpu,
+            "gbuffer frame",
+            &[uniform_entry(
+                0,
+                wgpu::ShaderStages::VERTEX | wgpu::ShaderStages::FRAGMENT,
+            )],
+        );
         let frame_bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("gbuffer frame"),
             layout: &frame_layout,

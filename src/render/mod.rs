@@ -78,6 +78,13 @@ impl RayCounts {
             invalid_samples: get(COUNTER_INVALID_SAMPLES),
         }
     }
+    /// Rays of one kind of [`RAY_KINDS`] (0 for an unknown name).
+    pub fn kind(&self, name: &str) -> u64 {
+        RAY_KINDS
+            .iter()
+            .position(|k| *k == name)
+            .map_or(0, |i| self.by_kind[i])
+    }
     pub fn named(&self) -> Vec<(&'static str, u64)> {
         RAY_KINDS
             .iter()
@@ -124,6 +131,26 @@ impl RenderContext<'_> {
             &[&self.scene.layout, self.frame_layout, technique],
         )
     }
+}
+
+/// Two lists of entry files as one (a technique's `shader_files` and its parts'); `N` must be
+/// `A + B` (checked at compile time where the result is a `const`).
+pub const fn concat_files<const A: usize, const B: usize, const N: usize>(
+    a: [&'static str; A],
+    b: [&'static str; B],
+) -> [&'static str; N] {
+    assert!(A + B == N, "concat_files: N must be A + B");
+    let mut out = [""; N];
+    let mut i = 0;
+    while i < A {
+        out[i] = a[i];
+        i += 1;
+    }
+    while i < N {
+        out[i] = b[i - A];
+        i += 1;
+    }
+    out
 }
 
 /// One GI technique: long-lived pipelines, per-frame recording, linear HDR out.

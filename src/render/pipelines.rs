@@ -1,18 +1,19 @@
 //! Pipeline creation with composed shaders, inside wgpu error scopes: failures come back as
 //! `Err` with the shader's file:line, never as a panic.
 
-use crate::gpu::{shaders::ShaderLibrary, timing::PassTimer, Gpu};
+use crate::gpu::{pipeline_cache::ComputeKey, shaders::ShaderLibrary, timing::PassTimer, Gpu};
 use anyhow::{anyhow, Result};
 use std::borrow::Cow;
 use std::cell::Cell;
 
 thread_local! {
-    static PIPELINES_CREATED: Cell<u64> = const { Cell::new(0) };
+    static PIPELINES_REQUESTED: Cell<u64> = const { Cell::new(0) };
 }
 
-/// Compute pipelines this thread has created: a test checks that parameter changes create none.
-pub fn pipelines_created() -> u64 {
-    PIPELINES_CREATED.with(|c| c.get())
+/// Compute pipelines this thread has asked for, built or taken from the device's cache
+/// (`Gpu::pipelines`): a test checks that parameter changes ask for none.
+pub fn pipelines_requested() -> u64 {
+    PIPELINES_REQUESTED.with(|c| c.get())
 }
 
 pub fn shader_module(
@@ -21,6 +22,10 @@ pub fn shader_module(
     entry: &str,
 ) -> Result<wgpu::ShaderModule> {
     let module = shaders.compose(entry).map_err(|e| anyhow!("{e}"))?;
+    module_from(gpu, entry, module)
+}
+
+fn module_from(gpu: &Gpu, entry: &str, module: naga::Module) -> Result<wgpu::ShaderModule> {
     gpu.scoped(&format!("shader module shaders/{entry}"), || {
         gpu.device
             .create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -37,21 +42,59 @@ pub fn compute_pipeline(
     entry: &str,
     layouts: &[&wgpu::BindGroupLayout],
 ) -> Result<wgpu::ComputePipeline> {
-    let module = shader_module(gpu, shaders, entry)?;
-    gpu.scoped(&format!("compute pipeline shaders/{entry}"), || {
-        entry_point_pipeline(gpu, &module, "main", layouts)
-    })
+    compute_pipeline_at(gpu, shaders, entry, "main", layouts)
 }
 
-/// The compute pipeline of one entry point of a module (files with several, such as the test
-/// harnesses), with these bind group layouts (0, 1, …). Counted by `pipelines_created`.
+/// The compute pipeline of one entry point of `entry` (files with several, such as the
+/// surfel scan), with these bind group layouts (0, 1, …). Built once per device and source
+/// version: later engines take it from `Gpu::pipelines`.
+pub fn compute_pipeline_at(
+    gpu: &Gpu,
+    shaders: &ShaderLibrary,
+    entry: &str,
+    entry_point: &str,
+    layouts: &[&wgpu::BindGroupLayout],
+) -> Result<wgpu::ComputePipeline> {
+    PIPELINES_REQUESTED.with(|c| c.set(c.get() + 1));
+    let composed = shaders
+        .compose_versioned(entry)
+        .map_err(|e| anyhow!("{e}"))?;
+    let key = ComputeKey {
+        entry: entry.to_string(),
+        defs: shaders.def_names(),
+        entry_point: entry_point.to_string(),
+        layouts: layouts.iter().map(|l| (*l).clone()).collect(),
+    };
+    if let Some(pipeline) = gpu.pipelines.compute(&key, composed.version) {
+        return Ok(pipeline);
+    }
+    let module = module_from(gpu, entry, composed.module)?;
+    let pipeline = gpu.scoped(&format!("compute pipeline shaders/{entry}"), || {
+        build_pipeline(gpu, &module, entry_point, layouts)
+    })?;
+    gpu.pipelines
+        .insert_compute(key, composed.version, pipeline.clone());
+    Ok(pipeline)
+}
+
+/// The compute pipeline of one entry point of a module built elsewhere (the test harnesses),
+/// with these bind group layouts (0, 1, …); not cached. Counted by `pipelines_requested`.
 pub fn entry_point_pipeline(
     gpu: &Gpu,
     module: &wgpu::ShaderModule,
     entry_point: &str,
     layouts: &[&wgpu::BindGroupLayout],
 ) -> wgpu::ComputePipeline {
-    PIPELINES_CREATED.with(|c| c.set(c.get() + 1));
+    PIPELINES_REQUESTED.with(|c| c.set(c.get() + 1));
+    build_pipeline(gpu, module, entry_point, layouts)
+}
+
+fn build_pipeline(
+    gpu: &Gpu,
+    module: &wgpu::ShaderModule,
+    entry_point: &str,
+    layouts: &[&wgpu::BindGroupLayout],
+) -> wgpu::ComputePipeline {
     let bind_group_layouts: Vec<Option<&wgpu::BindGroupLayout>> =
         layouts.iter().map(|l| Some(*l)).collect();
     let layout = gpu
@@ -94,17 +137,14 @@ pub fn buffers_bind_group(
     })
 }
 
-/// A bind group layout of `entries`.
+/// A bind group layout of `entries`: one object per device for equal entries, so that cached
+/// pipelines accept every engine's bind groups (`Gpu::pipelines`).
 pub fn layout(
     gpu: &Gpu,
     label: &str,
     entries: &[wgpu::BindGroupLayoutEntry],
 ) -> wgpu::BindGroupLayout {
-    gpu.device
-        .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some(label),
-            entries,
-        })
+    gpu.pipelines.layout(&gpu.device, label, entries)
 }
 
 pub fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {

@@ -661,11 +661,7 @@ impl GpuScene {
                 count: None,
             })
             .collect();
-        gpu.device
-            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some("scene"),
-                entries: &entries,
-            })
+        crate::render::pipelines::layout(gpu, "scene", &entries)
     }
 
     pub fn upload(gpu: &Gpu, scene: &Scene) -> GpuScene {

@@ -48,6 +48,19 @@ pub fn engine(
     Engine::new(gpu(), ShaderLibrary::discover(), scene, t, settings).unwrap()
 }
 
+/// Copies a directory tree (a shader folder a test edits).
+pub fn copy_dir(from: &std::path::Path, to: &std::path::Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap().flatten() {
+        let p = e.path();
+        if p.is_dir() {
+            copy_dir(&p, &to.join(e.file_name()));
+        } else {
+            std::fs::copy(&p, to.join(e.file_name())).unwrap();
+        }
+    }
+}
+
 /// Renders `frames` frames of a technique (after a reset, with FrameUniforms `flags`) and
 /// returns the accumulated image and ray counts; fails on NaN/Inf samples.
 pub fn render_technique(

@@ -345,7 +345,7 @@ impl Technique for CallistoShadows {
             });
             v.splice(0..0, direct);
         }
-        v.extend(self.restir.gi_passes());
+        v.extend(self.restir.gi_passes(f));
         v
     }
 
@@ -413,7 +413,7 @@ impl Technique for CallistoShadows {
             &self.pipelines,
             &self.res,
             &self.empty,
-            self.restir.bind_group(),
+            self.restir.bind_group().cloned(),
         ) else {
             return;
         };
@@ -448,7 +448,7 @@ impl Technique for CallistoShadows {
             timer,
             "resolve",
             &p.resolve,
-            &[restir_bg, &r.bind_group],
+            &[&restir_bg, &r.bind_group],
             image,
         );
     }

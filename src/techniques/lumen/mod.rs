@@ -259,6 +259,42 @@ fn card_buffers(gpu: &Gpu, c: &CardSet) -> ([wgpu::Buffer; 4], wgpu::Buffer, u32
     )
 }
 
+/// Every entry file Lumen compiles without its direct-light part: what the surface-cache part
+/// (`crate::parts::SurfaceCache`, this technique in cache-only mode) builds.
+pub const SURFACE_CACHE_FILES: [&str; 25] = [
+    "lumen/sdf_release.wgsl",
+    "lumen/sdf_allocate.wgsl",
+    "lumen/sdf_args.wgsl",
+    "lumen/sdf_fill.wgsl",
+    "lumen/sdf_coarse.wgsl",
+    "lumen/capture.wgsl",
+    "lumen/cache_direct.wgsl",
+    "lumen/cache_probe.wgsl",
+    "lumen/cache_indirect.wgsl",
+    "lumen/gather.wgsl",
+    "lumen/apply.wgsl",
+    "lumen/query.wgsl",
+    "lumen/world_select.wgsl",
+    "lumen/world_update.wgsl",
+    "lumen/hzb_build.wgsl",
+    "lumen/hzb_top.wgsl",
+    "lumen/probe_place.wgsl",
+    "lumen/probe_adaptive.wgsl",
+    "lumen/probe_sample.wgsl",
+    "lumen/screen_trace.wgsl",
+    "lumen/world_args.wgsl",
+    "lumen/world_trace.wgsl",
+    "lumen/probe_resolve.wgsl",
+    "lumen/probe_filter.wgsl",
+    "lumen/integrate.wgsl",
+];
+
+/// Lumen's entry files and its direct-light part's.
+const SHADER_FILES: [&str; 29] = crate::render::concat_files(
+    SURFACE_CACHE_FILES,
+    crate::parts::restir_direct::SHADER_FILES,
+);
+
 pub struct Lumen {
     params: Params,
     pub settings: LumenSettings,
@@ -284,6 +320,8 @@ pub struct Lumen {
     built_with: Option<LumenSettings>,
     /// The direct-light part for `direct = "restir"` (built the first time it is needed).
     restir_direct: RestirDirect,
+    /// Surface-cache part (`Lumen::surface_cache`): the cache's passes only, no final gather.
+    cache_only: bool,
 }
 
 impl Default for Lumen {
@@ -309,11 +347,13 @@ impl Default for Lumen {
             features: SceneFeatures::default(),
             sky: false,
             extent: [0, 0],
+            cache_only: false,
         }
     }
 }
 
-fn texture_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
+/// A non-filtered 2D float texture read by compute passes (the atlas textures).
+pub fn texture_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
         binding,
         visibility: wgpu::ShaderStages::COMPUTE,
@@ -717,6 +757,44 @@ impl Lumen {
 }
 
 impl Lumen {
+    /// Lumen in cache-only mode, the surface-cache part (`crate::parts::SurfaceCache`): its
+    /// distance field, card captures and cache lighting run each frame; no final gather.
+    pub fn surface_cache() -> Lumen {
+        Lumen {
+            cache_only: true,
+            ..Lumen::default()
+        }
+    }
+
+    /// A bind group of the cache's lookup bindings (`crate::parts::surface_cache`) under
+    /// `layout`, over the current buffers; `None` before `build`.
+    pub fn surface_cache_bind_group(
+        &self,
+        gpu: &Gpu,
+        layout: &wgpu::BindGroupLayout,
+    ) -> Option<wgpu::BindGroup> {
+        use crate::parts::surface_cache::{LOOKUP_BINDINGS, LOOKUP_TEXTURES};
+        let r = self.res.as_ref()?;
+        let mut entries: Vec<wgpu::BindGroupEntry> = LOOKUP_BINDINGS
+            .iter()
+            .map(|&b| wgpu::BindGroupEntry {
+                binding: b,
+                resource: r.buffer(b as usize).as_entire_binding(),
+            })
+            .collect();
+        for (&b, view) in LOOKUP_TEXTURES.iter().zip(&r.atlas_views) {
+            entries.push(wgpu::BindGroupEntry {
+                binding: b,
+                resource: wgpu::BindingResource::TextureView(view),
+            });
+        }
+        Some(gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("surface cache lookup"),
+            layout,
+            entries: &entries,
+        }))
+    }
+
     /// The cards and objects of the current scene.
     pub fn card_set(&self) -> Option<&CardSet> {
         self.cards.as_ref()
@@ -1116,7 +1194,9 @@ impl Technique for Lumen {
         .take(s.clipmap_levels as usize)
         {
             let voxel = clip.map_or(0.0, |c| c.voxel(l as u32));
-            v.push(if (l as u32) < built {
+            v.push(if self.cache_only && s.bvh {
+                pass(name, false, "the surface cache traces through the BVH: no distance field".into())
+            } else if (l as u32) < built {
                 pass(name, true, format!("{}^3 voxels of {voxel:.4}, rebuilt only where the camera scrolled or the scene changed", s.clipmap_resolution))
             } else {
                 pass(name, false, format!("level {} already holds the whole scene", built.saturating_sub(1)))
@@ -1159,6 +1239,9 @@ impl Technique for Lumen {
                 "enclosed: no ray from the camera's side reaches the sky".into()
             },
         ));
+        if self.cache_only {
+            return v;
+        }
         let tracing = if s.bvh { "BVH" } else { "SDF" };
         if s.screen_probes {
             v.extend(self.probe_passes(f));
@@ -1416,7 +1499,9 @@ impl Technique for Lumen {
                 .queue
                 .write_buffer(r.buffer(11), 0, bytemuck::cast_slice(&plan.dirty));
         }
-        if plan.any_update {
+        // The surface-cache part traced through the BVH reads no distance field.
+        let sdf_unused = self.cache_only && self.settings.bvh;
+        if plan.any_update && !sdf_unused {
             self.record_sdf(ctx, enc, timer, &plan);
         }
         if !captures.is_empty() {
@@ -1458,6 +1543,9 @@ impl Technique for Lumen {
                 &[bg],
                 [probes.div_ceil(4), 1, 1],
             );
+        }
+        if self.cache_only {
+            return;
         }
         if self.settings.screen_probes {
             r.probes
@@ -1543,38 +1631,7 @@ impl Technique for Lumen {
     }
 
     fn shader_files(&self) -> &'static [&'static str] {
-        &[
-            "lumen/sdf_release.wgsl",
-            "lumen/sdf_allocate.wgsl",
-            "lumen/sdf_args.wgsl",
-            "lumen/sdf_fill.wgsl",
-            "lumen/sdf_coarse.wgsl",
-            "lumen/capture.wgsl",
-            "lumen/cache_direct.wgsl",
-            "lumen/cache_probe.wgsl",
-            "lumen/cache_indirect.wgsl",
-            "lumen/gather.wgsl",
-            "lumen/apply.wgsl",
-            "lumen/query.wgsl",
-            "lumen/world_select.wgsl",
-            "lumen/world_update.wgsl",
-            "lumen/hzb_build.wgsl",
-            "lumen/hzb_top.wgsl",
-            "lumen/probe_place.wgsl",
-            "lumen/probe_adaptive.wgsl",
-            "lumen/probe_sample.wgsl",
-            "lumen/screen_trace.wgsl",
-            "lumen/world_args.wgsl",
-            "lumen/world_trace.wgsl",
-            "lumen/probe_resolve.wgsl",
-            "lumen/probe_filter.wgsl",
-            "lumen/integrate.wgsl",
-            // The direct-light part (crate::parts::restir_direct::SHADER_FILES).
-            "parts/restir_direct.wgsl",
-            "restir/regir_build.wgsl",
-            "restir/initial_temporal.wgsl",
-            "restir/spatial.wgsl",
-        ]
+        &SHADER_FILES
     }
 
     /// The first frames build the distance field and capture cards.

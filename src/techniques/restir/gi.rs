@@ -5,8 +5,10 @@
 //! (`gi_contribution`, `gi_visible`). Shaders: shaders/restir/{gi_temporal,gi_spatial}.wgsl.
 
 use super::lighting::{PassFiles, PassPair, RestirLighting};
-use crate::gpu::Gpu;
-use crate::render::{pipelines, PassInfo};
+use crate::gpu::{timing::PassTimer, Gpu};
+use crate::parts::SurfaceCache;
+use crate::render::{pipelines, PassInfo, RenderContext};
+use anyhow::Result;
 
 /// Bytes of `GiReservoir` in shaders/restir/shared.wgsl.
 pub const GI_RESERVOIR_BYTES: u64 = 64;
@@ -26,7 +28,19 @@ pub struct Gi {
     pub(super) reservoirs: Option<wgpu::Buffer>,
     /// Per pixel: sky radiance reached by this frame's sample ray (not reused: it has no point).
     pub(super) sky: Option<wgpu::Buffer>,
+    /// `gi_terminate = "lumen-cards"`: the surface cache the sample paths end in, and the
+    /// temporal pass composed to read it (group 3).
+    pub(super) cache: Option<CacheTermination>,
 }
+
+/// Sample paths that end in the surface cache (the part and the pass that reads it).
+pub(super) struct CacheTermination {
+    pub(super) cache: Box<SurfaceCache>,
+    pub(super) temporal: wgpu::ComputePipeline,
+}
+
+/// The bind group the temporal pass reads the cache through.
+const CACHE_GROUP: u32 = 3;
 
 impl Gi {
     pub(super) fn build_resources(&mut self, gpu: &Gpu, pixels: u64, keep: bool) {
@@ -43,14 +57,126 @@ impl Gi {
     }
 }
 
+impl Gi {
+    /// The temporal pass and, with a cache, the cache's own passes before it; then spatial reuse.
+    pub(super) fn record(
+        &mut self,
+        ctx: &RenderContext,
+        enc: &mut wgpu::CommandEncoder,
+        timer: &mut PassTimer,
+        bind_group: &wgpu::BindGroup,
+        cache: bool,
+    ) {
+        let Some(c) = self.cache.as_mut().filter(|_| cache) else {
+            self.passes.record(ctx, enc, timer, bind_group);
+            return;
+        };
+        c.cache.record(ctx, enc, timer);
+        let Some(lookup) = c.cache.lookup() else {
+            return;
+        };
+        pipelines::technique_pass(
+            ctx,
+            enc,
+            timer,
+            TEMPORAL,
+            &c.temporal,
+            &[bind_group, lookup],
+            [ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1],
+        );
+        self.passes.record_second(ctx, enc, timer, bind_group);
+    }
+}
+
 impl RestirLighting {
-    pub fn gi_passes(&self) -> [PassInfo; 2] {
+    /// The surface cache and the temporal pass that ends paths in it, when `gi_terminate`
+    /// names the cache and they are not built yet (or the atlas size changed). Nothing is
+    /// replaced on error.
+    pub fn build_gi_cache(&mut self, ctx: &RenderContext) -> Result<()> {
         let s = &self.settings;
-        [
+        if !(s.gi && s.gi_terminate.cache()) {
+            return Ok(());
+        }
+        if let Some(c) = &self.gi.cache {
+            if c.cache.sized() == self.cache_sized() {
+                return Ok(());
+            }
+        }
+        self.rebuild_gi_cache(ctx)
+    }
+
+    /// Builds the cache and its reading pass from the current sources (also on hot reload).
+    pub(super) fn rebuild_gi_cache(&mut self, ctx: &RenderContext) -> Result<()> {
+        let sized = self.cache_sized();
+        let old = self.gi.cache.take();
+        let (mut cache, old_temporal) = match old {
+            Some(c) if c.cache.sized() == sized => (c.cache, Some(c.temporal)),
+            _ => (
+                Box::new(SurfaceCache::new(sized.0, self.settings.cache_update)?),
+                None,
+            ),
+        };
+        let built = cache.build(ctx).and_then(|()| {
+            let shaders = ctx.shaders.with_defs(&[
+                ("GI_TERMINATE_CACHE", 1),
+                crate::parts::surface_cache::lookup_defs(CACHE_GROUP)[0],
+            ]);
+            let layout = self.layout(ctx.gpu).clone();
+            pipelines::compute_pipeline(
+                ctx.gpu,
+                &shaders,
+                PASSES[0].1,
+                &[
+                    &ctx.scene.layout,
+                    ctx.frame_layout,
+                    &layout,
+                    &SurfaceCache::lookup_layout(ctx.gpu),
+                ],
+            )
+        });
+        match (built, old_temporal) {
+            (Ok(temporal), _) => {
+                self.gi.cache = Some(CacheTermination { cache, temporal });
+                Ok(())
+            }
+            // A failed hot reload keeps the cache and its pass running.
+            (Err(e), Some(temporal)) => {
+                self.gi.cache = Some(CacheTermination { cache, temporal });
+                Err(e)
+            }
+            (Err(e), None) => Err(e),
+        }
+    }
+
+    /// The cache's (atlas size, texel budget) as the parameters ask.
+    fn cache_sized(&self) -> (u32, u32) {
+        let s = &self.settings;
+        (s.cache_atlas_size, SurfaceCache::budget(s.cache_update))
+    }
+
+    pub fn gi_passes(&self, f: &crate::scene::features::SceneFeatures) -> Vec<PassInfo> {
+        let s = &self.settings;
+        let cache = s.gi && s.gi_terminate.cache();
+        let mut v = Vec::new();
+        if cache {
+            if let Some(c) = &self.gi.cache {
+                v.extend(c.cache.passes(f));
+            }
+        }
+        v.extend([
             PassInfo {
                 name: TEMPORAL,
                 runs: s.gi,
-                why: if s.gi {
+                why: if !s.gi {
+                    "gi = false: direct light only".into()
+                } else if cache {
+                    format!(
+                        "one sample path per pixel ending in the surface cache at hit {} (NEE there, further bounces from the cache: {}² atlas, {:.0}% relit per frame), temporal reuse",
+                        s.gi_bounces.max(1),
+                        s.cache_atlas_size,
+                        s.cache_update * 100.0
+                    )
+                } else {
                     format!(
                         "one sample path per pixel ({}), temporal reuse",
                         if s.gi_bounces == 0 {
@@ -59,8 +185,6 @@ impl RestirLighting {
                             format!("{} bounces", s.gi_bounces)
                         }
                     )
-                } else {
-                    "gi = false: direct light only".into()
                 },
             },
             PassInfo {
@@ -72,6 +196,7 @@ impl RestirLighting {
                     "gi = false".into()
                 },
             },
-        ]
+        ]);
+        v
     }
 }

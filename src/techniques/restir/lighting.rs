@@ -51,6 +51,19 @@ impl PassPair {
             pipelines::image_pass(ctx, enc, timer, name, pipeline, bind_group);
         }
     }
+
+    /// The second pass alone (after a first pass recorded elsewhere with other bind groups).
+    pub(super) fn record_second(
+        &self,
+        ctx: &RenderContext,
+        enc: &mut wgpu::CommandEncoder,
+        timer: &mut PassTimer,
+        bind_group: &wgpu::BindGroup,
+    ) {
+        if let Some([_, (name, pipeline)]) = &self.passes {
+            pipelines::image_pass(ctx, enc, timer, name, pipeline, bind_group);
+        }
+    }
 }
 
 pub struct RestirLighting {
@@ -115,6 +128,12 @@ impl RestirLighting {
         self.regir.set_pipeline(regir);
         self.di.passes.set(di);
         self.gi.passes.set(gi);
+        // The cache a GI path may end in is rebuilt with the rest (hot reload), or built now.
+        if self.gi.cache.is_some() {
+            self.rebuild_gi_cache(ctx)?;
+        } else {
+            self.build_gi_cache(ctx)?;
+        }
         self.build_resources(ctx);
         Ok(())
     }
@@ -165,7 +184,7 @@ impl RestirLighting {
     /// This frame's ReGIR build (many lights), DI (when the scene has light to sample) and GI
     /// (`gi` on) passes.
     pub fn record(
-        &self,
+        &mut self,
         ctx: &RenderContext,
         enc: &mut wgpu::CommandEncoder,
         timer: &mut PassTimer,
@@ -182,7 +201,8 @@ impl RestirLighting {
             self.di.passes.record(ctx, enc, timer, bg);
         }
         if self.settings.gi {
-            self.gi.passes.record(ctx, enc, timer, bg);
+            let cache = self.settings.gi_terminate.cache();
+            self.gi.record(ctx, enc, timer, bg, cache);
         }
     }
 
@@ -208,7 +228,12 @@ impl RestirLighting {
             pixels,
             accumulate: s.accumulate as u32,
             gi: s.gi as u32,
-            gi_bounces: s.gi_bounces,
+            // A path that ends in a cache ends at a hit: at the first one when unbounded.
+            gi_bounces: if s.gi_terminate.cache() {
+                s.gi_bounces.max(1)
+            } else {
+                s.gi_bounces
+            },
             regir: self.regir_active() as u32,
             regir_cell_size: self.regir.cell,
             regir_dims: REGIR_DIMS,

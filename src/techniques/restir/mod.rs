@@ -45,7 +45,9 @@ mod regir;
 pub use di::RESERVOIR_BYTES;
 pub use gi::GI_RESERVOIR_BYTES;
 pub use lighting::RestirLighting;
-pub use params::{CandidateVisibility, RestirParamsGpu, RestirSettings, MAX_SPATIAL, PARAMS};
+pub use params::{
+    CandidateVisibility, GiTerminate, RestirParamsGpu, RestirSettings, MAX_SPATIAL, PARAMS,
+};
 pub use regir::{REGIR_DIMS, REGIR_SLOT_BYTES};
 
 use crate::gpu::{timing::PassTimer, Gpu};
@@ -54,6 +56,22 @@ use crate::render::primary::FrameInputs;
 use crate::render::{pipelines, DebugView, PassInfo, RenderContext, Technique};
 use crate::scene::features::SceneFeatures;
 use anyhow::Result;
+
+/// ReSTIR's own entry files.
+pub const OWN_SHADER_FILES: [&str; 6] = [
+    "restir/regir_build.wgsl",
+    "restir/initial_temporal.wgsl",
+    "restir/spatial.wgsl",
+    "restir/gi_temporal.wgsl",
+    "restir/gi_spatial.wgsl",
+    "restir/shade.wgsl",
+];
+
+/// ReSTIR's files and the surface-cache part's (compiled only with `gi_terminate = "lumen-cards"`).
+const SHADER_FILES: [&str; 31] = crate::render::concat_files(
+    OWN_SHADER_FILES,
+    crate::techniques::lumen::SURFACE_CACHE_FILES,
+);
 
 /// The `restir` technique: [`RestirLighting`] (DI, GI, ReGIR) and a shading pass that turns its
 /// reservoirs into the pixel's radiance.
@@ -105,7 +123,7 @@ impl Technique for Restir {
 
     fn passes(&self, f: &SceneFeatures) -> Vec<PassInfo> {
         let l = &self.lighting;
-        let mut v: Vec<PassInfo> = l.di_passes(f).into_iter().chain(l.gi_passes()).collect();
+        let mut v: Vec<PassInfo> = l.di_passes(f).into_iter().chain(l.gi_passes(f)).collect();
         v.push(PassInfo {
             name: "shade",
             runs: true,
@@ -124,7 +142,10 @@ impl Technique for Restir {
         Ok(())
     }
 
+    /// Buffers and uniforms; the surface cache and its GI pipeline the first time
+    /// `gi_terminate` names the cache (built on demand, never a black pane).
     fn apply_params(&mut self, ctx: &RenderContext) -> Result<()> {
+        self.lighting.build_gi_cache(ctx)?;
         self.lighting.build_resources(ctx);
         Ok(())
     }
@@ -142,11 +163,12 @@ impl Technique for Restir {
         enc: &mut wgpu::CommandEncoder,
         timer: &mut PassTimer,
     ) {
-        let (Some(shade), Some(bg)) = (&self.shade, self.lighting.bind_group()) else {
+        let (Some(shade), Some(bg)) = (self.shade.clone(), self.lighting.bind_group().cloned())
+        else {
             return;
         };
         self.lighting.record(ctx, enc, timer);
-        pipelines::image_pass(ctx, enc, timer, "shade", shade, bg);
+        pipelines::image_pass(ctx, enc, timer, "shade", &shade, &bg);
     }
 
     fn debug_views(&self) -> Vec<DebugView> {
@@ -172,20 +194,19 @@ impl Technique for Restir {
     }
 
     fn set_params(&mut self, params: &toml::Table) -> Result<()> {
+        let before = self.params.clone();
         self.params.set("restir", params)?;
-        self.lighting.settings = RestirSettings::from_params(&self.params);
+        let settings = RestirSettings::from_params(&self.params);
+        if let Err(e) = settings.check() {
+            self.params = before;
+            return Err(e);
+        }
+        self.lighting.settings = settings;
         Ok(())
     }
 
     fn shader_files(&self) -> &'static [&'static str] {
-        &[
-            "restir/regir_build.wgsl",
-            "restir/initial_temporal.wgsl",
-            "restir/spatial.wgsl",
-            "restir/gi_temporal.wgsl",
-            "restir/gi_spatial.wgsl",
-            "restir/shade.wgsl",
-        ]
+        &SHADER_FILES
     }
 
     fn params_for_ray_budget(

@@ -148,6 +148,30 @@ pub const PARAMS: &[ParamSpec] = &[
         default: 0.0,
     },
     ParamSpec {
+        name: "gi_terminate",
+        what: "where a GI sample path ends: path (traced to gi_bounces), or at its first hit (hit gi_bounces with a cache) in a radiance cache that holds the further bounces: lumen-cards (Lumen's surface cache, built and lit in the same frame; the seed's connection); lumen-world and surfels are not built yet",
+        higher: "lumen-cards: multi-bounce light at the price of one ray per path, biased by the cache (coarse texels, diffuse only, no light where no card covers a hit)",
+        lower: "path: unbiased with gi_bounces = 0, every bounce traced",
+        kind: ParamKind::Choice(&["path", "lumen-cards", "lumen-world", "surfels"]),
+        default: 0.0,
+    },
+    ParamSpec {
+        name: "cache_atlas_size",
+        what: "texels per side of the surface cache's atlas when gi_terminate = lumen-cards (Lumen's atlas_size)",
+        higher: "finer cache lighting, more texels to update per frame",
+        lower: "coarser and cheaper cache",
+        kind: ParamKind::Int { min: 128, max: 4096 },
+        default: 512.0,
+    },
+    ParamSpec {
+        name: "cache_update",
+        what: "fraction of the surface cache's texels whose direct and indirect light are relit each frame when gi_terminate = lumen-cards (each bounce of the cache's feedback needs a full update)",
+        higher: "the cache follows light changes and gathers bounces sooner, more cache rays per frame",
+        lower: "cheaper frames, the cache lags (and holds fewer bounces after a change)",
+        kind: ParamKind::Float { min: 0.01, max: 1.0 },
+        default: 0.25,
+    },
+    ParamSpec {
         name: "regir",
         what: "draw initial candidates from a camera-centred grid of per-cell pre-selected lights (only when the scene has many lights)",
         higher: "on: candidates near the shading point, far less noise with many small lights",
@@ -193,6 +217,39 @@ impl CandidateVisibility {
     }
 }
 
+/// Where a ReSTIR GI sample path ends (`gi_terminate`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GiTerminate {
+    /// Traced to `gi_bounces` (today's behaviour; unbounded is unbiased).
+    Path,
+    /// Lumen's surface cache (`crate::parts::SurfaceCache`) at the path's last hit.
+    LumenCards,
+    LumenWorld,
+    Surfels,
+}
+
+impl GiTerminate {
+    pub const NAMES: [&'static str; 4] = ["path", "lumen-cards", "lumen-world", "surfels"];
+
+    pub fn from_index(i: u32) -> Self {
+        match i {
+            1 => Self::LumenCards,
+            2 => Self::LumenWorld,
+            3 => Self::Surfels,
+            _ => Self::Path,
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        Self::NAMES[self as usize]
+    }
+
+    /// Whether the path ends in the surface cache.
+    pub fn cache(self) -> bool {
+        self == Self::LumenCards
+    }
+}
+
 #[derive(Clone, Debug, PartialEq)]
 pub struct RestirSettings {
     /// Candidates from the local lights (all lights when `light_classes` is off).
@@ -211,6 +268,9 @@ pub struct RestirSettings {
     pub accumulate: bool,
     pub gi: bool,
     pub gi_bounces: u32,
+    pub gi_terminate: GiTerminate,
+    pub cache_atlas_size: u32,
+    pub cache_update: f32,
     /// Use ReGIR when the scene has many lights.
     pub regir: bool,
     /// Cell edge in world units; 0 = automatic (scene diagonal / 24).
@@ -236,9 +296,25 @@ impl RestirSettings {
             accumulate: p.bool("accumulate"),
             gi: p.bool("gi"),
             gi_bounces: p.u32("gi_bounces"),
+            gi_terminate: GiTerminate::from_index(p.u32("gi_terminate")),
+            cache_atlas_size: p.u32("cache_atlas_size"),
+            cache_update: p.f32("cache_update"),
             regir: p.bool("regir"),
             regir_cell_size: p.f32("regir_cell_size"),
             regir_lights_per_cell: p.u32("regir_lights_per_cell"),
+        }
+    }
+}
+
+impl RestirSettings {
+    /// Combinations that cannot run, as one line.
+    pub fn check(&self) -> anyhow::Result<()> {
+        match self.gi_terminate {
+            GiTerminate::LumenWorld | GiTerminate::Surfels => anyhow::bail!(
+                "gi_terminate = \"{}\" is not built yet: use \"path\" or \"lumen-cards\" (docs/parts.md)",
+                self.gi_terminate.name()
+            ),
+            _ => Ok(()),
         }
     }
 }

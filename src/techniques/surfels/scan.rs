@@ -44,12 +44,8 @@ impl ScanPipelines {
         shaders: &ShaderLibrary,
         layout: &wgpu::BindGroupLayout,
     ) -> Result<Self> {
-        let module = pipelines::shader_module(gpu, shaders, ENTRY)?;
-        let make = |entry: &str| {
-            gpu.scoped(&format!("compute pipeline shaders/{ENTRY} {entry}"), || {
-                pipelines::entry_point_pipeline(gpu, &module, entry, &[layout])
-            })
-        };
+        let make =
+            |entry: &str| pipelines::compute_pipeline_at(gpu, shaders, ENTRY, entry, &[layout]);
         Ok(ScanPipelines {
             layout: layout.clone(),
             local: make("scan_local")?,

@@ -1,8 +1,8 @@
 // Lumen surface cache cards (shared/seeds/000, "Cards"): an axis-aligned box per card; the card
 // looks at its box from one of six sides with an orthographic camera. Pure functions, no
 // bindings, so the capture raster shader and the compute passes project identically.
-// Layout must match `GpuCard` in src/techniques/lumen/cards.rs.
-#define_import_path gilab::lumen_card
+// Layout must match `GpuCard` in src/techniques/lumen/cards.rs (the surface-cache part, src/parts/surface_cache.rs).
+#define_import_path gilab::card
 
 struct Card {
     // xyz: box minimum, w: side (bitcast u32): 0 +x, 1 -x, 2 +y, 3 -y, 4 +z, 5 -z; the card

@@ -1,0 +1,125 @@
+//! Lumen's surface cache as a part: cards captured into an atlas, lit every frame (direct light
+//! by one power-sampled light per texel, indirect light from 16-ray probes on the texels that
+//! read the cache itself, so bounces accumulate frame after frame), and read by a lookup that
+//! another technique's pass imports (`shaders/parts/surface_cache.wgsl`, `gilab::surface_cache`).
+//!
+//! The seed (shared/seeds/003, "connecting at the surface cache") ends ReSTIR GI's sample paths
+//! in this cache: `gi_terminate = "lumen-cards"`. The cache runs inside the frame that reads it
+//! (the `lumen` technique's own capture and cache passes, timed under their names, rays counted
+//! as `cache`), so a connection's frame time includes what keeping the cache lit costs.
+//!
+//! It is the `lumen` technique in its cache-only mode (`Lumen::surface_cache`): the same code and
+//! shaders, none of the final gather. Each engine entry holds its own cache: two panes never
+//! share one, so each pane's timings include its own cache work (fair for A/B timing).
+
+use crate::gpu::{timing::PassTimer, Gpu};
+use crate::render::{pipelines, PassInfo, RenderContext, Technique};
+use crate::scene::features::SceneFeatures;
+use crate::techniques::lumen::Lumen;
+use anyhow::Result;
+
+/// The lookup's bindings (`gilab::surface_cache`): cards, objects' card ranges, triangle
+/// objects, direct and indirect irradiance per texel, the atlas textures. Binding numbers are
+/// Lumen's own group 2 numbers, so the same module serves Lumen at group 2 and another
+/// technique at the group it names with `SURFACE_CACHE_GROUP`.
+pub const LOOKUP_BINDINGS: [u32; 5] = [1, 2, 3, 12, 13];
+pub const LOOKUP_TEXTURES: [u32; 4] = [19, 20, 21, 22];
+
+/// Shader defs of a pipeline that reads the cache at bind group `group`.
+pub fn lookup_defs(group: u32) -> [(&'static str, u32); 1] {
+    [("SURFACE_CACHE_GROUP", group)]
+}
+
+pub struct SurfaceCache {
+    lumen: Lumen,
+    lookup: Option<wgpu::BindGroup>,
+}
+
+impl SurfaceCache {
+    /// A cache with `atlas_size`² texels that relights `update` of them (a fraction) per
+    /// frame, direct and indirect light each; traced through the BVH (`tracing = "bvh"`: the
+    /// connection then measures the cache, not the distance field's approximation).
+    pub fn new(atlas_size: u32, update: f32) -> Result<SurfaceCache> {
+        let mut lumen = Lumen::surface_cache();
+        let texels = Self::budget(update) as i64;
+        let mut t = toml::Table::new();
+        t.insert("atlas_size".into(), (atlas_size as i64).into());
+        t.insert("tracing".into(), "bvh".into());
+        t.insert("direct_texels_per_frame".into(), texels.into());
+        t.insert("indirect_texels_per_frame".into(), texels.into());
+        lumen.set_params(&t)?;
+        Ok(SurfaceCache {
+            lumen,
+            lookup: None,
+        })
+    }
+
+    /// Lumen's texel budget for relighting `update` (a fraction) of the atlas per frame: its
+    /// budgets are for a 4096² atlas and scale with the atlas's area.
+    pub fn budget(update: f32) -> u32 {
+        ((update.clamp(0.0, 1.0) as f64 * 4096.0 * 4096.0).round() as u32).max(1)
+    }
+
+    /// (atlas size, texel budget) it was made with.
+    pub fn sized(&self) -> (u32, u32) {
+        let s = &self.lumen.settings;
+        (s.atlas_size, s.direct_texels_per_frame)
+    }
+
+    /// Layout of the lookup's bind group (the group a reading pass sets `SURFACE_CACHE_GROUP` to).
+    pub fn lookup_layout(gpu: &Gpu) -> wgpu::BindGroupLayout {
+        let mut entries: Vec<wgpu::BindGroupLayoutEntry> = LOOKUP_BINDINGS
+            .iter()
+            .map(|&b| pipelines::storage_entry(b, b <= 3))
+            .collect();
+        entries.extend(
+            LOOKUP_TEXTURES
+                .iter()
+                .map(|&b| crate::techniques::lumen::texture_entry(b)),
+        );
+        pipelines::layout(gpu, "surface cache lookup", &entries)
+    }
+
+    /// Builds the cache's pipelines and resources (on error the previous ones stay).
+    pub fn build(&mut self, ctx: &RenderContext) -> Result<()> {
+        self.lumen.build(ctx)?;
+        self.lookup = self
+            .lumen
+            .surface_cache_bind_group(ctx.gpu, &Self::lookup_layout(ctx.gpu));
+        Ok(())
+    }
+
+    pub fn is_built(&self) -> bool {
+        self.lookup.is_some()
+    }
+
+    /// The lookup's bind group: valid until the next `build`.
+    pub fn lookup(&self) -> Option<&wgpu::BindGroup> {
+        self.lookup.as_ref()
+    }
+
+    /// This frame's cache work: distance-field scrolls, card captures, direct and indirect
+    /// texel updates.
+    pub fn record(
+        &mut self,
+        ctx: &RenderContext,
+        enc: &mut wgpu::CommandEncoder,
+        timer: &mut PassTimer,
+    ) {
+        self.lumen.render(ctx, enc, timer);
+        // A scene edit can replace the card buffers: the lookup follows every frame.
+        self.lookup = self
+            .lumen
+            .surface_cache_bind_group(ctx.gpu, &Self::lookup_layout(ctx.gpu));
+    }
+
+    /// Forgets the cache's lighting (it relights over the next frames).
+    pub fn reset(&mut self, gpu: &Gpu) {
+        self.lumen.reset_history(gpu);
+    }
+
+    /// The cache's passes, for the technique that holds it.
+    pub fn passes(&self, f: &SceneFeatures) -> Vec<PassInfo> {
+        self.lumen.passes(f)
+    }
+}
