@@ -39,7 +39,19 @@ fn run(
     frames: u32,
     seed: u32,
 ) -> (Image, f64, Engine) {
-    let mut e = engine("restir", params, scene, size, seed);
+    run_technique("restir", params, scene, size, warmup, frames, seed)
+}
+
+fn run_technique(
+    technique: &str,
+    params: toml::Table,
+    scene: Scene,
+    size: [u32; 2],
+    warmup: u32,
+    frames: u32,
+    seed: u32,
+) -> (Image, f64, Engine) {
+    let mut e = engine(technique, params, scene, size, seed);
     for _ in 0..warmup {
         e.render_frame().unwrap();
     }
@@ -118,6 +130,38 @@ fn lumen_cards_termination_keeps_multi_bounce_light() {
         "one traced bounce ({r_path1}) should lose the multi-bounce share that the cache keeps ({r_cards})"
     );
     assert_eq!(cards.non_finite_count(), 0);
+}
+
+/// Callisto's `gi = true` takes the same termination: its ReSTIR GI paths end in the cache
+/// (restir's default 512² atlas, a quarter relit per frame, so a longer warm-up) and the Cornell
+/// box keeps its energy.
+#[test]
+fn callisto_gi_ends_in_the_surface_cache() {
+    let size = [64, 64];
+    let truth = half(&common::shared_reference(
+        builtin::cornell(),
+        [128, 128],
+        512,
+        11,
+        0,
+        0,
+    ));
+    let mut p = toml::Table::new();
+    p.insert("gi".into(), true.into());
+    p.insert("gi_terminate".into(), "lumen-cards".into());
+    let (img, rpp, e) = run_technique("callisto-shadows", p, builtin::cornell(), size, 48, 24, 1);
+    let ratio = energy(&img) / energy(&truth);
+    let passes: Vec<&str> = e
+        .technique
+        .passes(&e.gpu_scene.data.features)
+        .into_iter()
+        .filter(|p| p.runs)
+        .map(|p| p.name)
+        .collect();
+    eprintln!("callisto gi -> lumen-cards, cornell 64²: energy {ratio:.4}, {rpp:.2} rays/px/frame, passes {passes:?}");
+    assert!(passes.contains(&"cache indirect"), "{passes:?}");
+    assert!((ratio - 1.0).abs() < 0.05, "energy ratio {ratio}");
+    assert_eq!(img.non_finite_count(), 0);
 }
 
 /// White furnace (albedo 0.8, emission 1: radiance 5 everywhere). Traced paths are unbiased.

@@ -86,7 +86,7 @@ impl Default for CallistoShadows {
         let params = Params::new("callisto-shadows", PARAMS);
         let settings = CallistoSettings::from_params(&params);
         CallistoShadows {
-            restir: RestirLighting::new(restir_gi_settings(settings.gi)),
+            restir: RestirLighting::new(restir_gi_settings(settings.gi, settings.gi_terminate)),
             restir_built: false,
             restir_direct: RestirDirect::default(),
             settings,
@@ -100,14 +100,37 @@ impl Default for CallistoShadows {
     }
 }
 
-/// ReSTIR with GI only: no DI candidates of any class (no DI passes run), no ReGIR.
-fn restir_gi_settings(gi: bool) -> RestirSettings {
+/// Callisto's entry files, ReSTIR's (GI, and the direct-light part's DI passes) and the
+/// direct-light part's shading.
+const OWN_SHADER_FILES: [&str; 10] = [
+    CULL,
+    SHADOWS,
+    MEAN,
+    RESOLVE,
+    "restir/regir_build.wgsl",
+    "restir/initial_temporal.wgsl",
+    "restir/spatial.wgsl",
+    "restir/gi_temporal.wgsl",
+    "restir/gi_spatial.wgsl",
+    "parts/restir_direct.wgsl",
+];
+
+/// With the surface-cache part's (compiled only with `gi_terminate = "lumen-cards"`).
+const SHADER_FILES: [&str; 35] = crate::render::concat_files(
+    OWN_SHADER_FILES,
+    crate::techniques::lumen::SURFACE_CACHE_FILES,
+);
+
+/// ReSTIR with GI only: no DI candidates of any class (no DI passes run), no ReGIR; its sample
+/// paths end where `gi_terminate` says.
+fn restir_gi_settings(gi: bool, terminate: restir::GiTerminate) -> RestirSettings {
     let mut s = RestirSettings::from_params(&Params::new("restir", restir::PARAMS));
     s.candidates = 0;
     s.directional_candidates = 0;
     s.sky_candidates = 0;
     s.regir = false;
     s.gi = gi;
+    s.gi_terminate = terminate;
     s
 }
 
@@ -137,11 +160,13 @@ impl CallistoShadows {
     /// Builds ReSTIR GI's pipelines when `gi` is on and they are not built yet; its resources
     /// (the bind group `resolve` needs) in any case.
     fn ensure_restir(&mut self, ctx: &RenderContext) -> Result<()> {
-        self.restir.settings = restir_gi_settings(self.settings.gi);
+        self.restir.settings = restir_gi_settings(self.settings.gi, self.settings.gi_terminate);
         if self.settings.gi && !self.restir_built {
             self.restir.build(ctx)?;
             self.restir_built = true;
         } else {
+            // The surface cache the GI paths may end in, built the first time it is named.
+            self.restir.build_gi_cache(ctx)?;
             self.restir.build_resources(ctx);
         }
         if self.settings.direct_restir && !self.restir_direct.is_built() {
@@ -480,24 +505,12 @@ impl Technique for CallistoShadows {
         self.params.set("callisto-shadows", params)?;
         self.settings = CallistoSettings::from_params(&self.params);
         // The pass list reads ReSTIR's settings before `apply_params` runs.
-        self.restir.settings = restir_gi_settings(self.settings.gi);
+        self.restir.settings = restir_gi_settings(self.settings.gi, self.settings.gi_terminate);
         Ok(())
     }
 
     fn shader_files(&self) -> &'static [&'static str] {
-        &[
-            CULL,
-            SHADOWS,
-            MEAN,
-            RESOLVE,
-            "restir/regir_build.wgsl",
-            "restir/initial_temporal.wgsl",
-            "restir/spatial.wgsl",
-            "restir/gi_temporal.wgsl",
-            "restir/gi_spatial.wgsl",
-            // The direct-light part's shading (its ReSTIR passes are listed above).
-            "parts/restir_direct.wgsl",
-        ]
+        &SHADER_FILES
     }
 
     /// Variable rate settles after the first (full-rate) frame.

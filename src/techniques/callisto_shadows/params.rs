@@ -148,6 +148,14 @@ pub const PARAMS: &[ParamSpec] = &[
         default: 0.0,
     },
     ParamSpec {
+        name: "gi_terminate",
+        what: "where ReSTIR GI's sample paths end when gi is on, as in the restir technique: traced to the end, or at their first hit in Lumen's surface cache (the cache part, with restir's default atlas and update share)",
+        higher: "lumen-cards: multi-bounce light at about one bounce's price, biased by the cache",
+        lower: "path: unbiased, every bounce traced",
+        kind: ParamKind::Choice(&["path", "lumen-cards"]),
+        default: 0.0,
+    },
+    ParamSpec {
         name: "direct",
         what: "direct light per pixel: this technique's tile-culled, variable-rate shadow rays, or ReSTIR DI (the restir technique's passes with GI off, the shared direct-light part), for A/B at equal everything else",
         higher: "restir: reservoir resampling over every light, one visibility ray per pixel; cull, shadows and the shadow mask do not run",
@@ -173,6 +181,8 @@ pub struct CallistoSettings {
     pub blur_radius: u32,
     pub accumulate: bool,
     pub gi: bool,
+    /// Where ReSTIR GI's sample paths end (`gi_terminate`).
+    pub gi_terminate: crate::techniques::restir::GiTerminate,
     /// `direct = "restir"`: the direct-light part replaces the tile shadows.
     pub direct_restir: bool,
 }
@@ -194,6 +204,7 @@ impl CallistoSettings {
             blur_radius: p.u32("blur_radius"),
             accumulate: p.bool("accumulate"),
             gi: p.bool("gi"),
+            gi_terminate: crate::techniques::restir::GiTerminate::from_index(p.u32("gi_terminate")),
             direct_restir: p.u32("direct") == 1,
         }
     }
