@@ -84,6 +84,19 @@ fn half(img: &Image) -> Image {
     out
 }
 
+/// The 128² Cornell truth Lumen's, ReSTIR's and the surfels' tests share (512 spp), halved to
+/// the 64² these tests render.
+fn cornell_truth_64() -> Image {
+    half(&common::shared_reference(
+        builtin::cornell(),
+        [128, 128],
+        512,
+        11,
+        0,
+        0,
+    ))
+}
+
 /// The seed's claim on the Cornell box: a one-bounce path that ends in the surface cache keeps
 /// the multi-bounce light (energy within 5% of the reference), while the same path traced one
 /// bounce and stopped loses it. Rays per pixel printed for both (the cache's own rays depend on
@@ -92,15 +105,7 @@ fn half(img: &Image) -> Image {
 #[test]
 fn lumen_cards_termination_keeps_multi_bounce_light() {
     let size = [64, 64];
-    // The 128² Cornell truth Lumen's, ReSTIR's and the surfels' tests share (512 spp), halved.
-    let truth = half(&common::shared_reference(
-        builtin::cornell(),
-        [128, 128],
-        512,
-        11,
-        0,
-        0,
-    ));
+    let truth = cornell_truth_64();
     let e_truth = energy(&truth);
     let frames = 24;
     let (path1, rays_path1, _) = run(params("path", 1), builtin::cornell(), size, 0, frames, 1);
@@ -138,14 +143,7 @@ fn lumen_cards_termination_keeps_multi_bounce_light() {
 #[test]
 fn callisto_gi_ends_in_the_surface_cache() {
     let size = [64, 64];
-    let truth = half(&common::shared_reference(
-        builtin::cornell(),
-        [128, 128],
-        512,
-        11,
-        0,
-        0,
-    ));
+    let truth = cornell_truth_64();
     let mut p = toml::Table::new();
     p.insert("gi".into(), true.into());
     p.insert("gi_terminate".into(), "lumen-cards".into());
