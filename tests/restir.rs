@@ -561,3 +561,44 @@ fn direct_part_equals_the_restir_technique_in_every_family() {
         );
     }
 }
+
+/// ReGIR fills only the cells a pixel reads (the mark pass): the image equals a full build's
+/// bit for bit, checked against a copy of the shaders whose build ignores the marks.
+#[test]
+fn regir_marked_build_equals_the_full_build() {
+    use gilab::gpu::shaders::ShaderLibrary;
+    use gilab::render::engine::{Engine, EngineSettings};
+    let render = |shaders: ShaderLibrary| {
+        let scene = builtin::many_lights(256, 1);
+        let mut t = gilab::techniques::create_technique("restir").unwrap();
+        t.set_params(&toml::toml! { gi = false }).unwrap();
+        let settings = EngineSettings {
+            extent: [32, 32],
+            seed: 5,
+            camera: scene.default_camera(),
+        };
+        let mut e = Engine::new(common::gpu(), shaders, scene, t, settings).unwrap();
+        assert!(e.passes().iter().any(|p| p.name == "regir_mark" && p.runs));
+        for _ in 0..2 {
+            e.render_frame().unwrap();
+        }
+        e.read_output().unwrap()
+    };
+    let marked = render(ShaderLibrary::discover());
+    let dir = common::tmp_dir("restir", "regir-full-build");
+    common::copy_dir(std::path::Path::new("shaders"), &dir);
+    let build = dir.join("restir/regir_build.wgsl");
+    let text = std::fs::read_to_string(&build).unwrap();
+    let check = "if atomicLoad(&regir_used[cell]) == 0u {";
+    assert!(
+        text.contains(check),
+        "regir_build.wgsl no longer skips unmarked cells this way"
+    );
+    std::fs::write(&build, text.replace(check, "if false {")).unwrap();
+    let full = render(ShaderLibrary::at(dir));
+    assert_eq!(
+        marked.rgb, full.rgb,
+        "building only the marked cells changed the image"
+    );
+    assert!(energy(&marked) > 0.0);
+}

@@ -295,3 +295,83 @@ fn bsdf_sample(s: Surface, n: vec3<f32>, wo: vec3<f32>, u_lobe: f32, u: vec2<f32
     out.valid = true;
     return out;
 }
+
+// The specular layer alone (the reflections part): F x GGX (with Callisto's second lobe and
+// terminator where the model has them) and the pdf of specular_sample; zero for the mirror lobe.
+fn specular_eval(s: Surface, n: vec3<f32>, wo: vec3<f32>, wi: vec3<f32>) -> BsdfEval {
+    let n_dot_v = dot(n, wo);
+    let n_dot_l = dot(n, wi);
+    if n_dot_v <= 0.0 || n_dot_l <= 0.0 || s.alpha < DELTA_ALPHA {
+        return BsdfEval(vec3<f32>(0.0), 0.0);
+    }
+    let h = normalize(wo + wi);
+    let n_dot_h = max(dot(n, h), 0.0);
+    let v_dot_h = max(dot(wo, h), 0.0);
+    var lobe = ggx_lobe(n_dot_v, n_dot_l, n_dot_h, s.alpha);
+    let opacity = dual_opacity(s);
+    if opacity > 0.0 {
+        lobe = mix(lobe, ggx_lobe(n_dot_v, n_dot_l, n_dot_h, dual_alpha(s)), opacity);
+    }
+    var f = spec_fresnel(s, v_dot_h) * lobe.x;
+    if brdf_model(s) != BRDF_LAMBERT_GGX {
+        f *= callisto_terminator(s.shading, n_dot_l, v_dot_h, n_dot_h);
+    }
+    return BsdfEval(f, lobe.y);
+}
+
+// A direction from the specular layer alone, by its visible normals (the mirror direction for
+// the delta lobe); weight = f_spec cos / pdf (F for the mirror). u_lobe picks Callisto's lobe.
+fn specular_sample(s: Surface, n: vec3<f32>, wo: vec3<f32>, u_lobe: f32, u: vec2<f32>) -> BsdfSample {
+    var out = BsdfSample(vec3<f32>(0.0), vec3<f32>(0.0), 0.0, false, false);
+    let n_dot_v = dot(n, wo);
+    if n_dot_v <= 0.0 {
+        return out;
+    }
+    if s.alpha < DELTA_ALPHA {
+        out.wi = reflect(-wo, n);
+        out.weight = spec_fresnel(s, n_dot_v);
+        out.is_delta = true;
+        out.valid = true;
+        return out;
+    }
+    var alpha = s.alpha;
+    if u_lobe < dual_opacity(s) {
+        alpha = dual_alpha(s);
+    }
+    let h = to_world(sample_ggx_vndf(to_local(wo, n), alpha, u), n);
+    out.wi = reflect(-wo, h);
+    let e = specular_eval(s, n, wo, out.wi);
+    if e.pdf <= 0.0 {
+        return out;
+    }
+    out.weight = e.f * dot(n, out.wi) / e.pdf;
+    out.pdf = e.pdf;
+    out.valid = true;
+    return out;
+}
+
+// Cosine-weighted hemispherical average of the specular layer's directional albedo: Fresnel as
+// X + Y (1 - v.h)^5 (X at normal incidence), times the GGX lobe's average energy with F = 1
+// (A) and its Fresnel moment (B), tabulated by perceptual roughness from the same integral as
+// the reflections part's table (src/parts/reflections.rs). For diffuse-only caches that count a
+// surface's specular energy in its albedo, as Lumen's card capture does ("approximate specular
+// by modifying albedo to account for the lost energy", shared/seeds/000).
+fn specular_albedo_average(s: Surface) -> vec3<f32> {
+    let r = array<f32, 6>(0.0, 0.2, 0.3, 0.5, 0.7, 1.0);
+    let a = array<f32, 6>(1.0, 0.996, 0.976, 0.882, 0.708, 0.409);
+    let b = array<f32, 6>(0.0476, 0.0434, 0.0355, 0.0187, 0.0086, 0.0028);
+    let x = clamp(sqrt(s.alpha), 0.0, 1.0);
+    var ea = a[5];
+    var eb = b[5];
+    for (var i = 0u; i < 5u; i++) {
+        if x <= r[i + 1u] {
+            let t = (x - r[i]) / (r[i + 1u] - r[i]);
+            ea = mix(a[i], a[i + 1u], t);
+            eb = mix(b[i], b[i + 1u], t);
+            break;
+        }
+    }
+    let f_x = spec_fresnel(s, 1.0);
+    let f_y = spec_fresnel(s, 0.0) - f_x;
+    return f_x * ea + f_y * eb;
+}

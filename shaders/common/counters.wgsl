@@ -13,6 +13,8 @@ const RAY_CACHE: u32 = 5u;
 const RAY_CANDIDATE: u32 = 6u;
 // Occlusion tests made by reuse itself (unbiased reuse weights, bidirectional test).
 const RAY_REUSE: u32 = 7u;
+// Rays along a specular lobe for reflections (the reflections part).
+const RAY_REFLECTION: u32 = 8u;
 // Not a ray: samples whose radiance was NaN/Inf and was dropped. Tests require it to stay 0.
 const COUNT_INVALID_SAMPLES: u32 = 15u;
 const COUNTER_KINDS: u32 = 16u;

@@ -42,6 +42,9 @@ const STREAM_LUMEN_WORLD: u32 = 21u;
 const STREAM_LUMEN_AO: u32 = 22u;
 // Callisto shadows: the per-pixel light sample of each light in the tile's list.
 const STREAM_CALLISTO_LIGHT: u32 = 37u;
+// The reflections part: its rays, and the choice of neighbours to reuse.
+const STREAM_REFLECTION: u32 = 38u;
+const STREAM_REFLECTION_REUSE: u32 = 39u;
 
 // The sequence for one pixel (or work item), sample index (frame or sample number) and stream.
 fn rng_init(pixel: vec2<u32>, sample_index: u32, stream: u32, seed: u32) -> Rng {

@@ -1,6 +1,6 @@
 // Per pixel: emission + direct light (NEE through the BVH, one light by power, or the ReSTIR DI
 // part's result with `direct = "restir"`) + diffuse albedo
-// x gathered irradiance / pi. With `gather_downsample` > 1 the four nearest gather samples are
+// x gathered irradiance / pi + specular indirect light from the reflections part (glossy scenes). With `gather_downsample` > 1 the four nearest gather samples are
 // blended by bilinear, normal and depth weights (the nearest valid one where all fail). Writes
 // the debug planes (with `debug_views`) and accumulates. With screen probes the irradiance comes
 // from `integrate` at full resolution, and the reflected radiance (no emission) is kept for next
@@ -14,7 +14,7 @@
 #import gilab::brdf::diffuse_color
 #import gilab::nee::direct_light
 #import gilab::lumen_probes::{pixel_data, lit_index, parity, probes_flag, PROBES_ACTIVE}
-#import gilab::lumen::{params, gather_out, debug_out, pixel_direct, has_flag, sdf_trace, sdf_sample, sdf_bias, level_voxel, FLAG_ACCUMULATE, FLAG_DEBUG, FLAG_LIGHTS, FLAG_DIRECT_RESTIR, EMPTY}
+#import gilab::lumen::{params, gather_out, debug_out, pixel_direct, has_flag, sdf_trace, sdf_sample, sdf_bias, level_voxel, FLAG_ACCUMULATE, FLAG_DEBUG, FLAG_LIGHTS, FLAG_DIRECT_RESTIR, FLAG_REFLECTIONS, EMPTY}
 #import gilab::surface_cache::{tri_object, sample_cache, cache_radiance}
 
 fn gathered_irradiance(pixel: vec2<u32>, s: GSurface) -> vec3<f32> {
@@ -78,7 +78,13 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 counts[RAY_SHADOW] += d.shadow_rays;
             }
             let albedo = diffuse_color(m, max(dot(n, s.wo_dist.xyz), 0.0));
-            l += albedo * gathered_irradiance(gid.xy, s) * INV_PI;
+            let irradiance = gathered_irradiance(gid.xy, s);
+            l += albedo * irradiance * INV_PI;
+            if has_flag(FLAG_REFLECTIONS) {
+                // Traced specular, or a rough lobe's albedo times the gathered irradiance.
+                let px = frame.size.x * frame.size.y;
+                l += pixel_direct[px + idx].xyz + pixel_direct[2u * px + idx].xyz * irradiance * INV_PI;
+            }
             if has_flag(FLAG_DEBUG) {
                 let cs = sample_cache(s.pos.xyz, n, tri_object[s.triangle], 1.5 * sdf_bias(s.pos.xyz));
                 first_plane = vec4<f32>(

@@ -4,7 +4,7 @@
 // the whole rectangle invalid (depth 2), so a recapture leaves nothing stale behind.
 #import gilab::scene::{materials, alpha_hole, material_emission, tri_uvs, tri_material}
 #import gilab::surface_point::surface_at
-#import gilab::brdf::diffuse_color
+#import gilab::brdf::{diffuse_color, specular_albedo_average}
 #import gilab::card::{Card, card_uv, card_depth, card_dir, card_axis}
 
 @group(1) @binding(0) var<storage, read> capture_cards: array<Card>;
@@ -24,7 +24,8 @@ struct VertexOut {
 }
 
 struct CaptureOut {
-    // rgb: diffuse albedo (specular's share of the energy taken out), a: 1.
+    // rgb: diffuse albedo (specular's share of the energy taken out) plus the specular layer's
+    // average albedo (its energy, reflected diffusely), a: 1.
     @location(0) albedo: vec4<f32>,
     // xyz: shading normal on the card's side, w: 1.
     @location(1) normal: vec4<f32>,
@@ -67,7 +68,9 @@ fn fs_main(in: VertexOut, @builtin(front_facing) front_facing: bool) -> CaptureO
     let texel = max(size[(a + 1u) % 3u] / f32(c.rect.z), size[(a + 2u) % 3u] / f32(c.rect.w));
     let s = surface_at(in.tri, in.bary, -dir, texel);
     let n = s.normal;
-    let albedo = diffuse_color(s.material, 1.0);
+    // The specular layer's energy joins the albedo (the seed's capture does the same): the cache
+    // is diffuse, and a metal surface would otherwise pass no light on to the next bounce.
+    let albedo = min(diffuse_color(s.material, 1.0) + specular_albedo_average(s.material), vec3<f32>(1.0));
     var o: CaptureOut;
     o.albedo = vec4<f32>(albedo, 1.0);
     o.normal = vec4<f32>(n, 1.0);

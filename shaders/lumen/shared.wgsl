@@ -35,6 +35,7 @@ const FLAG_ACCUMULATE: u32 = 4u;
 const FLAG_DEBUG: u32 = 8u;
 const FLAG_LIGHTS: u32 = 16u;
 const FLAG_DIRECT_RESTIR: u32 = 32u;
+const FLAG_REFLECTIONS: u32 = 64u;
 
 struct Level {
     // xyz: world position of the level's minimum corner, w: voxel size.
@@ -110,7 +111,9 @@ struct Probe {
 // Final gather per downsampled pixel: rgb irradiance, w: 1 valid.
 @group(2) @binding(16) var<storage, read_write> gather_out: array<vec4<f32>>;
 @group(2) @binding(17) var<storage, read_write> debug_out: array<vec4<f32>>;
-// Direct light per pixel from the direct-light part (`direct = "restir"`; src/parts/).
+// Per pixel, three planes: direct light from the direct-light part (`direct = "restir"`;
+// src/parts/), then from the reflections part (src/parts/reflections.rs) the specular radiance
+// and the directional albedo of a lobe too rough to trace (w: hit kind).
 @group(2) @binding(18) var<storage, read_write> pixel_direct: array<vec4<f32>>;
 
 fn has_flag(f: u32) -> bool {

@@ -1,4 +1,4 @@
-// ReGIR pass: fills every (cell, slot) of the camera-centred grid with one light sample chosen
+// ReGIR pass: fills every (cell, slot) that a pixel reads in the camera-centred grid with one light sample chosen
 // by RIS from the local lights (from every light in single-pool mode); target: emitted strength / squared distance to the cell centre
 // (clamped at the cell's half-diagonal, no cosine), so no light that may reach the cell is
 // ever given zero weight and pixels can use the slots' weights unbiasedly.
@@ -8,7 +8,7 @@
 #import gilab::scene::light_pool
 #import gilab::lights::{select_light, select_light_in_class, class_pdf_scale, light_emitter}
 #import gilab::sampling::sample_triangle
-#import gilab::restir::{params, regir_slots, RegirSlot, regir_cell_centre}
+#import gilab::restir::{params, regir_slots, RegirSlot, regir_cell_centre, regir_used}
 
 const CANDIDATES_PER_SLOT: u32 = 32u;
 
@@ -29,6 +29,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let cell = gid.x / params.regir_slots;
+    // Only cells some pixel reads (marked by regir_mark.wgsl this frame). A slot's random
+    // stream depends only on its index, so the filled cells are the same as a full build's.
+    if atomicLoad(&regir_used[cell]) == 0u {
+        return;
+    }
     var rng = rng_init(vec2<u32>(gid.x, 0u), frame.sample_offset, STREAM_REGIR_BUILD, frame.seed);
     let centre = regir_cell_centre(cell);
     let half_diag = 0.87 * params.regir_cell_size;

@@ -370,6 +370,9 @@ struct RegirSlot {
 // Per pixel, for the debug views: x = DI reservoir M, y = its contribution weight W,
 // z = selected light index + 1 (0 = none), w = ReGIR cell index + 1 (0 = none).
 @group(2) @binding(5) var<storage, read_write> debug_out: array<vec4<f32>>;
+// Per ReGIR cell: non-zero when a pixel reads it this frame (`regir_mark`), so the build
+// fills only those cells. Cleared every frame before the mark pass.
+@group(2) @binding(6) var<storage, read_write> regir_used: array<atomic<u32>>;
 
 // Lower corner of the grid: centred on the camera, snapped to whole cells so cells stay put.
 fn regir_origin() -> vec3<f32> {

@@ -1,7 +1,8 @@
 // Light apply (per pixel): the surfels of the pixel's cell, weighted by distance within their
 // radius, normal agreement and (radial_depth) their depth maps; where their weight is below 1
 // the cell's average tops it up (the seed's gap filling). Pixel = emission + direct light +
-// diffuse albedo x irradiance / pi (diffuse only: the specular lobe gets direct light only).
+// diffuse albedo x irradiance / pi + specular indirect light from the reflections part (scenes
+// with a specular layer; rough lobes: their albedo x the surfels' irradiance / pi).
 // Marks the surfels that lit the pixel as seen, writes the debug planes, accumulates.
 #import gilab::frame::{frame, FLAG_NO_PRIMARY_EMISSION}
 #import gilab::math::{INV_PI, luminance}
@@ -9,7 +10,7 @@
 #import gilab::accumulate::accumulate_sample
 #import gilab::primary::{current_surface, surface_material}
 #import gilab::brdf::diffuse_color
-#import gilab::surfels::{params, surfels, states, seen, pixel_direct, has_flag, gather, gathered_irradiance, grid_center_for, spawn_frame, write_debug, FLAG_ACCUMULATE, NONE}
+#import gilab::surfels::{params, surfels, states, seen, pixel_direct, pixel_specular, FLAG_REFLECTIONS, has_flag, gather, gathered_irradiance, grid_center_for, spawn_frame, write_debug, FLAG_ACCUMULATE, NONE}
 
 // Coverage above this multiple of the target counts a pixel as crowded (recycling thins it).
 const CROWDED: f32 = 4.0;
@@ -30,7 +31,13 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             let n = s.normal_alpha.xyz;
             let g = gather(s.pos.xyz, n, grid_center_for(frame.camera_pos.xyz), true);
             let albedo = diffuse_color(surface_material(s), max(dot(n, s.wo_dist.xyz), 0.0));
-            l += pixel_direct[idx].xyz + albedo * gathered_irradiance(g) * INV_PI;
+            let irradiance = gathered_irradiance(g);
+            l += pixel_direct[idx].xyz + albedo * irradiance * INV_PI;
+            if has_flag(FLAG_REFLECTIONS) {
+                // Traced specular, or a rough lobe's albedo times the surfels' irradiance.
+                let px = frame.size.x * frame.size.y;
+                l += pixel_specular[idx].xyz + pixel_specular[px + idx].xyz * irradiance * INV_PI;
+            }
             first_plane.y = g.coverage;
             second_plane.x = f32(g.cell + 1u);
             if g.best != NONE {

@@ -30,6 +30,7 @@ const FLAG_RADIAL_DEPTH: u32 = 2u;
 const FLAG_MSME: u32 = 4u;
 const FLAG_SKY: u32 = 8u;
 const FLAG_ACCUMULATE: u32 = 16u;
+const FLAG_REFLECTIONS: u32 = 32u;
 
 // One surfel's geometry. radius 0 marks a free slot.
 struct Surfel {
@@ -74,34 +75,37 @@ struct Pool {
 const REQUEST_SCALE: f32 = 64.0;
 const NONE: u32 = 0xffffffffu;
 
-@group(2) @binding(0) var<uniform> params: SurfelParams;
-@group(2) @binding(1) var<storage, read_write> surfels: array<Surfel>;
-@group(2) @binding(2) var<storage, read_write> states: array<SurfelState>;
-@group(2) @binding(3) var<storage, read_write> pool: Pool;
-@group(2) @binding(4) var<storage, read_write> free_stack: array<u32>;
+@group(#{SURFELS_GROUP}) @binding(0) var<uniform> params: SurfelParams;
+@group(#{SURFELS_GROUP}) @binding(1) var<storage, read_write> surfels: array<Surfel>;
+@group(#{SURFELS_GROUP}) @binding(2) var<storage, read_write> states: array<SurfelState>;
+@group(#{SURFELS_GROUP}) @binding(3) var<storage, read_write> pool: Pool;
+@group(#{SURFELS_GROUP}) @binding(4) var<storage, read_write> free_stack: array<u32>;
 // Per slot: last frame the surfel lit a visible pixel, pixels it lit last frame, of which crowded.
-@group(2) @binding(5) var<storage, read_write> seen: array<atomic<u32>>;
+@group(#{SURFELS_GROUP}) @binding(5) var<storage, read_write> seen: array<atomic<u32>>;
 // Per slot GUIDE_WORDS words: the 6x6 guiding map, 8 bits per texel, normalised to max 1.
-@group(2) @binding(6) var<storage, read_write> guide: array<u32>;
+@group(#{SURFELS_GROUP}) @binding(6) var<storage, read_write> guide: array<u32>;
 // Per slot DEPTH_TEXELS texels: mean and mean square hit distance (radial Gaussian depth).
-@group(2) @binding(7) var<storage, read_write> depth: array<vec2<f32>>;
+@group(#{SURFELS_GROUP}) @binding(7) var<storage, read_write> depth: array<vec2<f32>>;
 // Prefix-sum buffers (exclusive scan in place, total after the last element; scan.wgsl).
-@group(2) @binding(8) var<storage, read_write> slot_scan: array<u32>;
-@group(2) @binding(9) var<storage, read_write> tile_scan: array<u32>;
-@group(2) @binding(10) var<storage, read_write> cell_offsets: array<atomic<u32>>;
-@group(2) @binding(11) var<storage, read_write> ray_offsets: array<u32>;
+@group(#{SURFELS_GROUP}) @binding(8) var<storage, read_write> slot_scan: array<u32>;
+@group(#{SURFELS_GROUP}) @binding(9) var<storage, read_write> tile_scan: array<u32>;
+@group(#{SURFELS_GROUP}) @binding(10) var<storage, read_write> cell_offsets: array<atomic<u32>>;
+@group(#{SURFELS_GROUP}) @binding(11) var<storage, read_write> ray_offsets: array<u32>;
 // Per tile: the pixel a surfel spawns at (NONE: no spawn).
-@group(2) @binding(12) var<storage, read_write> tile_pixel: array<u32>;
+@group(#{SURFELS_GROUP}) @binding(12) var<storage, read_write> tile_pixel: array<u32>;
 // Per cell: insertion cursor; then the cells' surfel lists (slots, sorted within a cell).
-@group(2) @binding(13) var<storage, read_write> cell_cursor: array<atomic<u32>>;
-@group(2) @binding(14) var<storage, read_write> cell_surfels: array<u32>;
+@group(#{SURFELS_GROUP}) @binding(13) var<storage, read_write> cell_cursor: array<atomic<u32>>;
+@group(#{SURFELS_GROUP}) @binding(14) var<storage, read_write> cell_surfels: array<u32>;
 // Per ray: the surfel that owns it; its result (two vec4 per ray).
-@group(2) @binding(15) var<storage, read_write> ray_owner: array<u32>;
-@group(2) @binding(16) var<storage, read_write> ray_results: array<vec4<f32>>;
+@group(#{SURFELS_GROUP}) @binding(15) var<storage, read_write> ray_owner: array<u32>;
+@group(#{SURFELS_GROUP}) @binding(16) var<storage, read_write> ray_results: array<vec4<f32>>;
 // Per pixel: direct light (NEE or ReSTIR DI), written before the apply pass.
-@group(2) @binding(17) var<storage, read_write> pixel_direct: array<vec4<f32>>;
+@group(#{SURFELS_GROUP}) @binding(17) var<storage, read_write> pixel_direct: array<vec4<f32>>;
 // Per pixel, two planes of vec4 (technique debug views).
-@group(2) @binding(18) var<storage, read_write> debug_out: array<vec4<f32>>;
+@group(#{SURFELS_GROUP}) @binding(18) var<storage, read_write> debug_out: array<vec4<f32>>;
+// Per pixel, from the reflections part (src/parts/reflections.rs): (specular radiance, 0), then
+// a second plane (directional albedo of a lobe too rough to trace, hit kind).
+@group(#{SURFELS_GROUP}) @binding(19) var<storage, read_write> pixel_specular: array<vec4<f32>>;
 
 fn has_flag(f: u32) -> bool {
     return (params.flags & f) != 0u;

@@ -12,7 +12,7 @@
 #import gilab::sampling::sample_cosine_hemisphere
 #import gilab::bvh::{trace_closest, NO_HIT}
 #import gilab::surface::hit_surface
-#import gilab::brdf::{bsdf_sample, diffuse_color}
+#import gilab::brdf::{bsdf_sample, diffuse_color, specular_albedo_average}
 #import gilab::ray::{spawn_ray_origin, INFINITE_DISTANCE}
 #import gilab::path::trace_path
 #import gilab::nee::direct_light
@@ -93,7 +93,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 l = d.radiance;
                 let g = gather(h.position, h.normal, grid_center_for(frame.camera_pos.xyz), false);
                 if g.weight >= COVERED || g.cell_weight >= COVERED {
-                    l += diffuse_color(h.material, max(dot(h.normal, wo), 0.0)) * gathered_irradiance(g) * INV_PI;
+                    // The specular layer's energy reflected diffusely, as Lumen's cache albedo.
+                    let albedo = diffuse_color(h.material, max(dot(h.normal, wo), 0.0)) + specular_albedo_average(h.material);
+                    l += albedo * gathered_irradiance(g) * INV_PI;
                 } else {
                     let b = bsdf_sample(h.material, h.normal, wo, rand(&rng), rand_pair(&rng));
                     if b.valid && dot(b.wi, h.geo_normal) > 0.0 {

@@ -61,6 +61,9 @@ impl Default for ShaderVariant {
 /// The bind group of the surface cache's lookup bindings (shaders/parts/surface_cache.wgsl) when
 /// a pipeline sets nothing else: Lumen's own group.
 pub const DEFAULT_SURFACE_CACHE_GROUP: u32 = 2;
+/// The bind group of the surfels' bindings (shaders/surfels/shared.wgsl) when a pipeline sets
+/// nothing else: the surfels' own group (the reflections part reads them at another).
+pub const DEFAULT_SURFELS_GROUP: u32 = 2;
 
 impl ShaderVariant {
     fn defs(self) -> std::collections::HashMap<String, ShaderDefValue> {
@@ -157,6 +160,10 @@ impl ShaderLibrary {
         defs.insert(
             "SURFACE_CACHE_GROUP".into(),
             ShaderDefValue::UInt(DEFAULT_SURFACE_CACHE_GROUP),
+        );
+        defs.insert(
+            "SURFELS_GROUP".into(),
+            ShaderDefValue::UInt(DEFAULT_SURFELS_GROUP),
         );
         for (name, value) in &self.pipeline_defs {
             defs.insert(name.clone(), ShaderDefValue::UInt(*value));

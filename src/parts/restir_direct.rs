@@ -20,8 +20,9 @@ pub const SHADE: &str = "parts/restir_direct.wgsl";
 
 /// Every entry file the part compiles (its shading and ReSTIR's DI and ReGIR passes): a family
 /// that uses the part lists them in its `shader_files`, so editing one rebuilds it.
-pub const SHADER_FILES: [&str; 4] = [
+pub const SHADER_FILES: [&str; 5] = [
     SHADE,
+    "restir/regir_mark.wgsl",
     "restir/regir_build.wgsl",
     "restir/initial_temporal.wgsl",
     "restir/spatial.wgsl",
@@ -128,7 +129,7 @@ impl RestirDirect {
     /// ReSTIR's DI and ReGIR passes as the family's pass list shows them (before its `direct`).
     pub fn passes(&self, f: &SceneFeatures) -> Vec<PassInfo> {
         let mut v: Vec<PassInfo> = self.lighting.di_passes(f).into();
-        v.push(self.lighting.regir_pass(f));
+        v.extend(self.lighting.regir_passes(f));
         v
     }
 

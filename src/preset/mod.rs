@@ -312,7 +312,7 @@ impl Default for RenderSettings {
 /// Command-line overrides of a preset.
 #[derive(Clone, Debug, Default, clap::Args)]
 pub struct Overrides {
-    /// Scene: a built-in name (cornell, furnace, many-lights, thin-wall, glossy, courtyard, material-balls, atrium, hard-cases) or a .gltf/.glb path.
+    /// Scene: a built-in name (cornell, furnace, many-lights, thin-wall, glossy, courtyard, material-balls, atrium, hard-cases, mirror-hall) or a .gltf/.glb path.
     #[arg(long)]
     pub scene: Option<String>,
     /// Technique to render (replaces the preset's list).

@@ -42,8 +42,9 @@ pub const FLAG_NO_SKY_NEE: u32 = 2;
 
 /// Ray kinds, indices into the GPU counters (shaders/common/counters.wgsl).
 /// `candidate`: visibility of a resampling candidate before reuse; `reuse`: occlusion tests made
-/// by reuse itself (unbiased weights, bidirectional test).
-pub const RAY_KINDS: [&str; 8] = [
+/// by reuse itself (unbiased weights, bidirectional test); `reflection`: rays along a specular
+/// lobe (the reflections part).
+pub const RAY_KINDS: [&str; 9] = [
     "camera",
     "shadow",
     "indirect",
@@ -52,6 +53,7 @@ pub const RAY_KINDS: [&str; 8] = [
     "cache",
     "candidate",
     "reuse",
+    "reflection",
 ];
 pub const COUNTER_INVALID_SAMPLES: usize = 15;
 pub const COUNTER_SLOTS: usize = 16;
@@ -59,7 +61,7 @@ pub const COUNTER_SLOTS: usize = 16;
 /// Cumulative counters since the last history reset.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
 pub struct RayCounts {
-    pub by_kind: [u64; 8],
+    pub by_kind: [u64; RAY_KINDS.len()],
     pub invalid_samples: u64,
 }
 
@@ -69,7 +71,7 @@ impl RayCounts {
     }
     pub fn from_words(words: &[u32]) -> RayCounts {
         let get = |k: usize| words[2 * k] as u64 | ((words[2 * k + 1] as u64) << 32);
-        let mut by_kind = [0; 8];
+        let mut by_kind = [0; RAY_KINDS.len()];
         for (k, v) in by_kind.iter_mut().enumerate() {
             *v = get(k);
         }

@@ -20,6 +20,22 @@ pub enum ParamKind {
     Choice(&'static [&'static str]),
 }
 
+/// Two parameter tables as one (a technique's own and a part's); `N` must be `A + B`.
+pub const fn concat_params<const A: usize, const B: usize, const N: usize>(
+    a: [ParamSpec; A],
+    b: [ParamSpec; B],
+) -> [ParamSpec; N] {
+    assert!(A + B == N, "concat_params: N must be A + B");
+    assert!(A > 0, "concat_params: the first table is not empty");
+    let mut out = [a[0]; N];
+    let mut i = 0;
+    while i < N {
+        out[i] = if i < A { a[i] } else { b[i - A] };
+        i += 1;
+    }
+    out
+}
+
 /// One parameter of a technique.
 #[derive(Clone, Copy, Debug, Serialize)]
 pub struct ParamSpec {

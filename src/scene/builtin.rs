@@ -14,6 +14,7 @@ pub const NAMES: &[(&str, &str)] = &[
     ("courtyard", "an open porch beside a sunlit yard under a blue sky: the roof shadows the porch from the sun, wall lamps of radiance `lamp` (15) and a lantern light it; every light class (local, directional, sky); `sun` and `sky` scale the sun and the sky (1)"),
     ("material-balls", "the Callisto talk's fitted materials (black soft plastic, blue fabric, yellow phenolic, yellow plastic, gold metallic paint, light red paint) as spheres under a grazing key light and a back light: the BRDF models' differences (diffuse Fresnel, retroreflection, terminator) where they show"),
     ("atrium", "a Sponza-like atrium for scale: two storeys of arcades (fluted columns, round arches, galleries), tiled floor, hanging cloth, a vase on every pier, 64 lamps, sun and sky; `detail` (1.0: 1,234,560 triangles) scales the tessellation; columns, arches, vases and lamps are instances (a two-level BVH)"),
+    ("mirror-hall", "reflections: a mirror back wall, a rough metal floor (roughness `floor_roughness`, 0.35), seven glossy spheres from roughness 0 to 0.7 (metal and plastic), a teal wall behind the camera seen only in reflections, 36 ceiling lights"),
     ("hard-cases", "degenerate triangles, zero normals, roughness 0/1, metallic 1, a light inside a box, emission `emission` (1e6), grazing camera"),
 ];
 
@@ -102,6 +103,7 @@ pub fn build(name: &str, params: &toml::Table) -> Result<Scene> {
         "material-balls" => material_balls(),
         "atrium" => super::atrium::atrium(p.f32("detail", 1.0)?),
         "hard-cases" => hard_cases(p.f32("emission", 1e6)?),
+        "mirror-hall" => mirror_hall(p.f32("floor_roughness", 0.35)?.clamp(0.0, 1.0)),
         "courtyard" => courtyard(p.f32("lamp", 15.0)?, p.f32("sun", 1.0)?, p.f32("sky", 1.0)?),
         other => {
             let names: Vec<&str> = NAMES.iter().map(|(n, _)| *n).collect();
@@ -578,6 +580,96 @@ pub fn glossy() -> Scene {
         target: v(0.0, 1.0, -1.0),
         up: Vec3::Y,
         fov_y: 50.0,
+    });
+    s
+}
+
+/// The reflections scene (issue 35): a mirror back wall and a rough metal floor, glossy spheres
+/// from roughness 0 to 0.7, a teal wall behind the camera that only reflections show, and a
+/// 6×6 grid of small ceiling lights. Enclosed (no sky).
+pub fn mirror_hall(floor_roughness: f32) -> Scene {
+    let mut s = Scene::new("mirror-hall");
+    let v = Vec3::new;
+    let (w, h, d) = (6.0f32, 4.0f32, 6.0f32);
+    let floor = s.add_material(Material::glossy(
+        "rough metal floor",
+        v(0.62, 0.6, 0.58),
+        1.0,
+        floor_roughness,
+    ));
+    let mirror = s.add_material(Material::glossy("mirror", v(0.96, 0.96, 0.96), 1.0, 0.0));
+    let wall = s.add_material(Material::lambert("wall", v(0.7, 0.68, 0.64)));
+    let teal = s.add_material(Material::lambert(
+        "teal wall (reflections only)",
+        v(0.05, 0.55, 0.5),
+    ));
+    let light = s.add_material(Material::emitter("ceiling light", v(40.0, 36.0, 30.0)));
+    // Floor and ceiling.
+    s.add_quad(
+        v(-w, 0.0, -d),
+        v(-w, 0.0, d),
+        v(w, 0.0, d),
+        v(w, 0.0, -d),
+        floor,
+    );
+    s.add_quad(v(-w, h, -d), v(w, h, -d), v(w, h, d), v(-w, h, d), wall);
+    // The mirror at the back, the teal wall at the front (behind the camera), side walls.
+    s.add_quad(
+        v(-w, 0.0, -d),
+        v(w, 0.0, -d),
+        v(w, h, -d),
+        v(-w, h, -d),
+        mirror,
+    );
+    s.add_quad(v(-w, 0.0, d), v(-w, h, d), v(w, h, d), v(w, 0.0, d), teal);
+    s.add_quad(
+        v(-w, 0.0, -d),
+        v(-w, h, -d),
+        v(-w, h, d),
+        v(-w, 0.0, d),
+        wall,
+    );
+    s.add_quad(v(w, 0.0, -d), v(w, 0.0, d), v(w, h, d), v(w, h, -d), wall);
+    // 36 small lights just under the ceiling, facing down.
+    for i in 0..6 {
+        for j in 0..6 {
+            let (x, z) = (
+                -w + (i as f32 + 0.5) * 2.0 * w / 6.0,
+                -d + (j as f32 + 0.5) * 2.0 * d / 6.0,
+            );
+            let r = 0.15;
+            s.add_quad(
+                v(x - r, h - 0.01, z - r),
+                v(x + r, h - 0.01, z - r),
+                v(x + r, h - 0.01, z + r),
+                v(x - r, h - 0.01, z + r),
+                light,
+            );
+        }
+    }
+    let spheres = [
+        (0.0f32, v(0.95, 0.95, 0.95), 1.0f32),
+        (0.1, v(1.0, 0.78, 0.34), 1.0),
+        (0.2, v(0.95, 0.64, 0.54), 1.0),
+        (0.3, v(0.8, 0.1, 0.1), 0.0),
+        (0.4, v(0.56, 0.57, 0.58), 1.0),
+        (0.55, v(0.1, 0.2, 0.8), 0.0),
+        (0.7, v(0.9, 0.9, 0.9), 1.0),
+    ];
+    for (i, (rough, colour, metal)) in spheres.iter().enumerate() {
+        let m = s.add_material(Material::glossy(
+            &format!("sphere r{rough}"),
+            *colour,
+            *metal,
+            *rough,
+        ));
+        add_uv_sphere(&mut s, v(-4.2 + 1.4 * i as f32, 0.6, -1.5), 0.6, m, 24, 48);
+    }
+    s.camera = Some(Camera {
+        position: v(0.0, 2.0, 5.8),
+        target: v(0.0, 1.0, -1.5),
+        up: Vec3::Y,
+        fov_y: 60.0,
     });
     s
 }

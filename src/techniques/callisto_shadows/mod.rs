@@ -102,11 +102,12 @@ impl Default for CallistoShadows {
 
 /// Callisto's entry files, ReSTIR's (GI, and the direct-light part's DI passes) and the
 /// direct-light part's shading.
-const OWN_SHADER_FILES: [&str; 10] = [
+const OWN_SHADER_FILES: [&str; 11] = [
     CULL,
     SHADOWS,
     MEAN,
     RESOLVE,
+    "restir/regir_mark.wgsl",
     "restir/regir_build.wgsl",
     "restir/initial_temporal.wgsl",
     "restir/spatial.wgsl",
@@ -116,7 +117,7 @@ const OWN_SHADER_FILES: [&str; 10] = [
 ];
 
 /// With the surface-cache part's (compiled only with `gi_terminate = "lumen-cards"`).
-const SHADER_FILES: [&str; 35] = crate::render::concat_files(
+const SHADER_FILES: [&str; 36] = crate::render::concat_files(
     OWN_SHADER_FILES,
     crate::techniques::lumen::SURFACE_CACHE_FILES,
 );

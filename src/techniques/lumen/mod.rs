@@ -26,7 +26,9 @@
 //!    the probes of the pixel's plane, full-resolution temporal filter, contact AO).
 //!    `final_gather = pixels` is part 1's `gather`: cosine rays per pixel (or per
 //!    `gather_downsample` block) lit by the cache.
-//! 5. `apply`: emission + NEE + albedo x irradiance / pi, debug views, accumulation.
+//! 5. Reflections (`reflections = "traced"`, scenes with glossy surfaces): the shared part
+//!    `crate::parts::reflections`, its trace pass reading this cache at hits.
+//! 6. `apply`: emission + NEE + albedo x irradiance / pi + specular, debug views, accumulation.
 //!
 //! Rays trace the SDF or the BVH (`tracing`) through one function, so both read the same cache.
 //! Files: `params.rs` (the table), `cards.rs` (objects, card placement, atlas pages), `sdf.rs`
@@ -43,7 +45,8 @@ pub use screen_probes::ProbeStats;
 use screen_probes::{ProbePipelines, ScreenProbes};
 
 use crate::gpu::{readback, timing::PassTimer, Gpu};
-use crate::parts::RestirDirect;
+use crate::parts::reflections::HitCache;
+use crate::parts::{Reflections, RestirDirect};
 use crate::render::params::Params;
 use crate::render::primary::FrameInputs;
 use crate::render::{pipelines, DebugView, PassInfo, RenderContext, Technique};
@@ -132,6 +135,9 @@ struct Layouts {
     direct: wgpu::BindGroupLayout,
     /// Group 3 of the final gather's passes and `apply`: screen probes, world cache.
     probes: wgpu::BindGroupLayout,
+    /// Group 3 of the reflections part's filter: `pixel_direct` (binding 18), whose second and
+    /// third planes it writes (apply's pipeline is at the 32 storage buffers a stage may bind).
+    specular: wgpu::BindGroupLayout,
 }
 
 struct Pipelines {
@@ -171,6 +177,8 @@ struct Resources {
     queries: wgpu::Buffer,
     /// `pixel_direct` for the direct-light part's pass to write.
     direct_bind_group: wgpu::BindGroup,
+    /// `pixel_direct` for the reflections part's filter to write (planes 1 and 2).
+    specular_bind_group: wgpu::BindGroup,
     args: wgpu::Buffer,
     index_buffer: wgpu::Buffer,
     capture_depth_view: wgpu::TextureView,
@@ -289,10 +297,13 @@ pub const SURFACE_CACHE_FILES: [&str; 25] = [
     "lumen/integrate.wgsl",
 ];
 
-/// Lumen's entry files and its direct-light part's.
-const SHADER_FILES: [&str; 29] = crate::render::concat_files(
-    SURFACE_CACHE_FILES,
-    crate::parts::restir_direct::SHADER_FILES,
+/// Lumen's entry files and its parts' (direct light, reflections).
+const SHADER_FILES: [&str; 34] = crate::render::concat_files(
+    crate::render::concat_files::<25, 5, 30>(
+        SURFACE_CACHE_FILES,
+        crate::parts::restir_direct::SHADER_FILES,
+    ),
+    crate::parts::reflections::SHADER_FILES,
 );
 
 pub struct Lumen {
@@ -320,6 +331,8 @@ pub struct Lumen {
     built_with: Option<LumenSettings>,
     /// The direct-light part for `direct = "restir"` (built the first time it is needed).
     restir_direct: RestirDirect,
+    /// The reflections part (built the first time a glossy scene needs it).
+    reflections: Reflections,
     /// Surface-cache part (`Lumen::surface_cache`): the cache's passes only, no final gather.
     cache_only: bool,
 }
@@ -343,6 +356,7 @@ impl Default for Lumen {
             scene_tris: Vec::new(),
             built_with: None,
             restir_direct: RestirDirect::default(),
+            reflections: Reflections::default(),
             scene_materials: Vec::new(),
             features: SceneFeatures::default(),
             sky: false,
@@ -421,6 +435,7 @@ impl Lumen {
                     &[pipelines::storage_entry(0, false)],
                 ),
                 direct: self.restir_direct.output_layout(gpu).clone(),
+                specular: self.reflections.output_layout(gpu).clone(),
                 probes: ScreenProbes::layout(gpu),
             }
         })
@@ -436,6 +451,7 @@ impl Lumen {
             (s.debug_views, FLAG_DEBUG),
             (self.features.light_count() > 0, FLAG_LIGHTS),
             (self.direct_restir(), FLAG_DIRECT_RESTIR),
+            (self.reflections_active(), FLAG_REFLECTIONS),
         ] {
             if on {
                 flags |= flag;
@@ -535,6 +551,7 @@ impl Lumen {
                 l.queries.clone(),
                 l.probes.clone(),
                 l.direct.clone(),
+                l.specular.clone(),
             ]
         };
         let max_binding = gpu.device.limits().max_storage_buffer_binding_size;
@@ -601,8 +618,9 @@ impl Lumen {
             buf("lumen probes", atlas_texels / 16 * 48),
             tiles,
             buf("lumen gather", 2 * gather[0] as u64 * gather[1] as u64 * 16),
-            buf("lumen debug", 3 * pixels * 16),
-            buf("lumen pixel direct", pixels * 16),
+            buf("lumen debug", 4 * pixels * 16),
+            // Direct light, then the reflections part's two planes.
+            buf("lumen pixel direct", 3 * pixels * 16),
         ];
         let queries = buf("lumen queries", QUERY_CAPACITY as u64 * 32);
         let size = wgpu::Extent3d {
@@ -656,6 +674,12 @@ impl Lumen {
             pipelines::buffers_bind_group(gpu, "lumen queries", &layouts[4], &[&queries]);
         let direct_bind_group =
             pipelines::buffers_bind_group(gpu, "lumen pixel direct", &layouts[6], &[&buffers[18]]);
+        let specular_bind_group = pipelines::buffers_bind_group(
+            gpu,
+            "lumen pixel specular",
+            &layouts[7],
+            &[&buffers[18]],
+        );
         let res = Resources {
             params_buffer,
             buffers,
@@ -667,6 +691,7 @@ impl Lumen {
             query_bind_group,
             queries,
             direct_bind_group,
+            specular_bind_group,
             args,
             index_buffer,
             capture_depth_view,
@@ -890,13 +915,48 @@ impl Lumen {
     /// Rays per pixel per frame besides the gather: the shared camera ray and the direct
     /// light's (NEE's shadow ray, or ReSTIR DI's with the part).
     fn fixed_rays_per_pixel(&self) -> f64 {
-        1.0 + if self.features.light_count() == 0 {
-            0.0
-        } else if self.direct_restir() {
-            self.restir_direct.rays_per_pixel()
+        let reflections = if self.reflections_active() {
+            self.reflections.rays_per_pixel()
         } else {
-            1.0
+            0.0
+        };
+        1.0 + reflections
+            + if self.features.light_count() == 0 {
+                0.0
+            } else if self.direct_restir() {
+                self.restir_direct.rays_per_pixel()
+            } else {
+                1.0
+            }
+    }
+
+    /// The reflections part runs: `reflections = "traced"` on a scene with a specular layer
+    /// (metal, or a dielectric specular factor above 0), glossy or not: rough lobes need the
+    /// albedo plane even where no ray is traced.
+    fn reflections_active(&self) -> bool {
+        self.settings.reflections
+            && !self.cache_only
+            && self.features.min_specular_roughness.is_some()
+    }
+
+    /// Builds the reflections part when it is needed and not built (its trace pass reads this
+    /// cache: Lumen's group 2 at the part's cache group), and passes it the settings.
+    fn prepare_reflections(&mut self, ctx: &RenderContext, rebuild: bool) -> Result<()> {
+        self.reflections.settings = self.settings.reflection.clone();
+        let needed = self.settings.reflections
+            && !self.cache_only
+            && ctx.scene.data.features.min_specular_roughness.is_some();
+        if (needed && !self.reflections.is_built()) || (rebuild && self.reflections.is_built()) {
+            // The cache's lookup bindings alone: with all of Lumen's group the trace pass would
+            // bind more storage buffers than a stage may.
+            let layout = crate::parts::SurfaceCache::lookup_layout(ctx.gpu);
+            self.reflections
+                .build(ctx, Some(HitCache::SurfaceCache(&layout)))?;
         }
+        if self.reflections.is_built() {
+            self.reflections.build_resources(ctx);
+        }
+        Ok(())
     }
 
     /// Pixels take their direct light from the ReSTIR DI part (`direct = "restir"`, lights).
@@ -1278,15 +1338,13 @@ impl Technique for Lumen {
                 "few lights: power sampling suffices".into()
             },
         ));
-        v.push(pass(
-            "specular indirect",
-            false,
-            if f.has_glossy || f.has_mirror {
-                "not simulated in part 1: the cache is diffuse; glossy surfaces get direct specular only".into()
-            } else {
-                "no glossy surfaces in the scene".into()
-            },
-        ));
+        let why_not = if !s.reflections {
+            "reflections = none: specular surfaces get direct specular only"
+        } else {
+            "no surface with a specular layer (metal or specular factor) in the scene"
+        };
+        let specular = f.min_specular_roughness.is_some();
+        v.extend(self.reflections.passes(s.reflections && specular, why_not));
         v
     }
 
@@ -1362,6 +1420,7 @@ impl Technique for Lumen {
             self.restir_direct.build(ctx)?;
             self.restir_direct.build_resources(ctx);
         }
+        self.prepare_reflections(ctx, true)?;
         self.pipelines = Some(Pipelines {
             compute,
             sdf_args,
@@ -1390,6 +1449,7 @@ impl Technique for Lumen {
         if self.restir_direct.is_built() {
             self.restir_direct.build_resources(ctx);
         }
+        self.prepare_reflections(ctx, false)?;
         let sized = |s: &LumenSettings| {
             (
                 s.clipmap_levels,
@@ -1444,6 +1504,7 @@ impl Technique for Lumen {
         }
         gpu.submit("lumen: history reset", enc.finish());
         self.restir_direct.reset(gpu);
+        self.reflections.reset(gpu);
     }
 
     /// The cache and the distance field carry over, as in a game: the cache catches up through
@@ -1508,6 +1569,13 @@ impl Technique for Lumen {
             self.record_capture(ctx, enc, timer, &captures);
         }
         let direct_restir = self.direct_restir() && self.restir_direct.is_built();
+        let reflections = self.reflections_active() && self.reflections.is_built();
+        let lookup = if reflections {
+            let layout = crate::parts::SurfaceCache::lookup_layout(ctx.gpu);
+            self.surface_cache_bind_group(ctx.gpu, &layout)
+        } else {
+            None
+        };
         let (Some(p), Some(r)) = (&self.pipelines, self.res.as_mut()) else {
             return;
         };
@@ -1565,6 +1633,22 @@ impl Technique for Lumen {
             self.restir_direct
                 .record(ctx, enc, timer, &r.direct_bind_group);
         }
+        if reflections {
+            let debug = self.settings.debug_views;
+            self.reflections.record(
+                ctx,
+                enc,
+                timer,
+                lookup.as_ref(),
+                (&r.specular_bind_group, 1),
+                debug,
+            );
+            if let (true, Some(d)) = (debug, self.reflections.debug_buffer()) {
+                // The part's debug plane becomes Lumen's fourth (views 12 to 15).
+                let plane = ctx.extent[0] as u64 * ctx.extent[1] as u64 * 16;
+                enc.copy_buffer_to_buffer(d, 0, r.buffer(17), 3 * plane, plane);
+            }
+        }
         pipelines::technique_pass(
             ctx,
             enc,
@@ -1607,6 +1691,14 @@ impl Technique for Lumen {
                 11,
                 false,
             ),
+            view("reflections: rays traced per pixel", 12, false),
+            view(
+                "reflections: hit kind (1 world, 2 sky, 3 mirror, 4 rough: reuses irradiance)",
+                13,
+                true,
+            ),
+            view("reflections: specular radiance (luminance)", 14, false),
+            view("reflections: history length (frames)", 15, false),
         ]
     }
 

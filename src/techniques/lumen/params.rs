@@ -2,7 +2,8 @@
 
 use crate::render::params::{ParamKind, ParamSpec, Params};
 
-pub const PARAMS: &[ParamSpec] = &[
+/// Lumen's own parameters; [`PARAMS`] adds the reflections part's.
+const OWN_PARAMS: [ParamSpec; 26] = [
     ParamSpec {
         name: "tracing",
         what: "what rays trace: the global distance field (the seed's software ray tracing) or the scene's triangles through the BVH (its hardware ray tracing); both read the same surface cache",
@@ -213,6 +214,12 @@ pub const PARAMS: &[ParamSpec] = &[
     },
 ];
 
+/// Lumen's parameters and its reflections part's.
+pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<26, 6, 32>(
+    OWN_PARAMS,
+    crate::parts::reflections::PARAMS,
+);
+
 /// The parameters, typed.
 #[derive(Clone, Debug, PartialEq)]
 pub struct LumenSettings {
@@ -243,6 +250,10 @@ pub struct LumenSettings {
     pub spatial_filter: bool,
     pub temporal_filter: bool,
     pub contact_ao: bool,
+    /// `reflections = "traced"`.
+    pub reflections: bool,
+    /// The reflections part's settings.
+    pub reflection: crate::parts::reflections::ReflectionSettings,
 }
 
 impl LumenSettings {
@@ -274,6 +285,8 @@ impl LumenSettings {
             spatial_filter: p.bool("spatial_filter"),
             temporal_filter: p.bool("temporal_filter"),
             contact_ao: p.bool("contact_ao"),
+            reflections: crate::parts::reflections::ReflectionSettings::from_params(p).0,
+            reflection: crate::parts::reflections::ReflectionSettings::from_params(p).1,
         }
     }
 
@@ -344,3 +357,5 @@ pub const FLAG_ACCUMULATE: u32 = 4;
 pub const FLAG_DEBUG: u32 = 8;
 pub const FLAG_LIGHTS: u32 = 16;
 pub const FLAG_DIRECT_RESTIR: u32 = 32;
+/// Pixels add the reflections part's specular light.
+pub const FLAG_REFLECTIONS: u32 = 64;

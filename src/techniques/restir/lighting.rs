@@ -103,7 +103,7 @@ impl RestirLighting {
     pub fn layout(&mut self, gpu: &Gpu) -> &wgpu::BindGroupLayout {
         self.layout.get_or_insert_with(|| {
             let mut entries = vec![pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE)];
-            for b in 1..=5 {
+            for b in 1..=6 {
                 entries.push(pipelines::storage_entry(b, false));
             }
             pipelines::layout(gpu, "restir", &entries)
@@ -122,10 +122,10 @@ impl RestirLighting {
     /// then the resources.
     pub fn build(&mut self, ctx: &RenderContext) -> Result<()> {
         let layout = self.layout(ctx.gpu).clone();
-        let regir = Regir::pipeline(ctx, &layout)?;
+        let regir = Regir::pipelines(ctx, &layout)?;
         let di = PassPair::build(ctx, &layout, super::di::PASSES)?;
         let gi = PassPair::build(ctx, &layout, super::gi::PASSES)?;
-        self.regir.set_pipeline(regir);
+        self.regir.set_pipelines(regir);
         self.di.passes.set(di);
         self.gi.passes.set(gi);
         // The cache a GI path may end in is rebuilt with the rest (hot reload), or built now.
@@ -162,20 +162,37 @@ impl RestirLighting {
             },
         );
         let layout = self.layout(gpu).clone();
-        let (Some(reservoirs), Some(gi_reservoirs), Some(gi_sky), Some(slots), Some(debug)) = (
+        let (
+            Some(reservoirs),
+            Some(gi_reservoirs),
+            Some(gi_sky),
+            Some(slots),
+            Some(used),
+            Some(debug),
+        ) = (
             &self.di.reservoirs,
             &self.gi.reservoirs,
             &self.gi.sky,
             &self.regir.slots,
+            &self.regir.used,
             &self.debug,
-        ) else {
+        )
+        else {
             unreachable!("every buffer was just made");
         };
         self.bind_group = Some(pipelines::buffers_bind_group(
             gpu,
             "restir",
             &layout,
-            &[&params, reservoirs, gi_reservoirs, gi_sky, slots, debug],
+            &[
+                &params,
+                reservoirs,
+                gi_reservoirs,
+                gi_sky,
+                slots,
+                debug,
+                used,
+            ],
         ));
         self.params_buffer = Some(params);
         self.extent = ctx.extent;

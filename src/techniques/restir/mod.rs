@@ -58,7 +58,8 @@ use crate::scene::features::SceneFeatures;
 use anyhow::Result;
 
 /// ReSTIR's own entry files.
-pub const OWN_SHADER_FILES: [&str; 6] = [
+pub const OWN_SHADER_FILES: [&str; 7] = [
+    "restir/regir_mark.wgsl",
     "restir/regir_build.wgsl",
     "restir/initial_temporal.wgsl",
     "restir/spatial.wgsl",
@@ -68,7 +69,7 @@ pub const OWN_SHADER_FILES: [&str; 6] = [
 ];
 
 /// ReSTIR's files and the surface-cache part's (compiled only with `gi_terminate = "lumen-cards"`).
-const SHADER_FILES: [&str; 31] = crate::render::concat_files(
+const SHADER_FILES: [&str; 32] = crate::render::concat_files(
     OWN_SHADER_FILES,
     crate::techniques::lumen::SURFACE_CACHE_FILES,
 );
@@ -129,7 +130,7 @@ impl Technique for Restir {
             runs: true,
             why: "final visibility (DI and GI), emission and accumulation".into(),
         });
-        v.push(l.regir_pass(f));
+        v.extend(l.regir_passes(f));
         v
     }
 

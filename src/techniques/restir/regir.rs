@@ -1,7 +1,10 @@
 //! ReGIR ("Making Connections"; Boksansky et al. 2021), a part of [`RestirLighting`]: a
 //! camera-centred grid whose cells hold light reservoirs pre-selected for the cell (by strength
 //! over squared distance), rebuilt every frame; DI draws its initial candidates from the cell.
-//! Runs only where the scene has many lights (rule 3). Shader: shaders/restir/regir_build.wgsl.
+//! Each frame a mark pass flags the cells under the pixels, and the build fills only those
+//! (a slot's random stream depends on its index alone, so the result equals a full build's).
+//! Runs only where the scene has many lights (rule 3). Shaders: shaders/restir/regir_mark.wgsl,
+//! shaders/restir/regir_build.wgsl.
 
 use super::lighting::RestirLighting;
 use super::RestirSettings;
@@ -15,25 +18,32 @@ pub const REGIR_SLOT_BYTES: u64 = 16;
 /// ReGIR grid: REGIR_DIMS^3 cells around the camera.
 pub const REGIR_DIMS: u32 = 16;
 pub const PASS: &str = "regir_build";
+pub const MARK_PASS: &str = "regir_mark";
 
 #[derive(Default)]
 pub struct Regir {
-    pipeline: Option<wgpu::ComputePipeline>,
+    /// (mark, build).
+    pipelines: Option<(wgpu::ComputePipeline, wgpu::ComputePipeline)>,
     pub(super) slots: Option<wgpu::Buffer>,
+    /// One u32 per cell: read this frame (set by the mark pass).
+    pub(super) used: Option<wgpu::Buffer>,
     /// Cell size in use (the setting, or the automatic one for this scene).
     pub(super) cell: f32,
 }
 
 impl Regir {
-    pub(super) fn pipeline(
+    pub(super) fn pipelines(
         ctx: &RenderContext,
         layout: &wgpu::BindGroupLayout,
-    ) -> Result<wgpu::ComputePipeline> {
-        ctx.pipeline("restir/regir_build.wgsl", layout)
+    ) -> Result<(wgpu::ComputePipeline, wgpu::ComputePipeline)> {
+        Ok((
+            ctx.pipeline("restir/regir_mark.wgsl", layout)?,
+            ctx.pipeline("restir/regir_build.wgsl", layout)?,
+        ))
     }
 
-    pub(super) fn set_pipeline(&mut self, p: wgpu::ComputePipeline) {
-        self.pipeline = Some(p);
+    pub(super) fn set_pipelines(&mut self, p: (wgpu::ComputePipeline, wgpu::ComputePipeline)) {
+        self.pipelines = Some(p);
     }
 
     /// The cell size and the slots buffer (kept while its size holds).
@@ -51,9 +61,17 @@ impl Regir {
             Some(b) if b.size() == bytes.max(16) => Some(b),
             _ => Some(pipelines::storage_buffer(gpu, "restir regir slots", bytes)),
         };
+        if self.used.is_none() {
+            self.used = Some(pipelines::storage_buffer(
+                gpu,
+                "restir regir used",
+                cells * 4,
+            ));
+        }
     }
 
-    /// One invocation per (cell, slot), 64 per workgroup.
+    /// The mark pass (one invocation per pixel), then the build: one invocation per
+    /// (cell, slot), 64 per workgroup, of which unmarked cells return at once.
     pub(super) fn record(
         &self,
         ctx: &RenderContext,
@@ -62,15 +80,17 @@ impl Regir {
         bind_group: &wgpu::BindGroup,
         lights_per_cell: u32,
     ) {
-        let Some(p) = &self.pipeline else {
+        let (Some((mark, build)), Some(used)) = (&self.pipelines, &self.used) else {
             return;
         };
+        enc.clear_buffer(used, 0, None);
+        pipelines::image_pass(ctx, enc, timer, MARK_PASS, mark, bind_group);
         let slots = REGIR_DIMS.pow(3) * lights_per_cell;
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some(PASS),
             timestamp_writes: timer.compute_pass(PASS),
         });
-        pass.set_pipeline(p);
+        pass.set_pipeline(build);
         pass.set_bind_group(0, &ctx.scene.bind_group, &[]);
         pass.set_bind_group(1, ctx.frame_bind_group, &[]);
         pass.set_bind_group(2, bind_group, &[]);
@@ -84,16 +104,18 @@ impl RestirLighting {
         self.settings.regir && self.many_lights && self.class_candidates()[0] > 0
     }
 
-    pub fn regir_pass(&self, f: &SceneFeatures) -> PassInfo {
+    /// The mark and build passes.
+    pub fn regir_passes(&self, f: &SceneFeatures) -> [PassInfo; 2] {
         let s = &self.settings;
-        PassInfo {
+        let runs = s.regir && f.many_lights;
+        let build = PassInfo {
             name: PASS,
-            runs: s.regir && f.many_lights,
+            runs,
             why: if !s.regir {
                 "regir = false: candidates from the global light pool".into()
             } else if f.many_lights {
                 format!(
-                    "{} lights: {}^3 cells around the camera, {} lights each",
+                    "{} lights: the marked cells of {}^3 around the camera, {} lights each",
                     f.light_count(),
                     REGIR_DIMS,
                     s.regir_lights_per_cell
@@ -104,6 +126,16 @@ impl RestirLighting {
                     f.light_count()
                 )
             },
-        }
+        };
+        let mark = PassInfo {
+            name: MARK_PASS,
+            runs,
+            why: if runs {
+                "flags the ReGIR cells under the pixels: only those are built".into()
+            } else {
+                "no ReGIR grid".into()
+            },
+        };
+        [mark, build]
     }
 }

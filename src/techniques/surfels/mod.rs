@@ -33,7 +33,8 @@ mod scan;
 pub use params::{SurfelParamsGpu, SurfelSettings, MAX_RAYS_PER_SURFEL, PARAMS};
 
 use crate::gpu::{readback, timing::PassTimer, Gpu};
-use crate::parts::RestirDirect;
+use crate::parts::reflections::HitCache;
+use crate::parts::{Reflections, RestirDirect};
 use crate::render::params::Params;
 use crate::render::primary::FrameInputs;
 use crate::render::{pipelines, DebugView, PassInfo, RenderContext, Technique};
@@ -90,6 +91,22 @@ impl Pipelines {
     }
 }
 
+/// The bindings of group 2 that the irradiance lookup (`gilab::surfels::gather`) reads: the
+/// reflections part's trace pass binds only these (with all 20, a stage would bind more than
+/// the 32 storage buffers it may).
+const LOOKUP_BINDINGS: [u32; 7] = [0, 1, 2, 5, 7, 10, 14];
+
+fn lookup_layout(gpu: &Gpu) -> wgpu::BindGroupLayout {
+    let entries: Vec<wgpu::BindGroupLayoutEntry> = LOOKUP_BINDINGS
+        .iter()
+        .map(|&b| match b {
+            0 => pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE),
+            _ => pipelines::storage_entry(b, false),
+        })
+        .collect();
+    pipelines::layout(gpu, "surfel lookup", &entries)
+}
+
 /// Layouts, created once so pipelines built against them stay valid across resource rebuilds.
 struct Layouts {
     surfels: wgpu::BindGroupLayout,
@@ -97,6 +114,8 @@ struct Layouts {
     args: wgpu::BindGroupLayout,
     /// Group 3 of the direct-light part's pass: the per-pixel direct light it writes.
     direct: wgpu::BindGroupLayout,
+    /// Group 3 of the reflections part's filter: the per-pixel specular light it writes.
+    specular: wgpu::BindGroupLayout,
     scan: wgpu::BindGroupLayout,
 }
 
@@ -106,6 +125,9 @@ struct Resources {
     bind_group: wgpu::BindGroup,
     args_bind_group: wgpu::BindGroup,
     direct_bind_group: wgpu::BindGroup,
+    specular_bind_group: wgpu::BindGroup,
+    /// The irradiance lookup's bindings for the reflections part's trace pass.
+    lookup_bind_group: wgpu::BindGroup,
     args: wgpu::Buffer,
     /// Every per-slot, per-cell and per-ray buffer, cleared on reset.
     clear_on_reset: Vec<wgpu::Buffer>,
@@ -151,6 +173,8 @@ pub struct Surfels {
     res: Option<Resources>,
     /// The direct-light part for `direct = "restir"` (built the first time it is needed).
     restir_direct: RestirDirect,
+    /// The reflections part (built the first time a scene with a specular layer needs it).
+    reflections: Reflections,
     features: SceneFeatures,
     /// Largest component of the sky radiance.
     sky_radiance: f32,
@@ -167,6 +191,7 @@ impl Default for Surfels {
             pipelines: None,
             res: None,
             restir_direct: RestirDirect::default(),
+            reflections: Reflections::default(),
             features: SceneFeatures::default(),
             sky_radiance: 0.0,
             extent: [0, 0],
@@ -178,7 +203,7 @@ impl Surfels {
     fn layouts(&mut self, gpu: &Gpu) -> &Layouts {
         self.layouts.get_or_insert_with(|| {
             let mut entries = vec![pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE)];
-            for b in 1..=18 {
+            for b in 1..=19 {
                 entries.push(pipelines::storage_entry(b, false));
             }
             Layouts {
@@ -189,6 +214,7 @@ impl Surfels {
                     &[pipelines::storage_entry(0, false)],
                 ),
                 direct: self.restir_direct.output_layout(gpu).clone(),
+                specular: self.reflections.output_layout(gpu).clone(),
                 scan: scan::layout(gpu),
             }
         })
@@ -210,6 +236,7 @@ impl Surfels {
             (s.msme, FLAG_MSME),
             (ctx.scene.sky.max_element() > 0.0, FLAG_SKY),
             (s.accumulate, FLAG_ACCUMULATE),
+            (self.reflections_active(), FLAG_REFLECTIONS),
         ] {
             if on {
                 flags |= flag;
@@ -222,13 +249,42 @@ impl Surfels {
     /// ray and (with lights) the direct light's: one shadow ray with NEE, ReSTIR DI's with the
     /// part.
     fn fixed_rays_per_pixel(&self) -> f64 {
-        1.0 + if self.features.light_count() == 0 {
-            0.0
-        } else if self.settings.direct_restir {
-            self.restir_direct.rays_per_pixel()
+        let reflections = if self.reflections_active() {
+            self.reflections.rays_per_pixel()
         } else {
-            1.0
+            0.0
+        };
+        1.0 + reflections
+            + if self.features.light_count() == 0 {
+                0.0
+            } else if self.settings.direct_restir {
+                self.restir_direct.rays_per_pixel()
+            } else {
+                1.0
+            }
+    }
+
+    /// The reflections part runs: `reflections = "traced"` on a scene with a specular layer.
+    fn reflections_active(&self) -> bool {
+        self.settings.reflections && self.features.min_specular_roughness.is_some()
+    }
+
+    /// Builds the reflections part when it is needed and not built (its hits get direct light
+    /// and the surfels' irradiance, read from this technique's group 2 at the part's cache
+    /// group; `rebuild`: a shader change rebuilds it if built), and passes it the settings.
+    fn prepare_reflections(&mut self, ctx: &RenderContext, rebuild: bool) -> Result<()> {
+        self.reflections.settings = self.settings.reflection.clone();
+        let needed =
+            self.settings.reflections && ctx.scene.data.features.min_specular_roughness.is_some();
+        if (needed && !self.reflections.is_built()) || (rebuild && self.reflections.is_built()) {
+            let layout = lookup_layout(ctx.gpu);
+            self.reflections
+                .build(ctx, Some(HitCache::Surfels(&layout)))?;
         }
+        if self.reflections.is_built() {
+            self.reflections.build_resources(ctx);
+        }
+        Ok(())
     }
 
     /// Builds the direct-light part for `direct = "restir"` if not built yet (its resources
@@ -248,9 +304,14 @@ impl Surfels {
         self.features = ctx.scene.data.features.clone();
         self.sky_radiance = ctx.scene.sky.max_element();
         self.extent = ctx.extent;
-        let (surfel_layout, args_layout, direct_layout) = {
+        let (surfel_layout, args_layout, direct_layout, specular_layout) = {
             let l = self.layouts(gpu);
-            (l.surfels.clone(), l.args.clone(), l.direct.clone())
+            (
+                l.surfels.clone(),
+                l.args.clone(),
+                l.direct.clone(),
+                l.specular.clone(),
+            )
         };
         let s = &self.settings;
         let max = s.max_surfels as u64;
@@ -304,6 +365,7 @@ impl Surfels {
         let ray_results = buf("surfel ray results", ray_capacity as u64 * RAY_RESULT_BYTES);
         let pixel_direct = buf("surfel pixel direct", pixels * 16);
         let debug = buf("surfel debug", 2 * pixels * 16);
+        let pixel_specular = buf("surfel pixel specular", 2 * pixels * 16);
         let args = pipelines::indirect_args_buffer(gpu, "surfel trace args", 1);
         let bind_group = pipelines::buffers_bind_group(
             gpu,
@@ -329,12 +391,41 @@ impl Surfels {
                 &ray_results,
                 &pixel_direct,
                 &debug,
+                &pixel_specular,
             ],
         );
         let args_bind_group =
             pipelines::buffers_bind_group(gpu, "surfel ray args", &args_layout, &[&args]);
         let direct_bind_group =
             pipelines::buffers_bind_group(gpu, "surfel direct", &direct_layout, &[&pixel_direct]);
+        let specular_bind_group = pipelines::buffers_bind_group(
+            gpu,
+            "surfel specular",
+            &specular_layout,
+            &[&pixel_specular],
+        );
+        let lookup_buffers = [
+            &params_buffer,
+            &surfels,
+            &states,
+            &seen,
+            &depth,
+            &cell_offsets,
+            &cell_surfels,
+        ];
+        let lookup_entries: Vec<wgpu::BindGroupEntry> = LOOKUP_BINDINGS
+            .iter()
+            .zip(lookup_buffers)
+            .map(|(&binding, b)| wgpu::BindGroupEntry {
+                binding,
+                resource: b.as_entire_binding(),
+            })
+            .collect();
+        let lookup_bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("surfel lookup"),
+            layout: &lookup_layout(gpu),
+            entries: &lookup_entries,
+        });
         let Some(p) = &self.pipelines else {
             anyhow::bail!("surfel pipelines are built before their resources");
         };
@@ -357,6 +448,8 @@ impl Surfels {
             bind_group,
             args_bind_group,
             direct_bind_group,
+            specular_bind_group,
+            lookup_bind_group,
             args,
             clear_on_reset: vec![
                 surfels.clone(),
@@ -502,15 +595,13 @@ impl Technique for Surfels {
             },
         ));
         v.push(pass("apply", true, "gather the cell's surfels (distance, normal, depth), cell average where weight < 1; accumulate".into()));
-        v.push(pass(
-            "specular indirect",
-            false,
-            if f.has_glossy || f.has_mirror {
-                "not simulated: surfels cache diffuse irradiance; glossy surfaces get direct specular only".into()
-            } else {
-                "no glossy surfaces in the scene".into()
-            },
-        ));
+        let why_not = if !s.reflections {
+            "reflections = none: specular surfaces get direct specular only"
+        } else {
+            "no surface with a specular layer (metal or specular factor) in the scene"
+        };
+        let specular = f.min_specular_roughness.is_some();
+        v.extend(self.reflections.passes(s.reflections && specular, why_not));
         v
     }
 
@@ -543,6 +634,7 @@ impl Technique for Surfels {
             self.restir_direct.build(ctx)?;
             self.restir_direct.build_resources(ctx);
         }
+        self.prepare_reflections(ctx, true)?;
         self.pipelines = Some(Pipelines {
             passes,
             ray_owner,
@@ -569,6 +661,7 @@ impl Technique for Surfels {
 
     fn apply_params(&mut self, ctx: &RenderContext) -> Result<()> {
         self.ensure_restir(ctx)?;
+        self.prepare_reflections(ctx, false)?;
         self.build_resources(ctx)?;
         self.reset_history(ctx.gpu);
         Ok(())
@@ -591,6 +684,7 @@ impl Technique for Surfels {
         gpu.queue
             .write_buffer(&r.pool, 0, bytemuck::cast_slice(&[max, 0u32]));
         self.restir_direct.reset(gpu);
+        self.reflections.reset(gpu);
     }
 
     /// Surfels and their irradiance carry over, as in a game: the estimator has to catch up.
@@ -655,6 +749,16 @@ impl Technique for Surfels {
         } else {
             pass(enc, timer, "direct", image);
         }
+        if self.reflections_active() && self.reflections.is_built() {
+            self.reflections.record(
+                ctx,
+                enc,
+                timer,
+                Some(&r.lookup_bind_group),
+                (&r.specular_bind_group, 0),
+                false,
+            );
+        }
         pass(enc, timer, "apply", image);
     }
 
@@ -704,11 +808,17 @@ impl Technique for Surfels {
             "surfels/direct_nee.wgsl",
             // The direct-light part (crate::parts::restir_direct::SHADER_FILES).
             "parts/restir_direct.wgsl",
+            "restir/regir_mark.wgsl",
             "restir/regir_build.wgsl",
             "restir/initial_temporal.wgsl",
             "restir/spatial.wgsl",
             "surfels/apply.wgsl",
             "surfels/scan.wgsl",
+            // The reflections part (crate::parts::reflections::SHADER_FILES).
+            "parts/reflections/trace.wgsl",
+            "parts/reflections/resolve.wgsl",
+            "parts/reflections/temporal.wgsl",
+            "parts/reflections/filter.wgsl",
         ]
     }
 

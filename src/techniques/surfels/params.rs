@@ -6,7 +6,8 @@ use crate::render::params::{ParamKind, ParamSpec, Params};
 /// still spend the whole budget (the allocation scales requests both ways, as in the seed).
 pub const MAX_RAYS_PER_SURFEL: u32 = 4096;
 
-pub const PARAMS: &[ParamSpec] = &[
+/// The surfels' own parameters; [`PARAMS`] adds the reflections part's.
+const OWN_PARAMS: [ParamSpec; 9] = [
     ParamSpec {
         name: "max_surfels",
         what: "size of the surfel pool, allocated up front (the seed's fixed budget)",
@@ -93,6 +94,12 @@ pub const PARAMS: &[ParamSpec] = &[
     },
 ];
 
+/// The surfels' parameters and their reflections part's.
+pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<9, 6, 15>(
+    OWN_PARAMS,
+    crate::parts::reflections::PARAMS,
+);
+
 /// The parameters, typed.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SurfelSettings {
@@ -105,6 +112,10 @@ pub struct SurfelSettings {
     pub coverage_target: f32,
     pub surfel_size: f32,
     pub accumulate: bool,
+    /// `reflections = "traced"`.
+    pub reflections: bool,
+    /// The reflections part's settings.
+    pub reflection: crate::parts::reflections::ReflectionSettings,
 }
 
 impl SurfelSettings {
@@ -119,6 +130,8 @@ impl SurfelSettings {
             coverage_target: p.f32("coverage_target"),
             surfel_size: p.f32("surfel_size"),
             accumulate: p.bool("accumulate"),
+            reflections: crate::parts::reflections::ReflectionSettings::from_params(p).0,
+            reflection: crate::parts::reflections::ReflectionSettings::from_params(p).1,
         }
     }
 }
@@ -146,3 +159,5 @@ pub const FLAG_RADIAL_DEPTH: u32 = 2;
 pub const FLAG_MSME: u32 = 4;
 pub const FLAG_SKY: u32 = 8;
 pub const FLAG_ACCUMULATE: u32 = 16;
+/// Pixels add the reflections part's specular light.
+pub const FLAG_REFLECTIONS: u32 = 32;
