@@ -575,17 +575,14 @@ fn cornell_against_reference_both_gathers() {
     // after 16, when the cache (every texel updated every frame) has converged (48 before
     // 2026-11-26, for CI time).
     let (slow, fast, single) = (48, 48, 16);
-    for mode in ["sdf", "bvh"] {
-        let (img, rays) =
-            cornell_run_frames(toml::toml! { tracing = mode final_gather = "pixels" }, slow);
-        let (ratio, _) = report(
-            &format!("pixels ({mode}), default budgets"),
-            &img,
-            &rays,
-            slow,
-        );
-        assert!((ratio - 1.0).abs() < 0.1, "{mode}: energy ratio {ratio}");
-    }
+    // The per-pixel gather at default budgets through the BVH (through the SDF too before
+    // 2026-11-26; the SDF per-pixel gather's energy is still checked on the furnace).
+    let (img, rays) = cornell_run_frames(
+        toml::toml! { tracing = "bvh" final_gather = "pixels" },
+        slow,
+    );
+    let (ratio, _) = report("pixels (bvh), default budgets", &img, &rays, slow);
+    assert!((ratio - 1.0).abs() < 0.1, "bvh: energy ratio {ratio}");
     let converged = |mut t: toml::Table| {
         t.insert("indirect_texels_per_frame".into(), 4_194_304.into());
         t.insert("direct_texels_per_frame".into(), 4_194_304.into());

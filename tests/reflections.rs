@@ -97,6 +97,17 @@ fn render(technique: &str, scene: Scene, extra: toml::Table, frames: u32) -> (Im
     (e.read_output().unwrap(), rays)
 }
 
+/// A family with its default parameters at another size.
+fn render_at(technique: &str, scene: Scene, size: [u32; 2], frames: u32) -> (Image, RayCounts) {
+    let mut e = engine(technique, toml::Table::new(), scene, size, 1);
+    for _ in 0..frames {
+        e.render_frame().unwrap();
+    }
+    let rays = e.ray_counts().unwrap();
+    assert_eq!(rays.invalid_samples, 0, "NaN/Inf samples");
+    (e.read_output().unwrap(), rays)
+}
+
 fn lumen(scene: Scene, extra: toml::Table, frames: u32) -> (Image, RayCounts) {
     render("lumen", scene, extra, frames)
 }
@@ -105,8 +116,8 @@ const FRAMES: u32 = 24;
 
 /// Roughness 0.3: the boxes reflect the room. The family's own bias is measured on the same box
 /// with Lambert boxes (tests/data/mitsuba/cornell.gltf, its reference): the metal box may lose
-/// at most 3% of the energy beyond it, and of the mean block error that the metal adds without
-/// reflections (over the Lambert box's), reflections must remove more than half. (The issue's
+/// at most 3% of the energy beyond it, and at most 0.06 of mean block error (without
+/// reflections the metal added 0.16 for Lumen, 0.10 for the surfels). (The issue's
 /// 5% energy and 25% per block are not reached: the diffuse box alone is 7% dark in Lumen, and
 /// light that metal reflects onto the walls goes through the diffuse cache or surfels, which
 /// spread it evenly: docs/reflections.md.)
@@ -119,28 +130,18 @@ fn reflects_the_room_in_glossy_metal(technique: &str) {
 
     let truth = truth(0.3);
     let (traced, rays) = render(technique, metal_boxes(0.3), toml::Table::new(), FRAMES);
-    let (none, _) = render(
-        technique,
-        metal_boxes(0.3),
-        toml::toml! { reflections = "none" },
-        FRAMES,
-    );
     let t = score(&traced, &truth);
-    let n = score(&none, &truth);
     let px = (SIZE[0] * SIZE[1] * FRAMES) as f64;
     eprintln!(
         "{technique}, Lambert box (the family's own bias): energy {:.4}, blocks mean {:.3} worst {:.3}",
         baseline.energy, baseline.mean_block, baseline.worst_block
     );
     eprintln!(
-        "{technique}, metal box, roughness 0.3, {FRAMES} frames: traced energy {:.4}, blocks mean {:.3} worst {:.3}, {:.3} reflection rays/px/frame; none energy {:.4}, blocks mean {:.3} worst {:.3}",
+        "{technique}, metal box, roughness 0.3, {FRAMES} frames: traced energy {:.4}, blocks mean {:.3} worst {:.3}, {:.3} reflection rays/px/frame",
         t.energy,
         t.mean_block,
         t.worst_block,
         rays.kind("reflection") as f64 / px,
-        n.energy,
-        n.mean_block,
-        n.worst_block
     );
     assert!(
         t.energy > baseline.energy - 0.03 && t.energy < 1.03,
@@ -148,13 +149,13 @@ fn reflects_the_room_in_glossy_metal(technique: &str) {
         t.energy,
         baseline.energy
     );
-    // The block error beyond the family's own: reflections remove most of what their absence
-    // adds.
+    // The block error beyond the family's own. Without reflections it measured +0.163 (Lumen)
+    // and +0.098 (surfels) on 2026-11-26, with them +0.027 and +0.028 (docs/reflections.md);
+    // the run without them is no longer repeated here, for CI time.
     assert!(
-        t.mean_block - baseline.mean_block < 0.5 * (n.mean_block - baseline.mean_block),
-        "{technique}: mean block error: traced {} none {} diffuse baseline {}",
+        t.mean_block - baseline.mean_block < 0.06,
+        "{technique}: mean block error: traced {} diffuse baseline {}",
         t.mean_block,
-        n.mean_block,
         baseline.mean_block
     );
     assert!(rays.kind("reflection") > 0);
@@ -203,7 +204,7 @@ fn lumen_mirror_and_rough_metal_keep_their_energy() {
 #[test]
 fn reflections_are_stable_deterministic_and_skipped_without_specular() {
     for technique in ["lumen", "surfels"] {
-        let run = || render(technique, builtin::hard_cases(1e6), toml::Table::new(), 4);
+        let run = || render_at(technique, builtin::hard_cases(1e6), [32, 32], 4);
         let (a, rays) = run();
         let (b, _) = run();
         assert_eq!(a.non_finite_count(), 0, "{technique}");
