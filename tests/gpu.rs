@@ -416,9 +416,10 @@ fn parameter_changes_rebuild_no_pipeline() {
             expected -= gilab::parts::restir_direct::SHADER_FILES.len();
         }
         if name == "restir" {
-            // The surface-cache part's files are listed for hot reload but compiled only with
-            // `gi_terminate = "lumen-cards"`.
+            // The cache parts' files are listed for hot reload but compiled only with
+            // `gi_terminate = "lumen-cards"` or `"surfels"`.
             expected -= gilab::techniques::lumen::SURFACE_CACHE_FILES.len();
+            expected -= gilab::techniques::surfels::SURFEL_CACHE_FILES.len();
         }
         assert_eq!(
             rebuilt as usize, expected,

@@ -30,9 +30,12 @@ fn energy(img: &Image) -> f64 {
 }
 
 /// Small settings every test starts from (64^3 clipmaps, a 512^2 atlas).
+/// Test-sized Lumen: small clipmaps and atlas, and no debug views unless a test reads them (at
+/// 128² they are three quarters of the apply pass: one more SDF trace per pixel).
 fn small(extra: toml::Table) -> toml::Table {
     let mut t = toml::toml! { clipmap_resolution = 64
-    atlas_size = 512 };
+    atlas_size = 512
+    debug_views = false };
     t.extend(extra);
     t
 }
@@ -381,6 +384,7 @@ fn cache_direct_light_matches_reference() {
         // A 256² atlas (512² before 2026-11-26, for CI time: every texel is relit each frame,
         // so the atlas's area is the cost); the checks are image means.
         t.insert("atlas_size".into(), 256.into());
+        t.insert("debug_views".into(), true.into());
         let mut e = engine("lumen", small(t), builtin::cornell(), size, 3);
         frames(&mut e, 40);
         let debug = e.read_debug().unwrap().unwrap();
@@ -494,9 +498,9 @@ fn furnace_converges_in_both_modes() {
     for (label, mut t, _) in runs.clone() {
         t.insert("indirect_texels_per_frame".into(), 16_777_216.into());
         t.insert("direct_texels_per_frame".into(), 16_777_216.into());
-        // A 256² atlas (512² before 2026-11-26, for CI time): the furnace is uniform, so texel
-        // resolution changes nothing it measures, and each frame updates a quarter of the texels.
-        t.insert("atlas_size".into(), 256.into());
+        // A 128² atlas (512² before 2026-11-26, 256² before 2026-11-27, for CI time): the
+        // furnace is uniform, so texel resolution changes nothing it measures.
+        t.insert("atlas_size".into(), 128.into());
         let mut e = engine(
             "lumen",
             small(t),
@@ -527,7 +531,9 @@ fn furnace_converges_in_both_modes() {
 }
 
 fn cornell_run_frames(params: toml::Table, n: u32) -> (Image, gilab::render::RayCounts) {
-    let mut e = engine("lumen", small(params), builtin::cornell(), [128, 128], 1);
+    let mut t = toml::toml! { atlas_size = 256 };
+    t.extend(params);
+    let mut e = engine("lumen", small(t), builtin::cornell(), [128, 128], 1);
     frames(&mut e, n);
     let img = e.read_output().unwrap();
     let rays = e.ray_counts().unwrap();
@@ -858,7 +864,8 @@ fn probe_spacing_sets_the_probe_rays() {
 /// radiance, the share of screen-trace hits (0..1) and the world cache are finite and not black.
 #[test]
 fn probe_debug_views_show_the_gather() {
-    let t = toml::toml! { world_cache = true };
+    let t = toml::toml! { world_cache = true
+    debug_views = true };
     let mut e = engine("lumen", small(t), builtin::cornell(), [64, 64], 1);
     frames(&mut e, 4);
     let stats = e

@@ -154,6 +154,41 @@ fn compare(
     }
 }
 
+/// gilab's reference at every depth the manifest compares, from one unbounded render with
+/// `depth_images` (the same paths' contributions up to 1 and 2 bounces: three renders' worth
+/// for the price of the longest; separate renders per depth before 2026-11-27), as (max_depth,
+/// mean, per-pixel variance).
+fn render_depths(gltf: &Path, size: [u32; 2]) -> Vec<(u32, Image, Image)> {
+    use gilab::techniques::reference::ReferencePathTracer;
+    let params = toml::toml! { samples_per_frame = 64
+    max_depth = 0
+    depth_images = true };
+    let mut e = common::engine(
+        "reference",
+        params,
+        gltf_load::load(gltf).unwrap(),
+        size,
+        11,
+    );
+    for _ in 0..SPP / 64 {
+        e.render_frame().unwrap();
+    }
+    let (image, variance) = e.read_output_and_variance().unwrap();
+    assert_eq!(e.ray_counts().unwrap().invalid_samples, 0);
+    let any: &dyn std::any::Any = e.technique.as_any();
+    let [direct, one_bounce] = any
+        .downcast_ref::<ReferencePathTracer>()
+        .unwrap()
+        .read_depth_images(&e.gpu)
+        .unwrap()
+        .expect("depth_images is on");
+    vec![
+        (1, direct.0, direct.1),
+        (2, one_bounce.0, one_bounce.1),
+        (0, image, variance.expect("the reference keeps a variance")),
+    ]
+}
+
 /// Renders every depth of a scene with gilab's reference and compares it with Mitsuba's.
 fn check_scene(scene: &str) {
     let (gltf, renders) = manifest_renders(scene);
@@ -162,21 +197,17 @@ fn check_scene(scene: &str) {
         3,
         "{scene}: direct, one-bounce and unbounded references"
     );
+    let first = read_exr(&renders[0].exr).unwrap();
+    let depths = render_depths(&gltf, [first.width, first.height]);
     let mut failures = Vec::new();
     for r in &renders {
         let reference = read_exr(&r.exr).unwrap();
         let spp = SPP;
-        let s = gltf_load::load(&gltf).unwrap();
-        let out = common::render_reference(
-            s,
-            [reference.width, reference.height],
-            spp,
-            64,
-            11,
-            r.gilab_max_depth,
-        );
-        let variance = out.variance.expect("the reference keeps a variance");
-        let c = compare(&out.image, &variance, spp, &reference, r.mitsuba_spp);
+        let (_, image, variance) = depths
+            .iter()
+            .find(|d| d.0 == r.gilab_max_depth)
+            .expect("a depth the reference renders");
+        let c = compare(image, variance, spp, &reference, r.mitsuba_spp);
         eprintln!(
             "{scene} max_depth {} ({spp} spp against Mitsuba's {}): mean ratio r {:.4} g {:.4} b {:.4}; {}/{} blocks checked, worst {:.4}",
             r.gilab_max_depth,

@@ -75,37 +75,27 @@ fn score(img: &Image, truth: &Image) -> Score {
     }
 }
 
-/// A family accumulated over `frames`: Lumen through the BVH with cache budgets that converge in
-/// a few frames (what is measured is the reflections, not the cache's lag), or surfels.
-fn render(technique: &str, scene: Scene, extra: toml::Table, frames: u32) -> (Image, RayCounts) {
-    let mut params = if technique == "lumen" {
+/// Lumen through the BVH with cache budgets that converge in a few frames (what is measured is
+/// the reflections, not the cache's lag), a 256² atlas and no debug views (for CI time: the
+/// cache's texels are most of a frame at this size); the surfels at their defaults.
+fn family_params(technique: &str) -> toml::Table {
+    if technique == "lumen" {
         toml::toml! { tracing = "bvh"
         clipmap_resolution = 64
-        atlas_size = 512
+        atlas_size = 256
         indirect_texels_per_frame = 4194304
-        direct_texels_per_frame = 4194304 }
+        direct_texels_per_frame = 4194304
+        debug_views = false }
     } else {
         toml::Table::new()
-    };
-    params.extend(extra);
-    let mut e = engine(technique, params, scene, SIZE, 1);
-    for _ in 0..frames {
-        e.render_frame().unwrap();
     }
-    let rays = e.ray_counts().unwrap();
-    assert_eq!(rays.invalid_samples, 0, "NaN/Inf samples");
-    (e.read_output().unwrap(), rays)
 }
 
-/// A family with its default parameters at another size.
-fn render_at(technique: &str, scene: Scene, size: [u32; 2], frames: u32) -> (Image, RayCounts) {
-    let mut e = engine(technique, toml::Table::new(), scene, size, 1);
-    for _ in 0..frames {
-        e.render_frame().unwrap();
-    }
-    let rays = e.ray_counts().unwrap();
-    assert_eq!(rays.invalid_samples, 0, "NaN/Inf samples");
-    (e.read_output().unwrap(), rays)
+/// A family accumulated over `frames` at SIZE (fails on NaN/Inf samples).
+fn render(technique: &str, scene: Scene, extra: toml::Table, frames: u32) -> (Image, RayCounts) {
+    let mut params = family_params(technique);
+    params.extend(extra);
+    common::render_technique(technique, params, scene, SIZE, frames, 1, 0)
 }
 
 fn lumen(scene: Scene, extra: toml::Table, frames: u32) -> (Image, RayCounts) {
@@ -204,7 +194,24 @@ fn lumen_mirror_and_rough_metal_keep_their_energy() {
 #[test]
 fn reflections_are_stable_deterministic_and_skipped_without_specular() {
     for technique in ["lumen", "surfels"] {
-        let run = || render_at(technique, builtin::hard_cases(1e6), [32, 32], 4);
+        let run = || {
+            // Default tracing (SDF for Lumen); a small atlas and no debug views, for CI time.
+            let params = if technique == "lumen" {
+                toml::toml! { atlas_size = 256
+                debug_views = false }
+            } else {
+                toml::Table::new()
+            };
+            common::render_technique(
+                technique,
+                params,
+                builtin::hard_cases(1e6),
+                [32, 32],
+                4,
+                1,
+                0,
+            )
+        };
         let (a, rays) = run();
         let (b, _) = run();
         assert_eq!(a.non_finite_count(), 0, "{technique}");

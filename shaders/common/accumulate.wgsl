@@ -23,11 +23,24 @@ fn accumulate_sample(pixel: u32, l: vec3<f32>, keep_history: bool) -> bool {
         accum_m2[pixel] = vec4<f32>(0.0);
         return true;
     }
-    let mean = accum_mean[pixel];
+    let w = welford_add(accum_mean[pixel], accum_m2[pixel], l);
+    accum_mean[pixel] = w.mean;
+    accum_m2[pixel] = w.sq_dev;
+    return true;
+}
+
+struct Welford {
+    // xyz = running mean, w = sample count.
+    mean: vec4<f32>,
+    // xyz = M2 per channel (the sum of squared deviations).
+    sq_dev: vec4<f32>,
+}
+
+// One sample into a running mean and M2 (Welford's update); also for averages a technique keeps
+// in its own buffers (the reference's depth images).
+fn welford_add(mean: vec4<f32>, sq_dev: vec4<f32>, l: vec3<f32>) -> Welford {
     let n = mean.w + 1.0;
     let delta = l - mean.xyz;
     let new_mean = mean.xyz + delta / n;
-    accum_mean[pixel] = vec4<f32>(new_mean, n);
-    accum_m2[pixel] = vec4<f32>(accum_m2[pixel].xyz + delta * (l - new_mean), 0.0);
-    return true;
+    return Welford(vec4<f32>(new_mean, n), vec4<f32>(sq_dev.xyz + delta * (l - new_mean), 0.0));
 }

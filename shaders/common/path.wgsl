@@ -23,6 +23,11 @@
 #import gilab::math::INV_PI
 #import gilab::surface_cache::cache_at_hit
 #endif
+#ifdef GI_TERMINATE_SURFELS
+#import gilab::math::INV_PI
+#import gilab::brdf::{diffuse_color, specular_albedo_average}
+#import gilab::surfels::{gather, gathered_irradiance, grid_center_for}
+#endif
 
 // Hard safety cap on path length. With Russian roulette survival <= 0.95 the chance of
 // reaching it is below 0.95^1021 ~ 1e-23, so "unbounded" stays unbiased in practice.
@@ -30,10 +35,20 @@ const SAFETY_MAX_BOUNCES: u32 = 1024u;
 const RR_START_DEPTH: u32 = 3u;
 // Probability that NEE samples the environment map rather than the light pool when both exist.
 const SKY_NEE_SHARE: f32 = 0.5;
+#ifdef GI_TERMINATE_SURFELS
+// A hit counts as covered by the surfels with this much surfel (or cell-average) weight: the
+// surfels' own rays use the same test (shaders/surfels/trace.wgsl).
+const SURFEL_COVERED: f32 = 0.25;
+#endif
 
 struct PathResult {
     // Radiance arriving at the origin along the first direction.
     radiance: vec3<f32>,
+    // The part of it that max_depth 1 (direct light) and 2 (one bounce) would return: the same
+    // path's contributions up to that depth (Russian roulette starts later), so one unbounded
+    // path gives all three estimates (the reference's `depth_images`).
+    radiance_direct: vec3<f32>,
+    radiance_one_bounce: vec3<f32>,
     first_rays: u32,
     shadow_rays: u32,
     indirect_rays: u32,
@@ -77,19 +92,33 @@ fn next_event(surf: HitSurface, wo: vec3<f32>, rng: ptr<function, Rng>, p_sky: f
     return out;
 }
 
+// Adds a contribution that a path limited to `depth` bounces (max_depth = depth, depth >= 1)
+// would include, to the full radiance and to the depth-limited sums it belongs to.
+fn add_contribution(out: ptr<function, PathResult>, c: vec3<f32>, depth: u32) {
+    (*out).radiance += c;
+    if depth <= 1u {
+        (*out).radiance_direct += c;
+    }
+    if depth <= 2u {
+        (*out).radiance_one_bounce += c;
+    }
+}
+
 // Traces a path from `origin` along `dir`. `max_bounces` 0 = unbounded. With the shader def
 // GI_TERMINATE_CACHE (ReSTIR GI's `gi_terminate = "lumen-cards"`) the path ends in the surface
-// cache at hit `max_depth` (bound at group SURFACE_CACHE_GROUP by the caller). With
+// cache at hit `max_depth` (bound at group SURFACE_CACHE_GROUP by the caller); with
+// GI_TERMINATE_SURFELS (`"surfels"`) in the surfels' irradiance there (group SURFELS_GROUP)
+// where surfels cover the hit, and is traced on to the end where none do. With
 // `skip_first_emission` the emission of the first hit is left out (ReSTIR GI: direct light
 // from emitters is ReSTIR DI's job).
 fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, max_depth: u32, skip_first_emission: bool) -> PathResult {
-    var out = PathResult(vec3<f32>(0.0), 0u, 0u, 0u, vec4<f32>(0.0), vec3<f32>(0.0));
+    var out = PathResult(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0), 0u, 0u, 0u, vec4<f32>(0.0), vec3<f32>(0.0));
     var origin = origin_in;
     var dir = dir_in;
     var throughput = vec3<f32>(1.0);
     var prev_pdf = 0.0;
     var prev_delta = true;
-    let max_bounces = select(SAFETY_MAX_BOUNCES, max_depth, max_depth > 0u);
+    var max_bounces = select(SAFETY_MAX_BOUNCES, max_depth, max_depth > 0u);
     // Probability that NEE samples the sky (0: light pool only, as without an environment map).
     var p_sky = 0.0;
     if sky_nee() {
@@ -107,7 +136,7 @@ fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, 
             if !prev_delta && p_sky > 0.0 {
                 w = power_heuristic(prev_pdf, p_sky * sky_pdf(dir));
             }
-            out.radiance += throughput * sky_radiance(dir) * w;
+            add_contribution(&out, throughput * sky_radiance(dir) * w, depth);
             break;
         }
         let surf = hit_surface(origin, dir, hit);
@@ -121,7 +150,7 @@ fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, 
             if !prev_delta {
                 w = power_heuristic(prev_pdf, (1.0 - p_sky) * triangle_light_pdf(hit.tri, dir, hit.t));
             }
-            out.radiance += throughput * le * w;
+            add_contribution(&out, throughput * le * w, depth);
         }
         if depth == max_bounces {
             break;
@@ -143,9 +172,29 @@ fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, 
             break;
         }
 #endif
+#ifdef GI_TERMINATE_SURFELS
+        // The path ends in the surfels where they cover this hit, as a surfel's own ray does:
+        // NEE of the lights at full weight, and every further bounce from the surfels'
+        // irradiance (which holds the sky their rays reached, so NEE leaves the sky out),
+        // reflected by the diffuse albedo plus the specular layer's average albedo. Off screen
+        // no surfel covers a hit: the path is traced on to the end, unbiased there.
+        if depth + 1u >= max_bounces {
+            let g = gather(surf.position, surf.normal, grid_center_for(frame.camera_pos.xyz), false);
+            if g.weight >= SURFEL_COVERED || g.cell_weight >= SURFEL_COVERED {
+                let direct = next_event(surf, wo, rng, 0.0, false);
+                out.shadow_rays += direct.shadow_rays;
+                out.radiance += throughput * direct.radiance;
+                let albedo = diffuse_color(m, max(dot(surf.normal, wo), 0.0)) + specular_albedo_average(m);
+                out.radiance += throughput * albedo * gathered_irradiance(g) * INV_PI;
+                break;
+            }
+            max_bounces = SAFETY_MAX_BOUNCES;
+        }
+#endif
         let direct = next_event(surf, wo, rng, p_sky, true);
         out.shadow_rays += direct.shadow_rays;
-        out.radiance += throughput * direct.radiance;
+        // NEE at this vertex belongs to paths one vertex longer: max_depth > depth.
+        add_contribution(&out, throughput * direct.radiance, depth + 1u);
         // Continue the path by sampling the BRDF.
         let bs = bsdf_sample(m, surf.normal, wo, rand(rng), rand_pair(rng));
         // Directions below the geometric surface would leak through thin walls.

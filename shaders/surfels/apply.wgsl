@@ -3,14 +3,16 @@
 // the cell's average tops it up (the seed's gap filling). Pixel = emission + direct light +
 // diffuse albedo x irradiance / pi + specular indirect light from the reflections part (scenes
 // with a specular layer; rough lobes: their albedo x the surfels' irradiance / pi).
-// Marks the surfels that lit the pixel as seen, writes the debug planes, accumulates.
+// Marks the surfels that lit the pixel as seen, writes the debug planes, accumulates. In
+// cache-only mode (FLAG_CACHE_ONLY: another technique reads the surfels) it only marks: the
+// pixels are that technique's.
 #import gilab::frame::{frame, FLAG_NO_PRIMARY_EMISSION}
 #import gilab::math::{INV_PI, luminance}
 #import gilab::counters::{flush_counts, no_counts, COUNT_INVALID_SAMPLES}
 #import gilab::accumulate::accumulate_sample
 #import gilab::primary::{current_surface, surface_material}
 #import gilab::brdf::diffuse_color
-#import gilab::surfels::{params, surfels, states, seen, pixel_direct, pixel_specular, FLAG_REFLECTIONS, has_flag, gather, gathered_irradiance, grid_center_for, spawn_frame, write_debug, FLAG_ACCUMULATE, NONE}
+#import gilab::surfels::{params, surfels, states, seen, pixel_direct, pixel_specular, FLAG_REFLECTIONS, has_flag, gather, gathered_irradiance, grid_center_for, spawn_frame, write_debug, FLAG_ACCUMULATE, FLAG_CACHE_ONLY, NONE}
 
 // Coverage above this multiple of the target counts a pixel as crowded (recycling thins it).
 const CROWDED: f32 = 4.0;
@@ -53,9 +55,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 }
             }
         }
-        write_debug(idx, first_plane, second_plane);
-        if !accumulate_sample(idx, l, has_flag(FLAG_ACCUMULATE)) {
-            counts[COUNT_INVALID_SAMPLES] = 1u;
+        if !has_flag(FLAG_CACHE_ONLY) {
+            write_debug(idx, first_plane, second_plane);
+            if !accumulate_sample(idx, l, has_flag(FLAG_ACCUMULATE)) {
+                counts[COUNT_INVALID_SAMPLES] = 1u;
+            }
         }
     }
     flush_counts(local_index, counts);

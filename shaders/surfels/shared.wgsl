@@ -31,6 +31,7 @@ const FLAG_MSME: u32 = 4u;
 const FLAG_SKY: u32 = 8u;
 const FLAG_ACCUMULATE: u32 = 16u;
 const FLAG_REFLECTIONS: u32 = 32u;
+const FLAG_CACHE_ONLY: u32 = 64u;
 
 // One surfel's geometry. radius 0 marks a free slot.
 struct Surfel {

@@ -11,6 +11,9 @@
 //! - [`surface_cache::SurfaceCache`]: Lumen's surface cache (cards, lit every frame with
 //!   multi-bounce feedback) and its lookup (`gilab::surface_cache`, at the bind group a pass
 //!   names with `SURFACE_CACHE_GROUP`). Used by ReSTIR GI (`gi_terminate = "lumen-cards"`).
+//! - [`surfel_cache::SurfelCache`]: the surfels (spawned from the primary surfaces, their rays
+//!   integrated every frame) and their irradiance lookup (`gilab::surfels::gather`, at the bind
+//!   group a pass names with `SURFELS_GROUP`). Used by ReSTIR GI (`gi_terminate = "surfels"`).
 //! - [`reflections::Reflections`]: specular indirect light (GGX rays, hit lighting from a surface
 //!   cache when the family has one, reuse, temporal and bilateral denoising) into two planes
 //!   per pixel that the family adds. Used by `lumen` (`reflections = "traced"`).
@@ -18,7 +21,9 @@
 pub mod reflections;
 pub mod restir_direct;
 pub mod surface_cache;
+pub mod surfel_cache;
 
 pub use reflections::Reflections;
 pub use restir_direct::RestirDirect;
 pub use surface_cache::SurfaceCache;
+pub use surfel_cache::SurfelCache;

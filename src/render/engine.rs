@@ -771,15 +771,7 @@ impl Engine {
             readback::read_buffer(&self.gpu, &self.accum_mean, (w * h) as usize)?;
         let image = Image::from_rgba(w, h, &mean);
         let m2: Vec<[f32; 4]> = readback::read_buffer(&self.gpu, &self.accum_m2, (w * h) as usize)?;
-        let var: Vec<[f32; 4]> = mean
-            .iter()
-            .zip(&m2)
-            .map(|(m, v)| {
-                let n = m[3];
-                let d = if n > 1.0 { 1.0 / (n - 1.0) } else { 0.0 };
-                [v[0] * d, v[1] * d, v[2] * d, n]
-            })
-            .collect();
+        let var = sample_variance(&mean, &m2);
         Ok((image, Some(Image::from_rgba(w, h, &var))))
     }
 
@@ -816,4 +808,17 @@ impl Engine {
         let words: Vec<u32> = readback::read_buffer(&self.gpu, &self.counters, COUNTER_SLOTS * 2)?;
         Ok(RayCounts::from_words(&words))
     }
+}
+
+/// Per-pixel sample variance from Welford's running mean (w = count) and M2, with the count in
+/// alpha (`accumulate_sample`'s buffers, or any average kept the same way).
+pub fn sample_variance(mean: &[[f32; 4]], m2: &[[f32; 4]]) -> Vec<[f32; 4]> {
+    mean.iter()
+        .zip(m2)
+        .map(|(m, v)| {
+            let n = m[3];
+            let d = if n > 1.0 { 1.0 / (n - 1.0) } else { 0.0 };
+            [v[0] * d, v[1] * d, v[2] * d, n]
+        })
+        .collect()
 }

@@ -279,3 +279,34 @@ pub fn converge_into(
     run::converge(gpu(), p, &opts)?;
     run::read_output_dir(out)
 }
+
+/// The mean of each 2×2 block: a 2w×2h truth as a w×h image (each pixel of an image is the
+/// average over its footprint, so this is the truth of the half-size render).
+pub fn half(img: &Image) -> Image {
+    let (w, h) = (img.width / 2, img.height / 2);
+    let mut out = Image::new(w, h);
+    for y in 0..h as usize {
+        for x in 0..w as usize {
+            for c in 0..3 {
+                let at = |dx: usize, dy: usize| {
+                    img.rgb[((2 * y + dy) * img.width as usize + 2 * x + dx) * 3 + c]
+                };
+                out.rgb[(y * w as usize + x) * 3 + c] =
+                    0.25 * (at(0, 0) + at(1, 0) + at(0, 1) + at(1, 1));
+            }
+        }
+    }
+    out
+}
+
+/// The Cornell truth at 128² (512 spp) that Lumen's, ReSTIR's, the surfels' and the
+/// denoiser's tests share.
+pub fn cornell_truth_128() -> Image {
+    shared_reference(gilab::scene::builtin::cornell(), [128, 128], 512, 11, 0, 0)
+}
+
+/// The Cornell truth at 64²: the shared 128² one, halved, so 2,048 paths per 64² pixel and no
+/// second render.
+pub fn cornell_truth_64() -> Image {
+    half(&cornell_truth_128())
+}

@@ -10,7 +10,8 @@
 //! Russian roulette from the third bounce. `max_depth` 0 means unbounded (roulette only).
 //! Shader: shaders/reference/path_trace.wgsl.
 
-use crate::gpu::{timing::PassTimer, Gpu};
+use crate::compare::Image;
+use crate::gpu::{readback, timing::PassTimer, Gpu};
 use crate::render::params::{ParamKind, ParamSpec, Params};
 use crate::render::{pipelines, PassInfo, RenderContext, Technique};
 use crate::scene::features::SceneFeatures;
@@ -23,7 +24,13 @@ pub struct ReferencePathTracer {
     max_depth: u32,
     /// false: each frame shows only its own `samples_per_frame` paths (real-time experiments).
     accumulate: bool,
+    /// Also average the direct-light and one-bounce images from the same paths.
+    depth_images: bool,
     pipeline: Option<wgpu::ComputePipeline>,
+    layout: Option<wgpu::BindGroupLayout>,
+    /// With `depth_images`: per pixel the means and M2 of the two depth-limited images (four
+    /// planes of vec4); 16 bytes otherwise.
+    depth_accum: Option<wgpu::Buffer>,
     bind_group: Option<wgpu::BindGroup>,
     /// One 256-byte slot per sample of a frame, bound with a dynamic offset per dispatch.
     sample_slots: Option<wgpu::Buffer>,
@@ -63,6 +70,14 @@ pub const PARAMS: &[ParamSpec] = &[
         kind: ParamKind::Bool,
         default: 1.0,
     },
+    ParamSpec {
+        name: "depth_images",
+        what: "also average, from the same paths, what max_depth 1 (direct light) and 2 (one bounce) would give: three references for the price of the unbounded one (read with ReferencePathTracer::read_depth_images; the Mitsuba comparison uses them)",
+        higher: "on: two more images per pixel (64 bytes of memory per pixel)",
+        lower: "off: the full image only",
+        kind: ParamKind::Bool,
+        default: 0.0,
+    },
 ];
 const SLOT_BYTES: u64 = 256;
 /// Rays one path costs before anything is measured (camera + a few bounces with shadow rays).
@@ -75,12 +90,79 @@ impl Default for ReferencePathTracer {
             samples_per_frame: 1,
             max_depth: 0,
             accumulate: true,
+            depth_images: false,
             pipeline: None,
+            layout: None,
+            depth_accum: None,
             bind_group: None,
             sample_slots: None,
             settings_buffer: None,
             extent: [0, 0],
         }
+    }
+}
+
+impl ReferencePathTracer {
+    /// The depth planes' buffer, sized for `depth_images` (a new one starts from zero), and the
+    /// bind group that holds it.
+    fn bind_depth_images(&mut self, gpu: &Gpu) {
+        let (Some(layout), Some(slots), Some(settings)) =
+            (&self.layout, &self.sample_slots, &self.settings_buffer)
+        else {
+            return;
+        };
+        let pixels = (self.extent[0] * self.extent[1]) as u64;
+        let bytes = if self.depth_images {
+            4 * pixels * 16
+        } else {
+            16
+        };
+        if self.bind_group.is_some() && self.depth_accum.as_ref().map(|b| b.size()) == Some(bytes) {
+            return;
+        }
+        let depth = pipelines::storage_buffer(gpu, "reference depth images", bytes);
+        self.bind_group = Some(gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("reference"),
+            layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                        buffer: slots,
+                        offset: 0,
+                        size: wgpu::BufferSize::new(16),
+                    }),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: settings.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: depth.as_entire_binding(),
+                },
+            ],
+        }));
+        self.depth_accum = Some(depth);
+    }
+
+    /// With `depth_images`: (mean, per-pixel sample variance with the count in alpha) of what
+    /// max_depth 1 (direct light) and 2 (one bounce) would have rendered, from the same paths
+    /// as the full image. None when `depth_images` is off.
+    pub fn read_depth_images(&self, gpu: &Gpu) -> Result<Option<[(Image, Image); 2]>> {
+        let Some(buffer) = self.depth_accum.as_ref().filter(|_| self.depth_images) else {
+            return Ok(None);
+        };
+        let [w, h] = self.extent;
+        let px = (w * h) as usize;
+        let all: Vec<[f32; 4]> = readback::read_buffer(gpu, buffer, 4 * px)?;
+        let plane = |i: usize| {
+            let mean = &all[2 * i * px..(2 * i + 1) * px];
+            let m2 = &all[(2 * i + 1) * px..(2 * i + 2) * px];
+            let var = crate::render::engine::sample_variance(mean, m2);
+            (Image::from_rgba(w, h, mean), Image::from_rgba(w, h, &var))
+        };
+        Ok(Some([plane(0), plane(1)]))
     }
 }
 
@@ -157,6 +239,7 @@ impl Technique for ReferencePathTracer {
                     count: None,
                 },
                 pipelines::uniform_entry(1, wgpu::ShaderStages::COMPUTE),
+                pipelines::storage_entry(2, false),
             ],
         );
         // Build everything first so a failure leaves the previous pipeline in place.
@@ -184,29 +267,12 @@ impl Technique for ReferencePathTracer {
                 mapped_at_creation: false,
             })
         });
-        let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("reference"),
-            layout: &layout,
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
-                        buffer: &slots,
-                        offset: 0,
-                        size: wgpu::BufferSize::new(16),
-                    }),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: settings.as_entire_binding(),
-                },
-            ],
-        });
         self.pipeline = Some(pipeline);
-        self.bind_group = Some(bind_group);
+        self.layout = Some(layout);
         self.sample_slots = Some(slots);
         self.settings_buffer = Some(settings);
         self.extent = ctx.extent;
+        self.depth_accum = None;
         self.apply_params(ctx)
     }
 
@@ -217,9 +283,15 @@ impl Technique for ReferencePathTracer {
             ctx.gpu.queue.write_buffer(
                 b,
                 0,
-                bytemuck::cast_slice(&[self.max_depth, self.accumulate as u32, 0, 0]),
+                bytemuck::cast_slice(&[
+                    self.max_depth,
+                    self.accumulate as u32,
+                    self.depth_images as u32,
+                    0,
+                ]),
             );
         }
+        self.bind_depth_images(ctx.gpu);
         Ok(())
     }
 
@@ -261,6 +333,7 @@ impl Technique for ReferencePathTracer {
         self.samples_per_frame = self.params.u32("samples_per_frame");
         self.max_depth = self.params.u32("max_depth");
         self.accumulate = self.params.bool("accumulate");
+        self.depth_images = self.params.bool("depth_images");
         Ok(())
     }
 

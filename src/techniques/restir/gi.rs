@@ -5,8 +5,9 @@
 //! (`gi_contribution`, `gi_visible`). Shaders: shaders/restir/{gi_temporal,gi_spatial}.wgsl.
 
 use super::lighting::{PassFiles, PassPair, RestirLighting};
+use super::params::GiTerminate;
 use crate::gpu::{timing::PassTimer, Gpu};
-use crate::parts::SurfaceCache;
+use crate::parts::{SurfaceCache, SurfelCache};
 use crate::render::{pipelines, PassInfo, RenderContext};
 use anyhow::Result;
 
@@ -28,15 +29,95 @@ pub struct Gi {
     pub(super) reservoirs: Option<wgpu::Buffer>,
     /// Per pixel: sky radiance reached by this frame's sample ray (not reused: it has no point).
     pub(super) sky: Option<wgpu::Buffer>,
-    /// `gi_terminate = "lumen-cards"`: the surface cache the sample paths end in, and the
+    /// `gi_terminate = "lumen-cards" | "surfels"`: the cache the sample paths end in, and the
     /// temporal pass composed to read it (group 3).
     pub(super) cache: Option<CacheTermination>,
 }
 
-/// Sample paths that end in the surface cache (the part and the pass that reads it).
+/// Sample paths that end in a cache (the part and the pass that reads it).
 pub(super) struct CacheTermination {
-    pub(super) cache: Box<SurfaceCache>,
+    pub(super) cache: GiCache,
     pub(super) temporal: wgpu::ComputePipeline,
+}
+
+/// The caches a GI sample path can end in: parts, each with a lookup at bind group CACHE_GROUP.
+pub(super) enum GiCache {
+    Cards(Box<SurfaceCache>),
+    Surfels(Box<SurfelCache>),
+}
+
+/// What a cache is made with: the termination and its sizes (atlas and texel budget, or
+/// surfel rays); a different key builds a new cache.
+type CacheKey = (GiTerminate, u32, u32);
+
+impl GiCache {
+    fn new(key: CacheKey, cache_update: f32) -> Result<GiCache> {
+        Ok(match key.0 {
+            GiTerminate::Surfels => GiCache::Surfels(Box::new(SurfelCache::new(key.1)?)),
+            _ => GiCache::Cards(Box::new(SurfaceCache::new(key.1, cache_update)?)),
+        })
+    }
+
+    fn key(&self) -> CacheKey {
+        match self {
+            GiCache::Cards(c) => (GiTerminate::LumenCards, c.sized().0, c.sized().1),
+            GiCache::Surfels(c) => (GiTerminate::Surfels, c.sized(), 0),
+        }
+    }
+
+    fn build(&mut self, ctx: &RenderContext) -> Result<()> {
+        match self {
+            GiCache::Cards(c) => c.build(ctx),
+            GiCache::Surfels(c) => c.build(ctx),
+        }
+    }
+
+    fn record(
+        &mut self,
+        ctx: &RenderContext,
+        enc: &mut wgpu::CommandEncoder,
+        timer: &mut PassTimer,
+    ) {
+        match self {
+            GiCache::Cards(c) => c.record(ctx, enc, timer),
+            GiCache::Surfels(c) => c.record(ctx, enc, timer),
+        }
+    }
+
+    fn lookup(&self) -> Option<&wgpu::BindGroup> {
+        match self {
+            GiCache::Cards(c) => c.lookup(),
+            GiCache::Surfels(c) => c.lookup(),
+        }
+    }
+
+    fn passes(&self, f: &crate::scene::features::SceneFeatures) -> Vec<PassInfo> {
+        match self {
+            GiCache::Cards(c) => c.passes(f),
+            GiCache::Surfels(c) => c.passes(f),
+        }
+    }
+
+    /// The temporal pass's shader defs (path.wgsl's termination and the lookup's group) and
+    /// the lookup's layout.
+    fn reader(&self, gpu: &Gpu) -> ([(&'static str, u32); 2], wgpu::BindGroupLayout) {
+        match self {
+            GiCache::Cards(_) => (
+                [
+                    ("GI_TERMINATE_CACHE", 1),
+                    crate::parts::surface_cache::lookup_defs(CACHE_GROUP)[0],
+                ],
+                SurfaceCache::lookup_layout(gpu),
+            ),
+            GiCache::Surfels(_) => (
+                [
+                    ("GI_TERMINATE_SURFELS", 1),
+                    crate::parts::surfel_cache::lookup_defs(CACHE_GROUP)[0],
+                ],
+                SurfelCache::lookup_layout(gpu),
+            ),
+        }
+    }
 }
 
 /// The bind group the temporal pass reads the cache through.
@@ -98,7 +179,7 @@ impl RestirLighting {
             return Ok(());
         }
         if let Some(c) = &self.gi.cache {
-            if c.cache.sized() == self.cache_sized() {
+            if c.cache.key() == self.cache_key() {
                 return Ok(());
             }
         }
@@ -107,31 +188,21 @@ impl RestirLighting {
 
     /// Builds the cache and its reading pass from the current sources (also on hot reload).
     pub(super) fn rebuild_gi_cache(&mut self, ctx: &RenderContext) -> Result<()> {
-        let sized = self.cache_sized();
+        let key = self.cache_key();
         let old = self.gi.cache.take();
         let (mut cache, old_temporal) = match old {
-            Some(c) if c.cache.sized() == sized => (c.cache, Some(c.temporal)),
-            _ => (
-                Box::new(SurfaceCache::new(sized.0, self.settings.cache_update)?),
-                None,
-            ),
+            Some(c) if c.cache.key() == key => (c.cache, Some(c.temporal)),
+            _ => (GiCache::new(key, self.settings.cache_update)?, None),
         };
         let built = cache.build(ctx).and_then(|()| {
-            let shaders = ctx.shaders.with_defs(&[
-                ("GI_TERMINATE_CACHE", 1),
-                crate::parts::surface_cache::lookup_defs(CACHE_GROUP)[0],
-            ]);
+            let (defs, lookup_layout) = cache.reader(ctx.gpu);
+            let shaders = ctx.shaders.with_defs(&defs);
             let layout = self.layout(ctx.gpu).clone();
             pipelines::compute_pipeline(
                 ctx.gpu,
                 &shaders,
                 PASSES[0].1,
-                &[
-                    &ctx.scene.layout,
-                    ctx.frame_layout,
-                    &layout,
-                    &SurfaceCache::lookup_layout(ctx.gpu),
-                ],
+                &[&ctx.scene.layout, ctx.frame_layout, &layout, &lookup_layout],
             )
         });
         match (built, old_temporal) {
@@ -148,10 +219,17 @@ impl RestirLighting {
         }
     }
 
-    /// The cache's (atlas size, texel budget) as the parameters ask.
-    fn cache_sized(&self) -> (u32, u32) {
+    /// The cache the parameters ask for.
+    fn cache_key(&self) -> CacheKey {
         let s = &self.settings;
-        (s.cache_atlas_size, SurfaceCache::budget(s.cache_update))
+        match s.gi_terminate {
+            GiTerminate::Surfels => (GiTerminate::Surfels, s.cache_ray_budget, 0),
+            _ => (
+                GiTerminate::LumenCards,
+                s.cache_atlas_size,
+                SurfaceCache::budget(s.cache_update),
+            ),
+        }
     }
 
     pub fn gi_passes(&self, f: &crate::scene::features::SceneFeatures) -> Vec<PassInfo> {
@@ -169,6 +247,12 @@ impl RestirLighting {
                 runs: s.gi,
                 why: if !s.gi {
                     "gi = false: direct light only".into()
+                } else if cache && s.gi_terminate == GiTerminate::Surfels {
+                    format!(
+                        "one sample path per pixel ending in the surfels at hit {} where they cover it (NEE there, further bounces from the surfels' irradiance: {} surfel rays per frame; traced on where none cover it), temporal reuse",
+                        s.gi_bounces.max(1),
+                        s.cache_ray_budget
+                    )
                 } else if cache {
                     format!(
                         "one sample path per pixel ending in the surface cache at hit {} (NEE there, further bounces from the cache: {}² atlas, {:.0}% relit per frame), temporal reuse",

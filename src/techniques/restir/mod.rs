@@ -68,10 +68,14 @@ pub const OWN_SHADER_FILES: [&str; 7] = [
     "restir/shade.wgsl",
 ];
 
-/// ReSTIR's files and the surface-cache part's (compiled only with `gi_terminate = "lumen-cards"`).
-const SHADER_FILES: [&str; 32] = crate::render::concat_files(
-    OWN_SHADER_FILES,
-    crate::techniques::lumen::SURFACE_CACHE_FILES,
+/// ReSTIR's files and the cache parts' (compiled only with `gi_terminate = "lumen-cards"` or
+/// `"surfels"`).
+const SHADER_FILES: [&str; 46] = crate::render::concat_files(
+    crate::render::concat_files::<7, 25, 32>(
+        OWN_SHADER_FILES,
+        crate::techniques::lumen::SURFACE_CACHE_FILES,
+    ),
+    crate::techniques::surfels::SURFEL_CACHE_FILES,
 );
 
 /// The `restir` technique: [`RestirLighting`] (DI, GI, ReGIR) and a shading pass that turns its

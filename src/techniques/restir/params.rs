@@ -149,8 +149,8 @@ pub const PARAMS: &[ParamSpec] = &[
     },
     ParamSpec {
         name: "gi_terminate",
-        what: "where a GI sample path ends: path (traced to gi_bounces), or at its first hit (hit gi_bounces with a cache) in a radiance cache that holds the further bounces: lumen-cards (Lumen's surface cache, built and lit in the same frame; the seed's connection); lumen-world and surfels are not built yet",
-        higher: "lumen-cards: multi-bounce light at the price of one ray per path, biased by the cache (coarse texels, diffuse only, no light where no card covers a hit)",
+        what: "where a GI sample path ends: path (traced to gi_bounces), or at its first hit (hit gi_bounces with a cache) in a radiance cache that holds the further bounces, built and updated in the same frame: lumen-cards (Lumen's surface cache; the seed's connection) or surfels (the surfels' irradiance where surfels cover the hit, the path traced on where none do); lumen-world is not built yet",
+        higher: "a cache: multi-bounce light at the price of one ray per path, biased by the cache (coarse texels or surfels, diffuse only, lag; lumen-cards: no light where no card covers a hit)",
         lower: "path: unbiased with gi_bounces = 0, every bounce traced",
         kind: ParamKind::Choice(&["path", "lumen-cards", "lumen-world", "surfels"]),
         default: 0.0,
@@ -170,6 +170,14 @@ pub const PARAMS: &[ParamSpec] = &[
         lower: "cheaper frames, the cache lags (and holds fewer bounces after a change)",
         kind: ParamKind::Float { min: 0.01, max: 1.0 },
         default: 0.25,
+    },
+    ParamSpec {
+        name: "cache_ray_budget",
+        what: "surfel rays per frame of the surfel cache when gi_terminate = surfels (the surfels' ray_budget)",
+        higher: "the cache converges and follows changes sooner, more cache rays per frame",
+        lower: "cheaper frames, noisier and laggier cache irradiance",
+        kind: ParamKind::Int { min: 256, max: 16_000_000 },
+        default: 65536.0,
     },
     ParamSpec {
         name: "regir",
@@ -225,6 +233,7 @@ pub enum GiTerminate {
     /// Lumen's surface cache (`crate::parts::SurfaceCache`) at the path's last hit.
     LumenCards,
     LumenWorld,
+    /// The surfels' irradiance (`crate::parts::SurfelCache`) at the path's last hit.
     Surfels,
 }
 
@@ -244,9 +253,9 @@ impl GiTerminate {
         Self::NAMES[self as usize]
     }
 
-    /// Whether the path ends in the surface cache.
+    /// Whether the path ends in a cache (one that is built).
     pub fn cache(self) -> bool {
-        self == Self::LumenCards
+        matches!(self, Self::LumenCards | Self::Surfels)
     }
 }
 
@@ -271,6 +280,7 @@ pub struct RestirSettings {
     pub gi_terminate: GiTerminate,
     pub cache_atlas_size: u32,
     pub cache_update: f32,
+    pub cache_ray_budget: u32,
     /// Use ReGIR when the scene has many lights.
     pub regir: bool,
     /// Cell edge in world units; 0 = automatic (scene diagonal / 24).
@@ -299,6 +309,7 @@ impl RestirSettings {
             gi_terminate: GiTerminate::from_index(p.u32("gi_terminate")),
             cache_atlas_size: p.u32("cache_atlas_size"),
             cache_update: p.f32("cache_update"),
+            cache_ray_budget: p.u32("cache_ray_budget"),
             regir: p.bool("regir"),
             regir_cell_size: p.f32("regir_cell_size"),
             regir_lights_per_cell: p.u32("regir_lights_per_cell"),
@@ -310,8 +321,8 @@ impl RestirSettings {
     /// Combinations that cannot run, as one line.
     pub fn check(&self) -> anyhow::Result<()> {
         match self.gi_terminate {
-            GiTerminate::LumenWorld | GiTerminate::Surfels => anyhow::bail!(
-                "gi_terminate = \"{}\" is not built yet: use \"path\" or \"lumen-cards\" (docs/parts.md)",
+            GiTerminate::LumenWorld => anyhow::bail!(
+                "gi_terminate = \"{}\" is not built yet: use \"path\", \"lumen-cards\" or \"surfels\" (docs/parts.md)",
                 self.gi_terminate.name()
             ),
             _ => Ok(()),

@@ -74,6 +74,34 @@ const ENTRIES: [(&str, &str); 12] = [
 ];
 const RAY_OWNER: &str = "surfels/ray_owner.wgsl";
 
+/// The surfels' entry files and their parts' (direct light, reflections), for hot reload.
+const SHADER_FILES: [&str; 23] = crate::render::concat_files(
+    crate::render::concat_files::<14, 5, 19>(
+        SURFEL_CACHE_FILES,
+        crate::parts::restir_direct::SHADER_FILES,
+    ),
+    crate::parts::reflections::SHADER_FILES,
+);
+
+/// Every entry file the surfels compile without their parts: what the surfel-cache part
+/// (`crate::parts::SurfelCache`, this technique in cache-only mode) builds.
+pub const SURFEL_CACHE_FILES: [&str; 14] = [
+    "surfels/recycle.wgsl",
+    "surfels/push.wgsl",
+    "surfels/coverage.wgsl",
+    "surfels/spawn.wgsl",
+    "surfels/prepare.wgsl",
+    "surfels/scatter.wgsl",
+    "surfels/sort_cells.wgsl",
+    "surfels/allocate.wgsl",
+    "surfels/ray_owner.wgsl",
+    "surfels/trace.wgsl",
+    "surfels/integrate.wgsl",
+    "surfels/direct_nee.wgsl",
+    "surfels/apply.wgsl",
+    "surfels/scan.wgsl",
+];
+
 /// Pipelines in ENTRIES order, plus the ones with other layouts.
 struct Pipelines {
     passes: Vec<wgpu::ComputePipeline>,
@@ -96,7 +124,14 @@ impl Pipelines {
 /// the 32 storage buffers it may).
 const LOOKUP_BINDINGS: [u32; 7] = [0, 1, 2, 5, 7, 10, 14];
 
-fn lookup_layout(gpu: &Gpu) -> wgpu::BindGroupLayout {
+/// Shader defs of a pipeline that reads the surfels' irradiance (`gilab::surfels::gather`) at
+/// bind group `group`, bound with [`lookup_layout`] and [`Surfels::lookup_bind_group`].
+pub fn lookup_defs(group: u32) -> [(&'static str, u32); 1] {
+    [("SURFELS_GROUP", group)]
+}
+
+/// Layout of the irradiance lookup's bind group (the LOOKUP_BINDINGS of group 2).
+pub fn lookup_layout(gpu: &Gpu) -> wgpu::BindGroupLayout {
     let entries: Vec<wgpu::BindGroupLayoutEntry> = LOOKUP_BINDINGS
         .iter()
         .map(|&b| match b {
@@ -179,6 +214,9 @@ pub struct Surfels {
     /// Largest component of the sky radiance.
     sky_radiance: f32,
     extent: [u32; 2],
+    /// Cache-only mode (`Surfels::surfel_cache`): surfels spawned, traced and integrated, no
+    /// direct light, reflections or apply (another technique reads their irradiance).
+    cache_only: bool,
 }
 
 impl Default for Surfels {
@@ -195,7 +233,28 @@ impl Default for Surfels {
             features: SceneFeatures::default(),
             sky_radiance: 0.0,
             extent: [0, 0],
+            cache_only: false,
         }
+    }
+}
+
+impl Surfels {
+    /// The surfels as a cache for another technique (`crate::parts::SurfelCache`): the pool,
+    /// grid, rays and integration of every frame, none of the pixels' shading. Reflections off.
+    pub fn surfel_cache() -> Surfels {
+        let mut s = Surfels {
+            cache_only: true,
+            ..Surfels::default()
+        };
+        let mut t = toml::Table::new();
+        t.insert("reflections".into(), "none".into());
+        s.set_params(&t).expect("valid surfel cache parameters");
+        s
+    }
+
+    /// The irradiance lookup's bind group (valid until the next resource rebuild).
+    pub fn lookup_bind_group(&self) -> Option<&wgpu::BindGroup> {
+        self.res.as_ref().map(|r| &r.lookup_bind_group)
     }
 }
 
@@ -237,6 +296,7 @@ impl Surfels {
             (ctx.scene.sky.max_element() > 0.0, FLAG_SKY),
             (s.accumulate, FLAG_ACCUMULATE),
             (self.reflections_active(), FLAG_REFLECTIONS),
+            (self.cache_only, FLAG_CACHE_ONLY),
         ] {
             if on {
                 flags |= flag;
@@ -580,6 +640,14 @@ impl Technique for Surfels {
                 "sky black: misses add nothing".into()
             },
         ));
+        if self.cache_only {
+            v.push(pass(
+                "apply",
+                true,
+                "cache-only: marks the surfels the pixels see (recycling keeps them), shades no pixel".into(),
+            ));
+            return v;
+        }
         if s.direct_restir {
             v.extend(self.restir_direct.passes(f));
         }
@@ -743,6 +811,11 @@ impl Technique for Surfels {
         );
         pass(enc, timer, "integrate", per_slot);
         let image = [ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1];
+        if self.cache_only {
+            // Marks the surfels the pixels see: recycling frees the ones no pixel saw.
+            pass(enc, timer, "apply", image);
+            return;
+        }
         if self.settings.direct_restir && self.restir_direct.is_built() {
             self.restir_direct
                 .record(ctx, enc, timer, &r.direct_bind_group);
@@ -793,33 +866,7 @@ impl Technique for Surfels {
     }
 
     fn shader_files(&self) -> &'static [&'static str] {
-        &[
-            "surfels/recycle.wgsl",
-            "surfels/push.wgsl",
-            "surfels/coverage.wgsl",
-            "surfels/spawn.wgsl",
-            "surfels/prepare.wgsl",
-            "surfels/scatter.wgsl",
-            "surfels/sort_cells.wgsl",
-            "surfels/allocate.wgsl",
-            "surfels/ray_owner.wgsl",
-            "surfels/trace.wgsl",
-            "surfels/integrate.wgsl",
-            "surfels/direct_nee.wgsl",
-            // The direct-light part (crate::parts::restir_direct::SHADER_FILES).
-            "parts/restir_direct.wgsl",
-            "restir/regir_mark.wgsl",
-            "restir/regir_build.wgsl",
-            "restir/initial_temporal.wgsl",
-            "restir/spatial.wgsl",
-            "surfels/apply.wgsl",
-            "surfels/scan.wgsl",
-            // The reflections part (crate::parts::reflections::SHADER_FILES).
-            "parts/reflections/trace.wgsl",
-            "parts/reflections/resolve.wgsl",
-            "parts/reflections/temporal.wgsl",
-            "parts/reflections/filter.wgsl",
-        ]
+        &SHADER_FILES
     }
 
     /// Surfels spawn over the first frames (and hits outside their cover trace paths then):

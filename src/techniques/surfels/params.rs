@@ -161,3 +161,6 @@ pub const FLAG_SKY: u32 = 8;
 pub const FLAG_ACCUMULATE: u32 = 16;
 /// Pixels add the reflections part's specular light.
 pub const FLAG_REFLECTIONS: u32 = 32;
+/// Cache-only mode (`Surfels::surfel_cache`): apply marks the surfels the pixels see (what
+/// recycling keeps) and writes no pixel.
+pub const FLAG_CACHE_ONLY: u32 = 64;

@@ -1,0 +1,86 @@
+//! The surfels (GIBS, shared/seeds/001) as a cache another technique's rays end in: surfels
+//! spawned from the primary surfaces, their rays traced and integrated every frame (multi-bounce
+//! through their own hits), and read by the irradiance lookup (`gilab::surfels::gather`) at the
+//! bind group a pass names with `SURFELS_GROUP`.
+//!
+//! ReSTIR GI's sample paths end here with `gi_terminate = "surfels"`, as they end in Lumen's
+//! cards with `"lumen-cards"` (seed 003's connection, with the other family's cache). It is the
+//! `surfels` technique in its cache-only mode (`Surfels::surfel_cache`): the same code and
+//! shaders, none of the pixels' shading. Its passes run inside the frame that reads it, timed
+//! under their names, its rays counted as `surfel` (and `shadow`, `indirect` where a surfel's
+//! ray continues as a path). Each engine entry holds its own cache, as with the surface cache.
+
+use crate::gpu::{timing::PassTimer, Gpu};
+use crate::render::{PassInfo, RenderContext, Technique};
+use crate::scene::features::SceneFeatures;
+use crate::techniques::surfels::{self, Surfels};
+use anyhow::Result;
+
+/// Shader defs of a pipeline that reads the surfels at bind group `group`.
+pub fn lookup_defs(group: u32) -> [(&'static str, u32); 1] {
+    surfels::lookup_defs(group)
+}
+
+pub struct SurfelCache {
+    surfels: Surfels,
+    ray_budget: u32,
+}
+
+impl SurfelCache {
+    /// A cache of surfels that trace `ray_budget` rays per frame (the `surfels` technique's
+    /// `ray_budget`), its other settings the technique's defaults.
+    pub fn new(ray_budget: u32) -> Result<SurfelCache> {
+        let mut surfels = Surfels::surfel_cache();
+        let mut t = toml::Table::new();
+        t.insert("ray_budget".into(), (ray_budget as i64).into());
+        surfels.set_params(&t)?;
+        Ok(SurfelCache {
+            surfels,
+            ray_budget,
+        })
+    }
+
+    /// The ray budget it was made with.
+    pub fn sized(&self) -> u32 {
+        self.ray_budget
+    }
+
+    /// Layout of the lookup's bind group (the group a reading pass sets `SURFELS_GROUP` to).
+    pub fn lookup_layout(gpu: &Gpu) -> wgpu::BindGroupLayout {
+        surfels::lookup_layout(gpu)
+    }
+
+    /// Builds the surfels' pipelines and resources (on error the previous ones stay).
+    pub fn build(&mut self, ctx: &RenderContext) -> Result<()> {
+        self.surfels.build(ctx)
+    }
+
+    pub fn is_built(&self) -> bool {
+        self.surfels.lookup_bind_group().is_some()
+    }
+
+    /// The lookup's bind group: valid until the next `build`.
+    pub fn lookup(&self) -> Option<&wgpu::BindGroup> {
+        self.surfels.lookup_bind_group()
+    }
+
+    /// This frame's surfel work: recycling, spawning, the grid, rays and integration.
+    pub fn record(
+        &mut self,
+        ctx: &RenderContext,
+        enc: &mut wgpu::CommandEncoder,
+        timer: &mut PassTimer,
+    ) {
+        self.surfels.render(ctx, enc, timer);
+    }
+
+    /// Forgets every surfel (they respawn over the next frames).
+    pub fn reset(&mut self, gpu: &Gpu) {
+        self.surfels.reset_history(gpu);
+    }
+
+    /// The surfels' passes, for the technique that holds them.
+    pub fn passes(&self, f: &SceneFeatures) -> Vec<PassInfo> {
+        self.surfels.passes(f)
+    }
+}
