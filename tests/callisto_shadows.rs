@@ -99,7 +99,7 @@ fn variable_rate_traces_fewer_rays() {
         let mut var_params = full_params.clone();
         var_params.insert("rate".into(), "variable".into());
         // The converged full-rate image at this cutoff: what reconstruction should reproduce
-        // (32 frames; 128 before 2026-11-26, 64 before 2026-11-27, for CI time: its own noise
+        // (32 frames; 128 before 2026-11-26, then 64, for CI time: its own noise
         // is half the 16-frame images' and adds to both errors alike; measured ratio 1.05 at 64
         // frames against the 1.5 bound).
         let mut conv = full_params.clone();
@@ -219,7 +219,7 @@ fn range_cutoff_without_tail_loses_light() {
     let scene = || builtin::many_lights(1024, 7);
     let truth = direct_reference(scene(), size, 1024, 7, flags);
     let mut lost = Vec::new();
-    // 16 and 4 frames (64 each before 2026-11-27, for CI time: a full-rate frame here traces
+    // 16 and 4 frames (64 each before 2026-11-26, for CI time: a full-rate frame here traces
     // 77 shadow rays per pixel, 0.74 s on lavapipe). Measured at 64 frames: 0.990 with the
     // tail, 0.331 without; the loss is systematic, so a few frames show it.
     for (tail, frames) in [(1i64, 16), (0, 4)] {

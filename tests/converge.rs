@@ -252,7 +252,7 @@ fn lag_experiment_settles_for_every_technique() {
     let exp = p.preset.experiment.as_mut().unwrap();
     exp.frames = 40;
     exp.events[0].frame = 12;
-    // Caches sized to the image, as the shipped 96² runs are (for CI time, 2026-11-27): the
+    // Caches sized to the image, as the shipped 96² runs are (for CI time, 2026-11-26): the
     // surfels' rays per frame scaled by the pixel count (65,536 at 96² is 7 per pixel, so about
     // as many per surfel), Lumen's atlas to 512² and no debug views.
     for t in &mut p.preset.techniques {

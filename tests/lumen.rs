@@ -498,7 +498,7 @@ fn furnace_converges_in_both_modes() {
     for (label, mut t, _) in runs.clone() {
         t.insert("indirect_texels_per_frame".into(), 16_777_216.into());
         t.insert("direct_texels_per_frame".into(), 16_777_216.into());
-        // A 128² atlas (512² before 2026-11-26, 256² before 2026-11-27, for CI time): the
+        // A 128² atlas (512² before 2026-11-26, then 256², for CI time): the
         // furnace is uniform, so texel resolution changes nothing it measures.
         t.insert("atlas_size".into(), 128.into());
         let mut e = engine(

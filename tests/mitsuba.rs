@@ -156,7 +156,7 @@ fn compare(
 
 /// gilab's reference at every depth the manifest compares, from one unbounded render with
 /// `depth_images` (the same paths' contributions up to 1 and 2 bounces: three renders' worth
-/// for the price of the longest; separate renders per depth before 2026-11-27), as (max_depth,
+/// for the price of the longest; separate renders per depth before 2026-11-26), as (max_depth,
 /// mean, per-pixel variance).
 fn render_depths(gltf: &Path, size: [u32; 2]) -> Vec<(u32, Image, Image)> {
     use gilab::techniques::reference::ReferencePathTracer;
