@@ -26,7 +26,7 @@
 #ifdef GI_TERMINATE_SURFELS
 #import gilab::math::INV_PI
 #import gilab::brdf::{diffuse_color, specular_albedo_average}
-#import gilab::surfels::{gather, gathered_irradiance, grid_center_for}
+#import gilab::surfels::{gather, gather_covers, gathered_irradiance, grid_center_for}
 #endif
 
 // Hard safety cap on path length. With Russian roulette survival <= 0.95 the chance of
@@ -35,11 +35,6 @@ const SAFETY_MAX_BOUNCES: u32 = 1024u;
 const RR_START_DEPTH: u32 = 3u;
 // Probability that NEE samples the environment map rather than the light pool when both exist.
 const SKY_NEE_SHARE: f32 = 0.5;
-#ifdef GI_TERMINATE_SURFELS
-// A hit counts as covered by the surfels with this much surfel (or cell-average) weight: the
-// surfels' own rays use the same test (shaders/surfels/trace.wgsl).
-const SURFEL_COVERED: f32 = 0.25;
-#endif
 
 struct PathResult {
     // Radiance arriving at the origin along the first direction.
@@ -180,7 +175,7 @@ fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, 
         // no surfel covers a hit: the path is traced on to the end, unbiased there.
         if depth + 1u >= max_bounces {
             let g = gather(surf.position, surf.normal, grid_center_for(frame.camera_pos.xyz), false);
-            if g.weight >= SURFEL_COVERED || g.cell_weight >= SURFEL_COVERED {
+            if gather_covers(g) {
                 let direct = next_event(surf, wo, rng, 0.0, false);
                 out.shadow_rays += direct.shadow_rays;
                 out.radiance += throughput * direct.radiance;

@@ -353,6 +353,15 @@ fn gather(p: vec3<f32>, n: vec3<f32>, center: vec3<f32>, mark_seen: bool) -> Gat
     return g;
 }
 
+// A ray's hit counts as covered by the surfels with this much surfel (or cell-average) weight:
+// the surfels' own rays (trace.wgsl) and GI paths ending in them (common/path.wgsl) take the
+// cache's irradiance there, and are traced on where it does not hold.
+const COVERED_WEIGHT: f32 = 0.25;
+
+fn gather_covers(g: Gather) -> bool {
+    return g.weight >= COVERED_WEIGHT || g.cell_weight >= COVERED_WEIGHT;
+}
+
 // Irradiance at p from a gather: the surfels' weighted mean where they cover p (weight >= 1),
 // topped up with the cell average where they do not (the seed's gap filling). Surfels the depth
 // test rejects still hold the normalisation up (to at most 1): light from behind a wall is

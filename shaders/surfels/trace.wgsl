@@ -16,11 +16,9 @@
 #import gilab::ray::{spawn_ray_origin, INFINITE_DISTANCE}
 #import gilab::path::trace_path
 #import gilab::nee::direct_light
-#import gilab::surfels::{params, surfels, states, ray_offsets, ray_owner, ray_results, has_flag, gather, gathered_irradiance, grid_center_for, guide_value, hemi_oct_encode, hemi_oct_decode, hemi_oct_jacobian, texel_of, FLAG_GUIDING, FLAG_SKY, GUIDE_RES, GUIDE_TEXELS, GUIDE_POPULATED, GUIDE_MIX, DEPTH_RES}
+#import gilab::surfels::{params, surfels, states, ray_offsets, ray_owner, ray_results, has_flag, gather, gather_covers, gathered_irradiance, grid_center_for, guide_value, hemi_oct_encode, hemi_oct_decode, hemi_oct_jacobian, texel_of, FLAG_GUIDING, FLAG_SKY, GUIDE_RES, GUIDE_TEXELS, GUIDE_POPULATED, GUIDE_MIX, DEPTH_RES}
 #import gilab::sky::sky_radiance
 
-// A hit counts as covered by the cache with this much surfel weight (or cell-average weight).
-const COVERED: f32 = 0.25;
 
 @compute @workgroup_size(64, 1, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
@@ -92,7 +90,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 counts[RAY_SHADOW] += d.shadow_rays;
                 l = d.radiance;
                 let g = gather(h.position, h.normal, grid_center_for(frame.camera_pos.xyz), false);
-                if g.weight >= COVERED || g.cell_weight >= COVERED {
+                if gather_covers(g) {
                     // The specular layer's energy reflected diffusely, as Lumen's cache albedo.
                     let albedo = diffuse_color(h.material, max(dot(h.normal, wo), 0.0)) + specular_albedo_average(h.material);
                     l += albedo * gathered_irradiance(g) * INV_PI;
