@@ -1,7 +1,8 @@
 //! Parts connected across families (issue 34, shared/seeds/003 "Making Connections"): ReSTIR GI
 //! sample paths that end in Lumen's surface cache (`gi_terminate = "lumen-cards"`) or in the
 //! surfels (`"surfels"`) against paths traced to the end, the reference and the furnace's closed
-//! form; stability, determinism and the refusal of combinations that are not built.
+//! form; stability, determinism and the refusal of combinations that are not built; and the
+//! caches lit by the world ReGIR clipmap (`cache_direct = "regir"`) against power sampling.
 
 mod common;
 
@@ -116,29 +117,45 @@ fn cache_terminations_keep_multi_bounce_light() {
     }
 }
 
-/// Callisto's `gi = true` takes the same termination: its ReSTIR GI paths end in the cache
-/// (restir's default 512² atlas, a quarter relit per frame, so a longer warm-up) and the Cornell
-/// box keeps its energy.
+/// Callisto's `gi = true` takes the same terminations: its ReSTIR GI paths end in the surface
+/// cache (restir's default 512² atlas, a quarter relit per frame, so a longer warm-up) or in the
+/// surfels, and the Cornell box keeps its energy.
 #[test]
-fn callisto_gi_ends_in_the_surface_cache() {
+fn callisto_gi_ends_in_a_cache() {
     let size = [64, 64];
     let truth = common::cornell_truth_64();
-    let mut p = toml::Table::new();
-    p.insert("gi".into(), true.into());
-    p.insert("gi_terminate".into(), "lumen-cards".into());
-    let (img, rpp, e) = run_technique("callisto-shadows", p, builtin::cornell(), size, 48, 24, 1);
-    let ratio = energy(&img) / energy(&truth);
-    let passes: Vec<&str> = e
-        .technique
-        .passes(&e.gpu_scene.data.features)
-        .into_iter()
-        .filter(|p| p.runs)
-        .map(|p| p.name)
-        .collect();
-    eprintln!("callisto gi -> lumen-cards, cornell 64²: energy {ratio:.4}, {rpp:.2} rays/px/frame, passes {passes:?}");
-    assert!(passes.contains(&"cache indirect"), "{passes:?}");
-    assert!((ratio - 1.0).abs() < 0.05, "energy ratio {ratio}");
-    assert_eq!(img.non_finite_count(), 0);
+    for (terminate, cache_pass, warmup, frames) in [
+        ("lumen-cards", "cache indirect", 48, 24),
+        ("surfels", "integrate", 8, 12),
+    ] {
+        let mut p = toml::Table::new();
+        p.insert("gi".into(), true.into());
+        p.insert("gi_terminate".into(), terminate.into());
+        let (img, rpp, e) = run_technique(
+            "callisto-shadows",
+            p,
+            builtin::cornell(),
+            size,
+            warmup,
+            frames,
+            1,
+        );
+        let ratio = energy(&img) / energy(&truth);
+        let passes: Vec<&str> = e
+            .technique
+            .passes(&e.gpu_scene.data.features)
+            .into_iter()
+            .filter(|p| p.runs)
+            .map(|p| p.name)
+            .collect();
+        eprintln!("callisto gi -> {terminate}, cornell 64²: energy {ratio:.4}, {rpp:.2} rays/px/frame, passes {passes:?}");
+        assert!(passes.contains(&cache_pass), "{terminate}: {passes:?}");
+        assert!(
+            (ratio - 1.0).abs() < 0.05,
+            "{terminate}: energy ratio {ratio}"
+        );
+        assert_eq!(img.non_finite_count(), 0);
+    }
 }
 
 /// White furnace (albedo 0.8, emission 1: radiance 5 everywhere). Traced paths are unbiased.
@@ -222,4 +239,153 @@ fn unbuilt_terminations_are_refused() {
         Some(0),
         "not path any more"
     );
+}
+
+/// `cache_direct = "regir"` against `"power"` on `many-lights` (1,024 lights, 2,048 emissive
+/// triangles): Lumen's card texels take their light from the world ReGIR clipmap
+/// (shared/seeds/003, ReGIR lighting the cache). After two warm-up frames (the clipmap's cells
+/// are marked, then built) and a history reset, every texel is relit `UPDATES` times with one
+/// light sample each; the cache's direct light, seen through the pixels (debug channel 1:
+/// albedo x irradiance / pi), is compared with the reference's direct light. Same texel budget
+/// and shadow rays in both: the ReGIR cache must have the lower error and the same energy
+/// within noise, and the clipmap must serve nearly every lookup.
+#[test]
+fn regir_lights_the_cache_with_less_noise() {
+    const UPDATES: u32 = 16;
+    let size = [64, 64];
+    let px = (size[0] * size[1]) as usize;
+    let mut truth = engine(
+        "reference",
+        toml::toml! { samples_per_frame = 32
+        max_depth = 1 },
+        builtin::many_lights(1024, 7),
+        size,
+        3,
+    );
+    truth.flags = gilab::render::FLAG_NO_PRIMARY_EMISSION;
+    truth.reset();
+    for _ in 0..8 {
+        truth.render_frame().unwrap();
+    }
+    let reference = truth.read_output().unwrap();
+    let mut results = Vec::new();
+    for mode in ["power", "regir"] {
+        let mut t = toml::toml! { tracing = "bvh"
+        clipmap_resolution = 64
+        atlas_size = 512
+        direct_texels_per_frame = 16_777_216
+        indirect_texels_per_frame = 0
+        final_gather = "pixels"
+        debug_views = true };
+        t.insert("cache_direct".into(), mode.into());
+        let mut e = engine("lumen", t, builtin::many_lights(1024, 7), size, 3);
+        let coverage = |e: &Engine| {
+            e.inspect(|ctx, t| {
+                let any: &dyn std::any::Any = t.as_any();
+                any.downcast_ref::<gilab::techniques::lumen::Lumen>()
+                    .unwrap()
+                    .cache_regir_coverage(ctx.gpu)
+                    .unwrap()
+            })
+        };
+        e.render_frame().unwrap();
+        e.render_frame().unwrap();
+        let before = coverage(&e);
+        e.reset();
+        for _ in 0..UPDATES {
+            e.render_frame().unwrap();
+        }
+        let debug = e.read_debug().unwrap().unwrap();
+        let cache = gilab::render::debug_channel(&debug, px, 1);
+        // Relative L2 error (squared error over squared signal, summed over pixels) and the
+        // median relative error: a per-pixel relMSE is ruled by a few dark pixels whose texel
+        // lies on a lit neighbour (card resolution), the same in both modes.
+        let (mut sum_c, mut sum_r, mut err, mut signal) = (0.0, 0.0, 0.0, 0.0);
+        let mut rel_errors = Vec::new();
+        for (i, c) in cache.iter().enumerate() {
+            let p = reference.pixel(i as u32 % size[0], i as u32 / size[0]);
+            let r = common::luminance([p[0] as f64, p[1] as f64, p[2] as f64]);
+            if r <= 1e-4 || !c.is_finite() {
+                continue;
+            }
+            sum_c += *c as f64;
+            sum_r += r;
+            err += (*c as f64 - r).powi(2);
+            signal += r * r;
+            rel_errors.push(((*c as f64 - r) / r).abs());
+        }
+        let n = rel_errors.len();
+        rel_errors.sort_by(f64::total_cmp);
+        let median = rel_errors[n / 2];
+        let after = coverage(&e);
+        let coverage = gilab::parts::world_regir::Coverage {
+            lookups: after.lookups - before.lookups,
+            served: after.served - before.served,
+        };
+        let rel = sum_c / sum_r - 1.0;
+        let rel_l2 = err / signal;
+        eprintln!(
+            "many-lights 64², cache direct after {UPDATES} updates, {mode}: mean {:+.2}% against the reference's direct light, relative L2 error {rel_l2:.4}, median relative error {median:.4} over {n} pixels; clipmap served {} of {} lookups",
+            rel * 100.0,
+            coverage.served,
+            coverage.lookups
+        );
+        results.push((rel, rel_l2, n, coverage, median));
+    }
+    let (power, regir) = (results[0], results[1]);
+    assert!(power.2 as f64 > 0.5 * px as f64 && regir.2 == power.2);
+    assert!(
+        regir.1 < 0.7 * power.1 && regir.4 < power.4,
+        "ReGIR error {} (median {}) not below power's {} ({})",
+        regir.1,
+        regir.4,
+        power.1,
+        power.4
+    );
+    // Both sit above the reference by the cards' own error (a texel lit by a brighter neighbour);
+    // measured +8.0% (power) and +10.8% (ReGIR), power's mean still rising with its heavy tail.
+    assert!(
+        (regir.0 - power.0).abs() < 0.05,
+        "energy moved: {} vs {}",
+        regir.0,
+        power.0
+    );
+    assert_eq!(power.3.lookups, 0, "power sampling never reads the clipmap");
+    assert!(regir.3.served_share() > 0.9, "{:?}", regir.3);
+}
+
+/// The surfels' ray hits lit from the world ReGIR clipmap (`cache_direct = "regir"`) on
+/// `many-lights`: the same energy as by power within noise, no NaN/Inf, the clipmap serving
+/// nearly every hit, and the same image for the same seed.
+#[test]
+fn surfel_hits_lit_by_regir() {
+    let size = [32, 32];
+    let render = |mode: &str| {
+        let mut t = toml::toml! { ray_budget = 8192 };
+        t.insert("cache_direct".into(), mode.into());
+        let (img, _, e) = run_technique("surfels", t, builtin::many_lights(1024, 7), size, 2, 8, 5);
+        let coverage = e.inspect(|ctx, t| {
+            let any: &dyn std::any::Any = t.as_any();
+            any.downcast_ref::<gilab::techniques::surfels::Surfels>()
+                .unwrap()
+                .cache_regir_coverage(ctx.gpu)
+                .unwrap()
+        });
+        (img, coverage)
+    };
+    let (power, _) = render("power");
+    let (regir, coverage) = render("regir");
+    let (again, _) = render("regir");
+    let (ep, er) = (energy(&power), energy(&regir));
+    eprintln!(
+        "surfels on many-lights 32², 8 frames: energy {ep:.4} (power) vs {er:.4} (ReGIR, {:+.2}%); clipmap served {} of {} hit lookups",
+        (er / ep - 1.0) * 100.0,
+        coverage.served,
+        coverage.lookups
+    );
+    assert_eq!(regir.non_finite_count(), 0);
+    assert!((er / ep - 1.0).abs() < 0.05, "{er} vs {ep}");
+    // The counts include the first frame, when no cell is built yet (measured 0.80 in all).
+    assert!(coverage.served_share() > 0.7, "{coverage:?}");
+    assert_eq!(regir.rgb, again.rgb, "same seed, different image");
 }

@@ -4,7 +4,7 @@
 
 #import gilab::brdf::{Surface, bsdf_eval}
 #import gilab::scene::light_pool
-#import gilab::lights::{sample_light, light_shadow_ray}
+#import gilab::lights::{LightSample, sample_light, light_shadow_ray}
 #import gilab::ray::unoccluded
 
 // Next-event estimation of one light picked by power (the shared light pool), one shadow ray.
@@ -14,11 +14,16 @@ struct Direct {
 }
 
 fn direct_light(p: vec3<f32>, n_geo: vec3<f32>, n: vec3<f32>, m: Surface, wo: vec3<f32>, u_select: f32, u: vec2<f32>) -> Direct {
-    var out = Direct(vec3<f32>(0.0), 0u);
     if light_pool.count == 0u {
-        return out;
+        return Direct(vec3<f32>(0.0), 0u);
     }
-    let ls = sample_light(p, u_select, u);
+    return shade_light_sample(p, n_geo, n, m, wo, sample_light(p, u_select, u));
+}
+
+// One light sample taken at p (its pdf in solid angle, as `sample_light` gives it), shaded with
+// the BSDF and one shadow ray. The caches' light samplers share it (gilab::cache_light).
+fn shade_light_sample(p: vec3<f32>, n_geo: vec3<f32>, n: vec3<f32>, m: Surface, wo: vec3<f32>, ls: LightSample) -> Direct {
+    var out = Direct(vec3<f32>(0.0), 0u);
     if !ls.valid || ls.pdf <= 0.0 || dot(ls.wi, n_geo) <= 0.0 {
         return out;
     }
@@ -32,4 +37,3 @@ fn direct_light(p: vec3<f32>, n_geo: vec3<f32>, n: vec3<f32>, m: Surface, wo: ve
     }
     return out;
 }
-

@@ -45,6 +45,8 @@ const STREAM_CALLISTO_LIGHT: u32 = 37u;
 // The reflections part: its rays, and the choice of neighbours to reuse.
 const STREAM_REFLECTION: u32 = 38u;
 const STREAM_REFLECTION_REUSE: u32 = 39u;
+// The world-space ReGIR clipmap that lights the caches: its slots.
+const STREAM_WORLD_REGIR: u32 = 40u;
 
 // The sequence for one pixel (or work item), sample index (frame or sample number) and stream.
 fn rng_init(pixel: vec2<u32>, sample_index: u32, stream: u32, seed: u32) -> Rng {

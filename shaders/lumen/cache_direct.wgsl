@@ -1,11 +1,12 @@
 // Surface cache direct lighting (the seed's "Direct Lighting"): this frame's share of 8x8 texel
 // tiles (round robin through every valid tile, `direct_texels_per_frame`), one light sample
-// per texel from the shared light pool (power-proportional) with a shadow ray in the `tracing`
+// per texel (by power from the shared light pool, or from the world ReGIR clipmap: `cache_direct`,
+// gilab::cache_light) with a shadow ray in the `tracing`
 // mode, averaged into the texel's direct irradiance (running mean over up to 32 updates).
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts, RAY_CACHE}
-#import gilab::rng::{rng_init, rand, rand_pair, STREAM_LUMEN_DIRECT}
-#import gilab::lights::sample_light
+#import gilab::rng::{rng_init, STREAM_LUMEN_DIRECT}
+#import gilab::cache_light::cache_light_sample
 #import gilab::lumen::{params, tile_list, light_visible, has_flag, FLAG_LIGHTS}
 #import gilab::surface_cache::{atlas_direct, atlas_index, cache_texel}
 
@@ -22,7 +23,7 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid:
             var e = vec3<f32>(0.0);
             if has_flag(FLAG_LIGHTS) {
                 var rng = rng_init(texel, frame.frame_index, STREAM_LUMEN_DIRECT, frame.seed);
-                let ls = sample_light(t.position, rand(&rng), rand_pair(&rng));
+                let ls = cache_light_sample(t.position, t.normal, &rng);
                 let cos_n = dot(ls.wi, t.normal);
                 if ls.valid && ls.pdf > 0.0 && cos_n > 0.0 {
                     counts[RAY_CACHE] += 1u;

@@ -12,6 +12,7 @@
 #import gilab::ray::{spawn_ray_to, unoccluded, INFINITE_DISTANCE}
 #import gilab::math::PI
 #import gilab::sky::sky_radiance
+#import gilab::regir::RegirSlot
 
 struct RestirParams {
     // RIS candidates per pixel per frame from the local lights (triangles, point, spot) by
@@ -356,16 +357,8 @@ fn gi_visible(s: GSurface, r: GiReservoir) -> bool {
 }
 
 // ReGIR ("Making Connections"; Boksansky et al. 2021): a camera-centred grid whose cells hold
-// reservoirs of lights pre-selected for the cell (by power over squared distance), rebuilt
-// every frame. Pixels draw their initial candidates from their cell.
-struct RegirSlot {
-    light: u32,
-    bary_u: f32,
-    bary_v: f32,
-    // Unbiased contribution weight of the slot's light sample (area measure); 0 = empty.
-    big_w: f32,
-}
-
+// reservoirs of lights pre-selected for the cell (gilab::regir), rebuilt every frame. Pixels
+// draw their initial candidates from their cell.
 @group(2) @binding(4) var<storage, read_write> regir_slots: array<RegirSlot>;
 // Per pixel, for the debug views: x = DI reservoir M, y = its contribution weight W,
 // z = selected light index + 1 (0 = none), w = ReGIR cell index + 1 (0 = none).

@@ -1,7 +1,8 @@
 // Surfel rays (one invocation per ray, indirect dispatch). Direction: cosine-weighted, or once
 // the surfel's guiding map is populated, from the map with probability GUIDE_MIX (texel by the
 // map's CDF, uniform within the texel); the estimate divides by the true mixed pdf, so it stays
-// unbiased per surfel. At the hit: direct light by NEE with a shadow ray, plus the irradiance
+// unbiased per surfel. At the hit: direct light by NEE with a shadow ray (the light by power,
+// or from the world ReGIR clipmap: `cache_direct`, gilab::cache_light), plus the irradiance
 // the surfels there hold (multi-bounce through the cache); where no surfel covers the hit (off
 // screen) the path continues instead (NEE + BSDF sampling + Russian roulette). Sky on a miss.
 // Emission of the first hit is left out: the pixel's own direct light counts it.
@@ -15,7 +16,7 @@
 #import gilab::brdf::{bsdf_sample, diffuse_color, specular_albedo_average}
 #import gilab::ray::{spawn_ray_origin, INFINITE_DISTANCE}
 #import gilab::path::trace_path
-#import gilab::nee::direct_light
+#import gilab::cache_light::cache_direct_light
 #import gilab::surfels::{params, surfels, states, ray_offsets, ray_owner, ray_results, has_flag, gather, gather_covers, gathered_irradiance, grid_center_for, guide_value, hemi_oct_encode, hemi_oct_decode, hemi_oct_jacobian, texel_of, FLAG_GUIDING, FLAG_SKY, GUIDE_RES, GUIDE_TEXELS, GUIDE_POPULATED, GUIDE_MIX, DEPTH_RES}
 #import gilab::sky::sky_radiance
 
@@ -86,7 +87,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 t_hit = hit.t;
                 let h = hit_surface(origin, dir, hit);
                 let wo = -dir;
-                let d = direct_light(h.position, h.geo_normal, h.normal, h.material, wo, rand(&rng), rand_pair(&rng));
+                let d = cache_direct_light(h.position, h.geo_normal, h.normal, h.material, wo, &rng);
                 counts[RAY_SHADOW] += d.shadow_rays;
                 l = d.radiance;
                 let g = gather(h.position, h.normal, grid_center_for(frame.camera_pos.xyz), false);

@@ -64,6 +64,9 @@ pub const DEFAULT_SURFACE_CACHE_GROUP: u32 = 2;
 /// The bind group of the surfels' bindings (shaders/surfels/shared.wgsl) when a pipeline sets
 /// nothing else: the surfels' own group (the reflections part reads them at another).
 pub const DEFAULT_SURFELS_GROUP: u32 = 2;
+/// The bind group of the world ReGIR clipmap's bindings (shaders/parts/world_regir/shared.wgsl)
+/// when a pipeline sets nothing else: the part's own build pass binds it there.
+pub const DEFAULT_WORLD_REGIR_GROUP: u32 = 2;
 
 impl ShaderVariant {
     fn defs(self) -> std::collections::HashMap<String, ShaderDefValue> {
@@ -164,6 +167,10 @@ impl ShaderLibrary {
         defs.insert(
             "SURFELS_GROUP".into(),
             ShaderDefValue::UInt(DEFAULT_SURFELS_GROUP),
+        );
+        defs.insert(
+            "WORLD_REGIR_GROUP".into(),
+            ShaderDefValue::UInt(DEFAULT_WORLD_REGIR_GROUP),
         );
         for (name, value) in &self.pipeline_defs {
             defs.insert(name.clone(), ShaderDefValue::UInt(*value));

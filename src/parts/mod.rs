@@ -8,6 +8,9 @@
 //! - [`restir_direct::RestirDirect`]: direct light at the primary surfaces by ReSTIR DI (the
 //!   `restir` technique's own DI and ReGIR passes, GI off), shaded into one radiance value per
 //!   pixel. Used by `surfels`, `lumen` and `callisto-shadows` (`direct = "restir"`).
+//! - [`restir_gi::RestirGi`]: indirect light by ReSTIR GI (the `restir` technique's GI passes,
+//!   no DI), its sample paths ending where `gi_terminate` says. Used by `callisto-shadows`
+//!   (`gi = true`).
 //! - [`surface_cache::SurfaceCache`]: Lumen's surface cache (cards, lit every frame with
 //!   multi-bounce feedback) and its lookup (`gilab::surface_cache`, at the bind group a pass
 //!   names with `SURFACE_CACHE_GROUP`). Used by ReSTIR GI (`gi_terminate = "lumen-cards"`).
@@ -17,13 +20,21 @@
 //! - [`reflections::Reflections`]: specular indirect light (GGX rays, hit lighting from a surface
 //!   cache when the family has one, reuse, temporal and bilateral denoising) into two planes
 //!   per pixel that the family adds. Used by `lumen` (`reflections = "traced"`).
+//! - [`world_regir::WorldRegir`]: a world-space ReGIR clipmap from which the caches pick the
+//!   lights of their points (`gilab::cache_light`, at the bind group a pass names with
+//!   `WORLD_REGIR_GROUP`). Used by `lumen`'s card texels and the surfels' ray hits
+//!   (`cache_direct = "regir"`).
 
 pub mod reflections;
 pub mod restir_direct;
+pub mod restir_gi;
 pub mod surface_cache;
 pub mod surfel_cache;
+pub mod world_regir;
 
 pub use reflections::Reflections;
 pub use restir_direct::RestirDirect;
+pub use restir_gi::RestirGi;
 pub use surface_cache::SurfaceCache;
 pub use surfel_cache::SurfelCache;
+pub use world_regir::WorldRegir;

@@ -32,12 +32,11 @@ mod params;
 pub use params::{CallistoParamsGpu, CallistoSettings, MAX_LIGHTS_PER_TILE, PARAMS, RATES};
 
 use crate::gpu::{timing::PassTimer, Gpu};
-use crate::parts::RestirDirect;
+use crate::parts::{RestirDirect, RestirGi};
 use crate::render::params::Params;
 use crate::render::primary::FrameInputs;
 use crate::render::{pipelines, DebugView, PassInfo, RenderContext, Technique};
 use crate::scene::features::SceneFeatures;
-use crate::techniques::restir::{self, RestirLighting, RestirSettings};
 use anyhow::Result;
 
 /// Screen tile edge in pixels (`TILE` in shared.wgsl).
@@ -67,10 +66,9 @@ struct Resources {
 pub struct CallistoShadows {
     params: Params,
     pub settings: CallistoSettings,
-    /// ReSTIR GI for `gi` (pipelines built the first time it is on; its resources always, for
-    /// `resolve`'s group 2).
-    restir: RestirLighting,
-    restir_built: bool,
+    /// The ReSTIR GI part for `gi` (pipelines built the first time it is on; its resources
+    /// always, for `resolve`'s group 2).
+    restir: RestirGi,
     /// The direct-light part for `direct = "restir"` (built the first time it is needed).
     restir_direct: RestirDirect,
     layout: Option<wgpu::BindGroupLayout>,
@@ -86,8 +84,11 @@ impl Default for CallistoShadows {
         let params = Params::new("callisto-shadows", PARAMS);
         let settings = CallistoSettings::from_params(&params);
         CallistoShadows {
-            restir: RestirLighting::new(restir_gi_settings(settings.gi, settings.gi_terminate)),
-            restir_built: false,
+            restir: {
+                let mut gi = RestirGi::default();
+                gi.configure(settings.gi, settings.gi_terminate);
+                gi
+            },
             restir_direct: RestirDirect::default(),
             settings,
             params,
@@ -116,24 +117,14 @@ const OWN_SHADER_FILES: [&str; 11] = [
     "parts/restir_direct.wgsl",
 ];
 
-/// With the surface-cache part's (compiled only with `gi_terminate = "lumen-cards"`).
-const SHADER_FILES: [&str; 36] = crate::render::concat_files(
-    OWN_SHADER_FILES,
-    crate::techniques::lumen::SURFACE_CACHE_FILES,
+/// With the cache parts' (compiled only with `gi_terminate = "lumen-cards"` or `"surfels"`).
+const SHADER_FILES: [&str; 50] = crate::render::concat_files(
+    crate::render::concat_files::<11, 25, 36>(
+        OWN_SHADER_FILES,
+        crate::techniques::lumen::SURFACE_CACHE_FILES,
+    ),
+    crate::techniques::surfels::SURFEL_CACHE_FILES,
 );
-
-/// ReSTIR with GI only: no DI candidates of any class (no DI passes run), no ReGIR; its sample
-/// paths end where `gi_terminate` says.
-fn restir_gi_settings(gi: bool, terminate: restir::GiTerminate) -> RestirSettings {
-    let mut s = RestirSettings::from_params(&Params::new("restir", restir::PARAMS));
-    s.candidates = 0;
-    s.directional_candidates = 0;
-    s.sky_candidates = 0;
-    s.regir = false;
-    s.gi = gi;
-    s.gi_terminate = terminate;
-    s
-}
 
 impl CallistoShadows {
     fn layout(&mut self, gpu: &Gpu) -> wgpu::BindGroupLayout {
@@ -160,16 +151,10 @@ impl CallistoShadows {
 
     /// Builds ReSTIR GI's pipelines when `gi` is on and they are not built yet; its resources
     /// (the bind group `resolve` needs) in any case.
-    fn ensure_restir(&mut self, ctx: &RenderContext) -> Result<()> {
-        self.restir.settings = restir_gi_settings(self.settings.gi, self.settings.gi_terminate);
-        if self.settings.gi && !self.restir_built {
-            self.restir.build(ctx)?;
-            self.restir_built = true;
-        } else {
-            // The surface cache the GI paths may end in, built the first time it is named.
-            self.restir.build_gi_cache(ctx)?;
-            self.restir.build_resources(ctx);
-        }
+    fn ensure_restir(&mut self, ctx: &RenderContext, rebuild_gi: bool) -> Result<()> {
+        self.restir
+            .configure(self.settings.gi, self.settings.gi_terminate);
+        self.restir.prepare(ctx, rebuild_gi)?;
         if self.settings.direct_restir && !self.restir_direct.is_built() {
             self.restir_direct.build(ctx)?;
         }
@@ -371,7 +356,7 @@ impl Technique for CallistoShadows {
             });
             v.splice(0..0, direct);
         }
-        v.extend(self.restir.gi_passes(f));
+        v.extend(self.restir.passes(f));
         v
     }
 
@@ -393,22 +378,19 @@ impl Technique for CallistoShadows {
             mean: make(MEAN, &empty)?,
             resolve: make(RESOLVE, &restir_layout)?,
         };
-        if self.settings.gi {
-            // Rebuild ReSTIR's pipelines too (hot reload of its shaders).
-            self.restir_built = false;
-        }
         if self.restir_direct.is_built() {
             // And the direct-light part's (on an error its old pipelines stay).
             self.restir_direct.build(ctx)?;
         }
-        self.ensure_restir(ctx)?;
+        // Rebuild ReSTIR GI's pipelines too when it runs (hot reload of its shaders).
+        self.ensure_restir(ctx, self.settings.gi)?;
         self.pipelines = Some(built);
         self.build_resources(ctx);
         Ok(())
     }
 
     fn apply_params(&mut self, ctx: &RenderContext) -> Result<()> {
-        self.ensure_restir(ctx)?;
+        self.ensure_restir(ctx, false)?;
         self.build_resources(ctx);
         Ok(())
     }
@@ -443,9 +425,7 @@ impl Technique for CallistoShadows {
         ) else {
             return;
         };
-        if self.settings.gi && self.restir_built {
-            self.restir.record(ctx, enc, timer);
-        }
+        self.restir.record(ctx, enc, timer);
         let tiles = [r.tiles[0], r.tiles[1], 1];
         let groups = &[empty, &r.bind_group];
         if self.settings.direct_restir && self.lights > 0 {
@@ -506,7 +486,8 @@ impl Technique for CallistoShadows {
         self.params.set("callisto-shadows", params)?;
         self.settings = CallistoSettings::from_params(&self.params);
         // The pass list reads ReSTIR's settings before `apply_params` runs.
-        self.restir.settings = restir_gi_settings(self.settings.gi, self.settings.gi_terminate);
+        self.restir
+            .configure(self.settings.gi, self.settings.gi_terminate);
         Ok(())
     }
 

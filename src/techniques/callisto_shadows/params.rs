@@ -149,10 +149,10 @@ pub const PARAMS: &[ParamSpec] = &[
     },
     ParamSpec {
         name: "gi_terminate",
-        what: "where ReSTIR GI's sample paths end when gi is on, as in the restir technique: traced to the end, or at their first hit in Lumen's surface cache (the cache part, with restir's default atlas and update share)",
-        higher: "lumen-cards: multi-bounce light at about one bounce's price, biased by the cache",
+        what: "where ReSTIR GI's sample paths end when gi is on, as in the restir technique: traced to the end, or at their first hit in Lumen's surface cache or the surfels (the cache parts, with restir's default atlas, update share and surfel ray budget)",
+        higher: "lumen-cards or surfels: multi-bounce light at about one bounce's price, biased by the cache",
         lower: "path: unbiased, every bounce traced",
-        kind: ParamKind::Choice(&["path", "lumen-cards"]),
+        kind: ParamKind::Choice(&["path", "lumen-cards", "surfels"]),
         default: 0.0,
     },
     ParamSpec {
@@ -182,7 +182,7 @@ pub struct CallistoSettings {
     pub accumulate: bool,
     pub gi: bool,
     /// Where ReSTIR GI's sample paths end (`gi_terminate`).
-    pub gi_terminate: crate::techniques::restir::GiTerminate,
+    pub gi_terminate: crate::parts::restir_gi::GiTerminate,
     /// `direct = "restir"`: the direct-light part replaces the tile shadows.
     pub direct_restir: bool,
 }
@@ -204,7 +204,11 @@ impl CallistoSettings {
             blur_radius: p.u32("blur_radius"),
             accumulate: p.bool("accumulate"),
             gi: p.bool("gi"),
-            gi_terminate: crate::techniques::restir::GiTerminate::from_index(p.u32("gi_terminate")),
+            gi_terminate: match p.u32("gi_terminate") {
+                1 => crate::parts::restir_gi::GiTerminate::LumenCards,
+                2 => crate::parts::restir_gi::GiTerminate::Surfels,
+                _ => crate::parts::restir_gi::GiTerminate::Path,
+            },
             direct_restir: p.u32("direct") == 1,
         }
     }

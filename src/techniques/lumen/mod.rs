@@ -46,7 +46,7 @@ use screen_probes::{ProbePipelines, ScreenProbes};
 
 use crate::gpu::{readback, timing::PassTimer, Gpu};
 use crate::parts::reflections::HitCache;
-use crate::parts::{Reflections, RestirDirect};
+use crate::parts::{Reflections, RestirDirect, WorldRegir};
 use crate::render::params::Params;
 use crate::render::primary::FrameInputs;
 use crate::render::{pipelines, DebugView, PassInfo, RenderContext, Technique};
@@ -298,12 +298,15 @@ pub const SURFACE_CACHE_FILES: [&str; 25] = [
 ];
 
 /// Lumen's entry files and its parts' (direct light, reflections).
-const SHADER_FILES: [&str; 34] = crate::render::concat_files(
-    crate::render::concat_files::<25, 5, 30>(
-        SURFACE_CACHE_FILES,
-        crate::parts::restir_direct::SHADER_FILES,
+const SHADER_FILES: [&str; 35] = crate::render::concat_files(
+    crate::render::concat_files::<30, 4, 34>(
+        crate::render::concat_files::<25, 5, 30>(
+            SURFACE_CACHE_FILES,
+            crate::parts::restir_direct::SHADER_FILES,
+        ),
+        crate::parts::reflections::SHADER_FILES,
     ),
-    crate::parts::reflections::SHADER_FILES,
+    crate::parts::world_regir::SHADER_FILES,
 );
 
 pub struct Lumen {
@@ -335,6 +338,11 @@ pub struct Lumen {
     reflections: Reflections,
     /// Surface-cache part (`Lumen::surface_cache`): the cache's passes only, no final gather.
     cache_only: bool,
+    /// The world ReGIR clipmap the cache texels take their lights from (`cache_direct = "regir"`;
+    /// built the first time it is asked for).
+    world_regir: WorldRegir,
+    /// Whether the "cache direct" pipeline was composed with the clipmap's lookup.
+    cache_direct_regir: bool,
 }
 
 impl Default for Lumen {
@@ -362,6 +370,8 @@ impl Default for Lumen {
             sky: false,
             extent: [0, 0],
             cache_only: false,
+            world_regir: WorldRegir::default(),
+            cache_direct_regir: false,
         }
     }
 }
@@ -959,6 +969,11 @@ impl Lumen {
         Ok(())
     }
 
+    /// Lookups the world ReGIR clipmap served, for tests and reports.
+    pub fn cache_regir_coverage(&self, gpu: &Gpu) -> Result<crate::parts::world_regir::Coverage> {
+        self.world_regir.coverage(gpu)
+    }
+
     /// Pixels take their direct light from the ReSTIR DI part (`direct = "restir"`, lights).
     fn direct_restir(&self) -> bool {
         self.settings.direct_restir && self.features.light_count() > 0
@@ -1274,13 +1289,20 @@ impl Technique for Lumen {
                 CAPTURE_TEXELS_PER_FRAME
             ),
         ));
+        let regir = s.cache_light.regir && f.many_lights;
+        v.push(WorldRegir::pass_info(&s.cache_light, f));
         v.push(pass(
             "cache direct",
             lights,
             if lights {
                 format!(
-                    "{:.0} texels per frame, one light by power and one {} shadow ray each",
+                    "{:.0} texels per frame, one light {} and one {} shadow ray each",
                     self.scaled_budget(s.direct_texels_per_frame),
+                    if regir {
+                        "from the world ReGIR clipmap"
+                    } else {
+                        "by power"
+                    },
                     if s.bvh { "BVH" } else { "SDF" }
                 )
             } else {
@@ -1329,15 +1351,6 @@ impl Technique for Lumen {
                 "NEE per pixel in apply: one light by power, one BVH shadow ray".into()
             },
         ));
-        v.push(pass(
-            "many-light structure",
-            false,
-            if f.many_lights {
-                "not used: the cache samples the light pool by power (no ReGIR cells yet)".into()
-            } else {
-                "few lights: power sampling suffices".into()
-            },
-        ));
         let why_not = if !s.reflections {
             "reflections = none: specular surfaces get direct specular only"
         } else {
@@ -1374,6 +1387,15 @@ impl Technique for Lumen {
                     ctx.shaders,
                     entry,
                     &[&ctx.scene.layout, ctx.frame_layout, &lumen, &probe_layout],
+                )?);
+                continue;
+            }
+            if name == "cache direct" {
+                compute.push(WorldRegir::lighting_pipeline(
+                    ctx,
+                    entry,
+                    &lumen,
+                    self.settings.cache_light.regir,
                 )?);
                 continue;
             }
@@ -1421,6 +1443,8 @@ impl Technique for Lumen {
             self.restir_direct.build_resources(ctx);
         }
         self.prepare_reflections(ctx, true)?;
+        self.world_regir.prepare(ctx, &self.settings.cache_light)?;
+        self.cache_direct_regir = self.settings.cache_light.regir;
         self.pipelines = Some(Pipelines {
             compute,
             sdf_args,
@@ -1450,6 +1474,24 @@ impl Technique for Lumen {
             self.restir_direct.build_resources(ctx);
         }
         self.prepare_reflections(ctx, false)?;
+        self.world_regir.prepare(ctx, &self.settings.cache_light)?;
+        if self.cache_direct_regir != self.settings.cache_light.regir {
+            let layout = self.layouts(ctx.gpu).lumen.clone();
+            let pipeline = WorldRegir::lighting_pipeline(
+                ctx,
+                "lumen/cache_direct.wgsl",
+                &layout,
+                self.settings.cache_light.regir,
+            )?;
+            if let Some(p) = self.pipelines.as_mut() {
+                let i = COMPUTE
+                    .iter()
+                    .position(|(n, _)| *n == "cache direct")
+                    .expect("cache direct");
+                p.compute[i] = pipeline;
+            }
+            self.cache_direct_regir = self.settings.cache_light.regir;
+        }
         let sized = |s: &LumenSettings| {
             (
                 s.clipmap_levels,
@@ -1582,13 +1624,21 @@ impl Technique for Lumen {
         let bg = &r.bind_group;
         let gp = &r.gpu_params;
         if self.features.light_count() > 0 && self.direct_tiles > 0 {
+            let regir = self.world_regir.record_for_pass(
+                ctx,
+                enc,
+                timer,
+                self.cache_direct_regir,
+                self.features.many_lights,
+            );
+            let groups: Vec<&wgpu::BindGroup> = [Some(bg), regir].into_iter().flatten().collect();
             pipelines::technique_pass(
                 ctx,
                 enc,
                 timer,
                 "cache direct",
                 p.get("cache direct"),
-                &[bg],
+                &groups,
                 [direct, 1, 1],
             );
         }

@@ -215,9 +215,15 @@ const OWN_PARAMS: [ParamSpec; 26] = [
 ];
 
 /// Lumen's parameters and its reflections part's.
-pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<26, 6, 32>(
+const WITH_REFLECTIONS: [ParamSpec; 32] = crate::render::params::concat_params::<26, 6, 32>(
     OWN_PARAMS,
     crate::parts::reflections::PARAMS,
+);
+
+/// Lumen's parameters and its parts' (reflections, the cache's light sampling).
+pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<32, 3, 35>(
+    WITH_REFLECTIONS,
+    crate::parts::world_regir::PARAMS,
 );
 
 /// The parameters, typed.
@@ -254,6 +260,8 @@ pub struct LumenSettings {
     pub reflections: bool,
     /// The reflections part's settings.
     pub reflection: crate::parts::reflections::ReflectionSettings,
+    /// How the surface cache picks the lights of its texels (`cache_direct`).
+    pub cache_light: crate::parts::world_regir::WorldRegirSettings,
 }
 
 impl LumenSettings {
@@ -287,6 +295,7 @@ impl LumenSettings {
             contact_ao: p.bool("contact_ao"),
             reflections: crate::parts::reflections::ReflectionSettings::from_params(p).0,
             reflection: crate::parts::reflections::ReflectionSettings::from_params(p).1,
+            cache_light: crate::parts::world_regir::WorldRegirSettings::from_params(p),
         }
     }
 

@@ -34,7 +34,7 @@ pub use params::{SurfelParamsGpu, SurfelSettings, MAX_RAYS_PER_SURFEL, PARAMS};
 
 use crate::gpu::{readback, timing::PassTimer, Gpu};
 use crate::parts::reflections::HitCache;
-use crate::parts::{Reflections, RestirDirect};
+use crate::parts::{Reflections, RestirDirect, WorldRegir};
 use crate::render::params::Params;
 use crate::render::primary::FrameInputs;
 use crate::render::{pipelines, DebugView, PassInfo, RenderContext, Technique};
@@ -75,12 +75,15 @@ const ENTRIES: [(&str, &str); 12] = [
 const RAY_OWNER: &str = "surfels/ray_owner.wgsl";
 
 /// The surfels' entry files and their parts' (direct light, reflections), for hot reload.
-const SHADER_FILES: [&str; 23] = crate::render::concat_files(
-    crate::render::concat_files::<14, 5, 19>(
-        SURFEL_CACHE_FILES,
-        crate::parts::restir_direct::SHADER_FILES,
+const SHADER_FILES: [&str; 24] = crate::render::concat_files(
+    crate::render::concat_files::<19, 4, 23>(
+        crate::render::concat_files::<14, 5, 19>(
+            SURFEL_CACHE_FILES,
+            crate::parts::restir_direct::SHADER_FILES,
+        ),
+        crate::parts::reflections::SHADER_FILES,
     ),
-    crate::parts::reflections::SHADER_FILES,
+    crate::parts::world_regir::SHADER_FILES,
 );
 
 /// Every entry file the surfels compile without their parts: what the surfel-cache part
@@ -217,6 +220,11 @@ pub struct Surfels {
     /// Cache-only mode (`Surfels::surfel_cache`): surfels spawned, traced and integrated, no
     /// direct light, reflections or apply (another technique reads their irradiance).
     cache_only: bool,
+    /// The world ReGIR clipmap ray hits take their lights from (`cache_direct = "regir"`;
+    /// built the first time it is asked for).
+    world_regir: WorldRegir,
+    /// Whether the trace pipeline was composed with the clipmap's lookup.
+    trace_regir: bool,
 }
 
 impl Default for Surfels {
@@ -234,6 +242,8 @@ impl Default for Surfels {
             sky_radiance: 0.0,
             extent: [0, 0],
             cache_only: false,
+            world_regir: WorldRegir::default(),
+            trace_regir: false,
         }
     }
 }
@@ -349,6 +359,11 @@ impl Surfels {
 
     /// Builds the direct-light part for `direct = "restir"` if not built yet (its resources
     /// follow the image and the scene when it is).
+    /// Lookups the world ReGIR clipmap served, for tests and reports.
+    pub fn cache_regir_coverage(&self, gpu: &Gpu) -> Result<crate::parts::world_regir::Coverage> {
+        self.world_regir.coverage(gpu)
+    }
+
     fn ensure_restir(&mut self, ctx: &RenderContext) -> Result<()> {
         if self.settings.direct_restir && !self.restir_direct.is_built() {
             self.restir_direct.build(ctx)?;
@@ -616,6 +631,7 @@ impl Technique for Surfels {
             pass("coverage", true, "per 16x16 tile: least-covered pixel, randomised spawn threshold".into()),
             pass("spawn", true, format!("pop from the free stack of {} slots", s.max_surfels)),
             pass("grid", true, "radius update, ray requests, non-linear grid rebuilt: count, prefix sum, scatter, per-cell sort".into()),
+            WorldRegir::pass_info(&s.cache_light, f),
             pass("allocate", true, format!("{} rays per frame split by request (at most {MAX_RAYS_PER_SURFEL} per surfel)", s.ray_budget)),
             pass(
                 "trace",
@@ -623,7 +639,7 @@ impl Technique for Surfels {
                 format!(
                     "{} directions; NEE at hits{}; surfel irradiance at hits (multi-bounce), a path where none covers the hit",
                     if s.guiding { "guided (6x6 map, mixed with cosine)" } else { "cosine" },
-                    if lights { "" } else { " skipped: no lights" }
+                    if !lights { " skipped: no lights" } else if s.cache_light.regir && f.many_lights { " (light from the world ReGIR clipmap)" } else { " (light by power)" }
                 ),
             ),
             pass("integrate", true, format!("{}; guiding map; radial depth {}", if s.msme { "multiscale mean estimator" } else { "plain running mean (msme off)" }, if s.radial_depth { "on" } else { "off" })),
@@ -681,7 +697,16 @@ impl Technique for Surfels {
         };
         // Every pipeline first: on an error nothing is replaced.
         let mut passes = Vec::new();
-        for (_, entry) in ENTRIES {
+        for (name, entry) in ENTRIES {
+            if name == "trace" {
+                passes.push(WorldRegir::lighting_pipeline(
+                    ctx,
+                    entry,
+                    &surfel_layout,
+                    self.settings.cache_light.regir,
+                )?);
+                continue;
+            }
             passes.push(ctx.pipeline(entry, &surfel_layout)?);
         }
         let ray_owner = pipelines::compute_pipeline(
@@ -703,6 +728,8 @@ impl Technique for Surfels {
             self.restir_direct.build_resources(ctx);
         }
         self.prepare_reflections(ctx, true)?;
+        self.world_regir.prepare(ctx, &self.settings.cache_light)?;
+        self.trace_regir = self.settings.cache_light.regir;
         self.pipelines = Some(Pipelines {
             passes,
             ray_owner,
@@ -730,6 +757,24 @@ impl Technique for Surfels {
     fn apply_params(&mut self, ctx: &RenderContext) -> Result<()> {
         self.ensure_restir(ctx)?;
         self.prepare_reflections(ctx, false)?;
+        self.world_regir.prepare(ctx, &self.settings.cache_light)?;
+        if self.trace_regir != self.settings.cache_light.regir {
+            let layout = self.layouts(ctx.gpu).surfels.clone();
+            let pipeline = WorldRegir::lighting_pipeline(
+                ctx,
+                "surfels/trace.wgsl",
+                &layout,
+                self.settings.cache_light.regir,
+            )?;
+            if let Some(p) = self.pipelines.as_mut() {
+                let i = ENTRIES
+                    .iter()
+                    .position(|(n, _)| *n == "trace")
+                    .expect("trace");
+                p.passes[i] = pipeline;
+            }
+            self.trace_regir = self.settings.cache_light.regir;
+        }
         self.build_resources(ctx)?;
         self.reset_history(ctx.gpu);
         Ok(())
@@ -800,15 +845,23 @@ impl Technique for Surfels {
             &[bg, &r.args_bind_group],
             per_slot,
         );
-        pipelines::list_pass(
+        let regir = self.world_regir.record_for_pass(
+            ctx,
             enc,
             timer,
-            "trace",
-            p.get("trace"),
-            &[&ctx.scene.bind_group, ctx.frame_bind_group, bg],
-            &r.args,
-            0,
+            self.trace_regir,
+            self.features.many_lights,
         );
+        let groups: Vec<&wgpu::BindGroup> = [
+            Some(&ctx.scene.bind_group),
+            Some(ctx.frame_bind_group),
+            Some(bg),
+            regir,
+        ]
+        .into_iter()
+        .flatten()
+        .collect();
+        pipelines::list_pass(enc, timer, "trace", p.get("trace"), &groups, &r.args, 0);
         pass(enc, timer, "integrate", per_slot);
         let image = [ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1];
         if self.cache_only {

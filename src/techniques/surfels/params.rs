@@ -94,10 +94,13 @@ const OWN_PARAMS: [ParamSpec; 9] = [
     },
 ];
 
-/// The surfels' parameters and their reflections part's.
-pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<9, 6, 15>(
-    OWN_PARAMS,
-    crate::parts::reflections::PARAMS,
+const WITH_REFLECTIONS: [ParamSpec; 15] =
+    crate::render::params::concat_params::<9, 6, 15>(OWN_PARAMS, crate::parts::reflections::PARAMS);
+
+/// The surfels' parameters and their parts' (reflections, the ray hits' light sampling).
+pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<15, 3, 18>(
+    WITH_REFLECTIONS,
+    crate::parts::world_regir::PARAMS,
 );
 
 /// The parameters, typed.
@@ -116,6 +119,8 @@ pub struct SurfelSettings {
     pub reflections: bool,
     /// The reflections part's settings.
     pub reflection: crate::parts::reflections::ReflectionSettings,
+    /// How surfel ray hits pick their lights (`cache_direct`).
+    pub cache_light: crate::parts::world_regir::WorldRegirSettings,
 }
 
 impl SurfelSettings {
@@ -132,6 +137,7 @@ impl SurfelSettings {
             accumulate: p.bool("accumulate"),
             reflections: crate::parts::reflections::ReflectionSettings::from_params(p).0,
             reflection: crate::parts::reflections::ReflectionSettings::from_params(p).1,
+            cache_light: crate::parts::world_regir::WorldRegirSettings::from_params(p),
         }
     }
 }

@@ -1,0 +1,361 @@
+//! The world-space ReGIR clipmap: light reservoirs for the points a cache lights (Lumen's card
+//! texels, surfel ray hits), wherever they are, not only under the pixels as ReSTIR DI's
+//! camera grid. "Making Connections" (shared/seeds/003) lights Lumen's surface cache with
+//! ReGIR-sampled lights from a clipmap of cells: `cache_direct = "regir"`.
+//!
+//! - Levels of `DIMS`³ cells centred on the camera, each level's cell edge twice the last's;
+//!   a point takes the finest level whose window holds it. The finest edge and the level count
+//!   follow from the scene's bounds so that the coarsest window holds the whole scene twice.
+//! - Cells are addressed toroidally, so a cell keeps its index (and its marks) as the camera
+//!   moves.
+//! - A lookup marks its cell; each frame the build fills the cells read in the last
+//!   `KEEP_FRAMES` frames (`slots` reservoirs each, 32 light candidates per reservoir, target
+//!   strength / distance² to the cell centre: `gilab::regir`, the same code as ReSTIR DI's grid).
+//! - A lookup resamples `lookup_candidates` of its cell's reservoirs by the irradiance each
+//!   gives the point (unshadowed, L G cos). A cell not built this frame (read for the first
+//!   time) takes the light by power: the choice does not depend on the lookup's random numbers,
+//!   so the estimate stays unbiased.
+//!
+//! Shaders: shaders/parts/world_regir/ (the module and the build), shaders/parts/cache_light.wgsl
+//! (the caches' one place to pick a light). A consumer composes its lighting pass with
+//! [`lookup_defs`] and binds [`WorldRegir::bind_group`] at that group; the build binds it at
+//! group 2 (`WORLD_REGIR_GROUP`'s default).
+
+use crate::gpu::{readback, timing::PassTimer, Gpu};
+use crate::render::params::{ParamKind, ParamSpec, Params};
+use crate::render::{pipelines, PassInfo, RenderContext};
+use crate::scene::features::SceneFeatures;
+use anyhow::Result;
+
+/// Cells along each axis of a level.
+pub const DIMS: u32 = 16;
+/// A cell is rebuilt while a lookup read it within this many frames.
+pub const KEEP_FRAMES: u32 = 8;
+/// Light candidates resampled into each reservoir (`REGIR_CANDIDATES_PER_SLOT`).
+pub const CANDIDATES_PER_SLOT: u32 = 32;
+pub const BUILD_FILE: &str = "parts/world_regir/build.wgsl";
+/// The part's entry files (hot reload).
+pub const SHADER_FILES: [&str; 1] = [BUILD_FILE];
+pub const PASS: &str = "cache regir";
+const SLOT_BYTES: u64 = crate::techniques::restir::REGIR_SLOT_BYTES;
+
+/// The caches' light-sampling parameters: every family with a cache adds them to its own.
+pub const PARAMS: [ParamSpec; 3] = [
+    ParamSpec {
+        name: "cache_direct",
+        what: "how the cache picks the light for each point it lights (card texels, surfel ray hits): by power from the whole light pool, or from the world-space ReGIR clipmap's cell at the point (seed 003, ReGIR lighting the cache; runs only with many lights)",
+        higher: "regir: lights near the point are picked far more often: lower noise on many lights, one build pass per frame",
+        lower: "power: no build pass; a point far from the bright lights gets mostly useless samples",
+        kind: ParamKind::Choice(&["power", "regir"]),
+        default: 0.0,
+    },
+    ParamSpec {
+        name: "cache_regir_slots",
+        what: "light reservoirs per world ReGIR cell (each resampled from 32 lights by power over squared distance to the cell)",
+        higher: "more distinct lights per cell: less correlation between points of one cell, a costlier build",
+        lower: "cheaper build, lookups in a cell share fewer lights",
+        kind: ParamKind::Int { min: 1, max: 64 },
+        default: 16.0,
+    },
+    ParamSpec {
+        name: "cache_regir_candidates",
+        what: "reservoirs of its cell that one lookup resamples by the irradiance each gives the point",
+        higher: "better light choice per point (the cosine and the distance within the cell count), more light evaluations",
+        lower: "cheaper lookups; 1 takes a reservoir as the cell chose it",
+        kind: ParamKind::Int { min: 1, max: 32 },
+        default: 4.0,
+    },
+];
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct WorldRegirSettings {
+    /// `cache_direct = "regir"`.
+    pub regir: bool,
+    pub slots: u32,
+    pub lookup_candidates: u32,
+}
+
+impl WorldRegirSettings {
+    pub fn from_params(p: &Params) -> WorldRegirSettings {
+        WorldRegirSettings {
+            regir: p.u32("cache_direct") == 1,
+            slots: p.u32("cache_regir_slots").max(1),
+            lookup_candidates: p.u32("cache_regir_candidates").max(1),
+        }
+    }
+}
+
+/// Shader defs of a pipeline that picks its cache lights from the clipmap (`CACHE_REGIR`),
+/// whose bind group it binds at `group`.
+pub fn lookup_defs(group: u32) -> [(&'static str, u32); 2] {
+    [("CACHE_REGIR", 1), ("WORLD_REGIR_GROUP", group)]
+}
+
+/// `WorldRegirParams` in shaders/parts/world_regir/shared.wgsl.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+struct WorldRegirParamsGpu {
+    cell_size: f32,
+    levels: u32,
+    dims: u32,
+    slots: u32,
+    lookup_candidates: u32,
+    keep_frames: u32,
+    pad: [u32; 2],
+}
+
+struct Buffers {
+    params: wgpu::Buffer,
+    slots: wgpu::Buffer,
+    /// Marks, built flags, then the two lookup counters.
+    cells: wgpu::Buffer,
+    bind_group: wgpu::BindGroup,
+    gpu_params: WorldRegirParamsGpu,
+}
+
+/// Lookups since the buffers were made, and how many a built cell served.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Coverage {
+    pub lookups: u64,
+    pub served: u64,
+}
+
+impl Coverage {
+    pub fn served_share(&self) -> f64 {
+        self.served as f64 / self.lookups.max(1) as f64
+    }
+}
+
+#[derive(Default)]
+pub struct WorldRegir {
+    pipeline: Option<wgpu::ComputePipeline>,
+    buffers: Option<Buffers>,
+}
+
+impl WorldRegir {
+    /// Layout of the part's bind group (the group a consumer sets `WORLD_REGIR_GROUP` to).
+    pub fn layout(gpu: &Gpu) -> wgpu::BindGroupLayout {
+        pipelines::layout(
+            gpu,
+            "world regir",
+            &[
+                pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE),
+                pipelines::storage_entry(1, false),
+                pipelines::storage_entry(2, false),
+            ],
+        )
+    }
+
+    pub fn is_built(&self) -> bool {
+        self.pipeline.is_some() && self.buffers.is_some()
+    }
+
+    /// The build pipeline (on an error the previous one stays).
+    pub fn build(&mut self, ctx: &RenderContext) -> Result<()> {
+        let layout = Self::layout(ctx.gpu);
+        self.pipeline = Some(pipelines::compute_pipeline(
+            ctx.gpu,
+            ctx.shaders,
+            BUILD_FILE,
+            &[&ctx.scene.layout, ctx.frame_layout, &layout],
+        )?);
+        Ok(())
+    }
+
+    /// What a consumer calls when its parameters change or it builds: builds the part the
+    /// first time `cache_direct = "regir"` asks for it, and sizes it for the scene.
+    pub fn prepare(&mut self, ctx: &RenderContext, s: &WorldRegirSettings) -> Result<()> {
+        if !s.regir {
+            return Ok(());
+        }
+        if !self.is_built() {
+            self.build(ctx)?;
+        }
+        self.build_resources(ctx.gpu, s, &ctx.scene.data.features);
+        Ok(())
+    }
+
+    /// A consumer's lighting pipeline (`entry` over the scene, the frame and its own group 2):
+    /// composed with the clipmap's lookup and its bind group at group 3 when `regir`, as
+    /// before otherwise.
+    pub fn lighting_pipeline(
+        ctx: &RenderContext,
+        entry: &str,
+        own: &wgpu::BindGroupLayout,
+        regir: bool,
+    ) -> Result<wgpu::ComputePipeline> {
+        if !regir {
+            return ctx.pipeline(entry, own);
+        }
+        pipelines::compute_pipeline(
+            ctx.gpu,
+            &ctx.shaders.with_defs(&lookup_defs(3)),
+            entry,
+            &[
+                &ctx.scene.layout,
+                ctx.frame_layout,
+                own,
+                &Self::layout(ctx.gpu),
+            ],
+        )
+    }
+
+    /// The clipmap's geometry for this scene: finest cell edge and level count.
+    pub fn geometry(f: &SceneFeatures) -> (f32, u32) {
+        let lo = glam::Vec3::from(f.bounds_min);
+        let hi = glam::Vec3::from(f.bounds_max);
+        let diag = (hi - lo).length().max(1e-3);
+        let cell = diag / 48.0;
+        // The coarsest window (DIMS cells of cell * 2^(levels-1)) spans twice the diagonal.
+        let mut levels = 1;
+        while levels < 8 && DIMS as f32 * cell * ((1u32 << (levels - 1)) as f32) < 2.0 * diag {
+            levels += 1;
+        }
+        (cell, levels)
+    }
+
+    /// Buffers for this scene and these settings (kept while their sizes hold; the marks and
+    /// counters start from zero when they are made).
+    pub fn build_resources(&mut self, gpu: &Gpu, s: &WorldRegirSettings, f: &SceneFeatures) {
+        let (cell_size, levels) = Self::geometry(f);
+        let cells = levels as u64 * (DIMS as u64).pow(3);
+        let gpu_params = WorldRegirParamsGpu {
+            cell_size,
+            levels,
+            dims: DIMS,
+            slots: s.slots,
+            lookup_candidates: s.lookup_candidates,
+            keep_frames: KEEP_FRAMES,
+            pad: [0; 2],
+        };
+        let slot_bytes = cells * s.slots as u64 * SLOT_BYTES;
+        let cell_bytes = (2 * cells + 2) * 4;
+        let keep = matches!(&self.buffers, Some(b) if b.slots.size() == slot_bytes.max(16) && b.cells.size() == cell_bytes.max(16));
+        if !keep {
+            let params = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("world regir params"),
+                size: std::mem::size_of::<WorldRegirParamsGpu>() as u64,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            let slots = pipelines::storage_buffer(gpu, "world regir slots", slot_bytes);
+            let cells_buf = pipelines::storage_buffer(gpu, "world regir cells", cell_bytes);
+            let bind_group = pipelines::buffers_bind_group(
+                gpu,
+                "world regir",
+                &Self::layout(gpu),
+                &[&params, &slots, &cells_buf],
+            );
+            self.buffers = Some(Buffers {
+                params,
+                slots,
+                cells: cells_buf,
+                bind_group,
+                gpu_params,
+            });
+        }
+        if let Some(b) = self.buffers.as_mut() {
+            b.gpu_params = gpu_params;
+            gpu.queue
+                .write_buffer(&b.params, 0, bytemuck::bytes_of(&b.gpu_params));
+        }
+    }
+
+    /// The bind group a consumer binds at its `WORLD_REGIR_GROUP`.
+    pub fn bind_group(&self) -> Option<&wgpu::BindGroup> {
+        self.buffers.as_ref().map(|b| &b.bind_group)
+    }
+
+    fn cell_count(&self) -> u64 {
+        self.buffers.as_ref().map_or(0, |b| {
+            b.gpu_params.levels as u64 * (b.gpu_params.dims as u64).pow(3)
+        })
+    }
+
+    /// This frame's build, before the consumer's lookups: clears the built flags, then fills the
+    /// marked cells. `active` false (few lights: rule 3) only clears, so every lookup falls
+    /// back to power sampling.
+    fn record(
+        &self,
+        ctx: &RenderContext,
+        enc: &mut wgpu::CommandEncoder,
+        timer: &mut PassTimer,
+        active: bool,
+    ) {
+        let (Some(pipeline), Some(b)) = (&self.pipeline, &self.buffers) else {
+            return;
+        };
+        let cells = self.cell_count();
+        enc.clear_buffer(&b.cells, cells * 4, Some(cells * 4));
+        if !active {
+            return;
+        }
+        let invocations = cells as u32 * b.gpu_params.slots;
+        pipelines::technique_pass(
+            ctx,
+            enc,
+            timer,
+            PASS,
+            pipeline,
+            &[&b.bind_group],
+            [invocations.div_ceil(64), 1, 1],
+        );
+    }
+
+    /// A consumer's call before its lighting pass: when that pass's pipeline reads the
+    /// clipmap (`composed`), records this frame's build (`many_lights` false: only clears, see
+    /// [`Self::record`]) and returns the bind group to set at group 3.
+    pub fn record_for_pass(
+        &self,
+        ctx: &RenderContext,
+        enc: &mut wgpu::CommandEncoder,
+        timer: &mut PassTimer,
+        composed: bool,
+        many_lights: bool,
+    ) -> Option<&wgpu::BindGroup> {
+        let group = self.bind_group().filter(|_| composed)?;
+        self.record(ctx, enc, timer, many_lights);
+        Some(group)
+    }
+
+    /// Lookups and served lookups since the buffers were made (reads the GPU: tests and
+    /// reports). Marks and counters survive a history reset: they say where to build, not
+    /// what the light is.
+    pub fn coverage(&self, gpu: &Gpu) -> Result<Coverage> {
+        let Some(b) = &self.buffers else {
+            return Ok(Coverage::default());
+        };
+        let words: Vec<u32> =
+            readback::read_buffer(gpu, &b.cells, (2 * self.cell_count() + 2) as usize)?;
+        let n = words.len();
+        Ok(Coverage {
+            lookups: words[n - 2] as u64,
+            served: words[n - 1] as u64,
+        })
+    }
+
+    /// The build pass, for the consumer's pass list.
+    pub fn pass_info(s: &WorldRegirSettings, f: &SceneFeatures) -> PassInfo {
+        let runs = s.regir && f.many_lights;
+        let (cell, levels) = Self::geometry(f);
+        PassInfo {
+            name: PASS,
+            runs,
+            why: if !s.regir {
+                "cache_direct = power: cache lights picked by power from the whole pool".into()
+            } else if runs {
+                format!(
+                    "{} lights: world ReGIR clipmap, {levels} levels of {DIMS}^3 cells from {cell:.3} units, {} reservoirs of {CANDIDATES_PER_SLOT} candidates per cell read in the last {KEEP_FRAMES} frames, {} per lookup",
+                    f.light_count(),
+                    s.slots,
+                    s.lookup_candidates
+                )
+            } else {
+                format!(
+                    "only {} lights: the cache picks lights by power, no clipmap",
+                    f.light_count()
+                )
+            },
+        }
+    }
+}
