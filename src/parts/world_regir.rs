@@ -38,6 +38,8 @@ pub const BUILD_FILE: &str = "parts/world_regir/build.wgsl";
 pub const SHADER_FILES: [&str; 1] = [BUILD_FILE];
 pub const PASS: &str = "cache regir";
 const SLOT_BYTES: u64 = crate::techniques::restir::REGIR_SLOT_BYTES;
+/// Pairs of lookup counters (`STAT_SLOTS` in shaders/parts/world_regir/shared.wgsl).
+const STAT_SLOTS: u64 = 64;
 
 /// The caches' light-sampling parameters: every family with a cache adds them to its own.
 pub const PARAMS: [ParamSpec; 3] = [
@@ -107,7 +109,7 @@ struct WorldRegirParamsGpu {
 struct Buffers {
     params: wgpu::Buffer,
     slots: wgpu::Buffer,
-    /// Marks, built flags, then the two lookup counters.
+    /// Marks, built flags, then the lookup counters.
     cells: wgpu::Buffer,
     bind_group: wgpu::BindGroup,
     gpu_params: WorldRegirParamsGpu,
@@ -229,7 +231,7 @@ impl WorldRegir {
             pad: [0; 2],
         };
         let slot_bytes = cells * s.slots as u64 * SLOT_BYTES;
-        let cell_bytes = (2 * cells + 2) * 4;
+        let cell_bytes = (2 * cells + 2 * STAT_SLOTS) * 4;
         let keep = matches!(&self.buffers, Some(b) if b.slots.size() == slot_bytes.max(16) && b.cells.size() == cell_bytes.max(16));
         if !keep {
             let params = gpu.device.create_buffer(&wgpu::BufferDescriptor {
@@ -325,12 +327,13 @@ impl WorldRegir {
         let Some(b) = &self.buffers else {
             return Ok(Coverage::default());
         };
+        let cells = self.cell_count() as usize;
         let words: Vec<u32> =
-            readback::read_buffer(gpu, &b.cells, (2 * self.cell_count() + 2) as usize)?;
-        let n = words.len();
+            readback::read_buffer(gpu, &b.cells, 2 * cells + 2 * STAT_SLOTS as usize)?;
+        let stats = &words[2 * cells..];
         Ok(Coverage {
-            lookups: words[n - 2] as u64,
-            served: words[n - 1] as u64,
+            lookups: stats.iter().step_by(2).map(|&w| w as u64).sum(),
+            served: stats.iter().skip(1).step_by(2).map(|&w| w as u64).sum(),
         })
     }
 

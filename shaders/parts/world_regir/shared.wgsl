@@ -37,8 +37,11 @@ struct WorldRegirParams {
 @group(#{WORLD_REGIR_GROUP}) @binding(0) var<uniform> world_regir: WorldRegirParams;
 @group(#{WORLD_REGIR_GROUP}) @binding(1) var<storage, read_write> world_regir_slots: array<RegirSlot>;
 // [0, cells): frame + 1 when a lookup last read the cell; [cells, 2 cells): 1 when built this
-// frame (cleared every frame); then two counters: lookups, and lookups a built cell served.
+// frame (cleared every frame); then STAT_SLOTS pairs of counters (lookups, lookups a built cell
+// served), spread over slots so that a frame's lookups do not all hit one address.
 @group(#{WORLD_REGIR_GROUP}) @binding(2) var<storage, read_write> world_regir_cells: array<atomic<u32>>;
+
+const STAT_SLOTS: u32 = 64u;
 
 fn world_regir_cell_count() -> u32 {
     let d = world_regir.dims;
@@ -100,17 +103,21 @@ fn world_regir_light(p: vec3<f32>, n: vec3<f32>, rng: ptr<function, Rng>) -> Wor
     var out: WorldRegirLight;
     out.served = false;
     let total = world_regir_cell_count();
-    atomicAdd(&world_regir_cells[2u * total], 1u);
     let cell = world_regir_cell(p);
+    let stat = 2u * total + 2u * (u32(max(cell, 0)) % STAT_SLOTS);
+    atomicAdd(&world_regir_cells[stat], 1u);
     if cell < 0 {
         return out;
     }
     let ci = u32(cell);
-    atomicStore(&world_regir_cells[ci], frame.frame_index + 1u);
+    // Most lookups find their cell already marked this frame: a load spares the store.
+    if atomicLoad(&world_regir_cells[ci]) != frame.frame_index + 1u {
+        atomicStore(&world_regir_cells[ci], frame.frame_index + 1u);
+    }
     if atomicLoad(&world_regir_cells[total + ci]) == 0u {
         return out;
     }
-    atomicAdd(&world_regir_cells[2u * total + 1u], 1u);
+    atomicAdd(&world_regir_cells[stat + 1u], 1u);
     out.served = true;
     let m = max(world_regir.lookup_candidates, 1u);
     let s = world_regir.slots;
