@@ -33,7 +33,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let bounces = settings.bounces;
         for (var bounce = 0u; bounce <= bounces; bounce++) {
             let hit = trace_closest(origin, dir, 0.0, 1e30);
-            counts[select(RAY_INDIRECT, RAY_CAMERA, bounce == 0u)] += 1u;
+            if bounce == 0u {
+                counts[RAY_CAMERA] += 1u;
+            } else {
+                counts[RAY_INDIRECT] += 1u;
+            }
             if hit.tri == NO_HIT {
                 break;
             }

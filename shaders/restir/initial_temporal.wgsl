@@ -143,32 +143,41 @@ fn drop_if_occluded(s: GSurface, r: ptr<function, Reservoir>, counts: ptr<functi
     }
 }
 
+// Class c's reservoir into the merge (its visibility tested first with per-class testing).
+fn merge_class(s: GSurface, r: ptr<function, Reservoir>, class_reservoir: Reservoir, test_each: bool, rng: ptr<function, Rng>, counts: ptr<function, array<u32, 16>>) {
+    var rc = class_reservoir;
+    if rc.m <= 0.0 {
+        return;
+    }
+    if test_each {
+        drop_if_occluded(s, &rc, counts);
+    }
+    update(r, rc, rc.target_pdf * rc.big_w, rc.m, rand(rng));
+}
+
 // One reservoir from the three class reservoirs. Their samples come from disjoint domains, so
 // each class is its own RIS estimator: the merge picks class c's sample with weight
 // p-hat(y_c) W_c, and W = sum of the weights / p-hat(y). M is the total candidate count.
+// The classes are three variables merged by three calls, not a loop over a private array: an
+// array indexed by a variable lives in local memory on NVIDIA GPUs (slow; see gilab::counters).
 fn initial_candidates(s: GSurface, rng: ptr<function, Rng>, counts: ptr<function, array<u32, 16>>) -> Reservoir {
-    var classes = array<Reservoir, 3>(empty_reservoir(), empty_reservoir(), empty_reservoir());
+    var local_class = empty_reservoir();
+    var directional_class = empty_reservoir();
+    var sky_class = empty_reservoir();
     if params.candidates > 0u {
-        classes[0] = local_candidates(s, rng);
+        local_class = local_candidates(s, rng);
     }
     if params.directional_candidates > 0u {
-        classes[1] = directional_candidates(s, rng);
+        directional_class = directional_candidates(s, rng);
     }
     if params.sky_candidates > 0u {
-        classes[2] = sky_candidates(s, rng);
+        sky_class = sky_candidates(s, rng);
     }
     let test_each = params.candidate_visibility == VISIBILITY_PER_CLASS && params.unbiased == 0u;
     var r = empty_reservoir();
-    for (var c = 0u; c < 3u; c++) {
-        var rc = classes[c];
-        if rc.m <= 0.0 {
-            continue;
-        }
-        if test_each {
-            drop_if_occluded(s, &rc, counts);
-        }
-        update(&r, rc, rc.target_pdf * rc.big_w, rc.m, rand(rng));
-    }
+    merge_class(s, &r, local_class, test_each, rng, counts);
+    merge_class(s, &r, directional_class, test_each, rng, counts);
+    merge_class(s, &r, sky_class, test_each, rng, counts);
     r.target_pdf = target_at(s, r);
     if r.target_pdf > 0.0 {
         r.big_w = r.w_sum / r.target_pdf;

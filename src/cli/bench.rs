@@ -490,6 +490,12 @@ pub fn preset(
         crate::gpu::calibrate::Calibration::new(&gpu, &ShaderLibrary::discover())?;
     let mut out = Vec::new();
     let [w, h] = p.preset.render.size;
+    // Timed as experiments time them: debug-only work off unless the preset asks for it.
+    let mut timed = p.clone();
+    for entry in &mut timed.preset.techniques {
+        *entry = crate::techniques::entry_for_timing(entry);
+    }
+    let p = &timed;
     for (i, entry) in p.preset.techniques.iter().enumerate() {
         let mut e = crate::jobs::engine_for_entry(gpu.clone(), p, i)?;
         let (before, warm_ms) = calibration.warm_up(&gpu)?;

@@ -453,13 +453,13 @@ fn run_one(
     bar: &indicatif::ProgressBar,
     calibration: &mut crate::gpu::calibrate::Calibration,
 ) -> Result<(Vec<Row>, RunSummary)> {
-    let entry = TechniqueEntry {
+    let entry = crate::techniques::entry_for_timing(&TechniqueEntry {
         name: spec.technique.clone(),
         label: Some(spec.label.clone()),
         params: spec.params.clone(),
         budget: spec.budget,
         denoise: spec.denoise,
-    };
+    });
     let settings = EngineSettings {
         extent: p.preset.render.size,
         seed: spec.seed,

@@ -59,6 +59,32 @@ pub fn create_technique(name: &str) -> Result<Box<dyn Technique>> {
     }
 }
 
+/// The entry as timed runs (`bench --preset`, `converge`) render it: work done only for the
+/// viewer's debug views (`debug_views`, where a technique has it) is switched off unless the
+/// preset sets it, so that no technique's frame time carries work the others do not do.
+pub fn entry_for_timing(entry: &crate::preset::TechniqueEntry) -> crate::preset::TechniqueEntry {
+    let mut timed = entry.clone();
+    let has_debug_work = REGISTRY
+        .iter()
+        .find(|t| t.id == entry.name)
+        .is_some_and(|t| {
+            (t.create)()
+                .param_set()
+                .specs()
+                .iter()
+                .any(|s| s.name == DEBUG_VIEWS)
+        });
+    if has_debug_work && !timed.params.contains_key(DEBUG_VIEWS) {
+        timed
+            .params
+            .insert(DEBUG_VIEWS.into(), toml::Value::Boolean(false));
+    }
+    timed
+}
+
+/// The parameter that switches debug-only work on (on by default, for the viewer).
+pub const DEBUG_VIEWS: &str = "debug_views";
+
 /// Every technique's parameter table in Markdown (`gilab params`; docs/parameters.md).
 pub fn params_markdown() -> String {
     let mut out = String::new();
