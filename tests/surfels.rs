@@ -326,7 +326,20 @@ fn pool_invariants_hold_through_moves_and_resets() {
     assert_eq!(p.live, 0);
     frames(&mut e, 4);
     check(&e, "after reset and frames");
-    eprintln!("pool of 1024: peak live {peak}, recycled (sampled frames) {recycled}");
+    // Gathers read each cell's list in slot order (determinism; shaders/surfels/sort_cells.wgsl).
+    let lists = surfels(&e).cell_lists(&e.gpu).unwrap();
+    let longest = lists.iter().map(Vec::len).max().unwrap_or(0);
+    for l in &lists {
+        assert!(
+            l.windows(2).all(|w| w[0] < w[1]),
+            "cell list not sorted: {l:?}"
+        );
+    }
+    eprintln!(
+        "pool of 1024: peak live {peak}, recycled (sampled frames) {recycled}; {} cell lists, longest {longest}",
+        lists.len()
+    );
+    assert!(longest > 2, "lists too short to test the sort: {longest}");
     assert!(peak > 900, "the pool should fill: peak {peak}");
     assert!(recycled > 0, "recycling must run on a full pool");
 }

@@ -357,20 +357,23 @@ fn specular_sample(s: Surface, n: vec3<f32>, wo: vec3<f32>, u_lobe: f32, u: vec2
 // surface's specular energy in its albedo, as Lumen's card capture does ("approximate specular
 // by modifying albedo to account for the lost energy", shared/seeds/000).
 fn specular_albedo_average(s: Surface) -> vec3<f32> {
-    let r = array<f32, 6>(0.0, 0.2, 0.3, 0.5, 0.7, 1.0);
-    let a = array<f32, 6>(1.0, 0.996, 0.976, 0.882, 0.708, 0.409);
-    let b = array<f32, 6>(0.0476, 0.0434, 0.0355, 0.0187, 0.0086, 0.0028);
+    // The table's six rows (roughness, A, B), read by branches rather than from an array: an
+    // array indexed by a variable lives in local memory on NVIDIA GPUs (see gilab::counters).
     let x = clamp(sqrt(s.alpha), 0.0, 1.0);
-    var ea = a[5];
-    var eb = b[5];
-    for (var i = 0u; i < 5u; i++) {
-        if x <= r[i + 1u] {
-            let t = (x - r[i]) / (r[i + 1u] - r[i]);
-            ea = mix(a[i], a[i + 1u], t);
-            eb = mix(b[i], b[i + 1u], t);
-            break;
-        }
+    var e = vec2<f32>(0.409, 0.0028);
+    if x <= 0.2 {
+        e = mix(vec2<f32>(1.0, 0.0476), vec2<f32>(0.996, 0.0434), x / 0.2);
+    } else if x <= 0.3 {
+        e = mix(vec2<f32>(0.996, 0.0434), vec2<f32>(0.976, 0.0355), (x - 0.2) / (0.3 - 0.2));
+    } else if x <= 0.5 {
+        e = mix(vec2<f32>(0.976, 0.0355), vec2<f32>(0.882, 0.0187), (x - 0.3) / (0.5 - 0.3));
+    } else if x <= 0.7 {
+        e = mix(vec2<f32>(0.882, 0.0187), vec2<f32>(0.708, 0.0086), (x - 0.5) / (0.7 - 0.5));
+    } else if x <= 1.0 {
+        e = mix(vec2<f32>(0.708, 0.0086), vec2<f32>(0.409, 0.0028), (x - 0.7) / (1.0 - 0.7));
     }
+    let ea = e.x;
+    let eb = e.y;
     let f_x = spec_fresnel(s, 1.0);
     let f_y = spec_fresnel(s, 0.0) - f_x;
     return f_x * ea + f_y * eb;

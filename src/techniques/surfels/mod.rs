@@ -174,6 +174,7 @@ struct Resources {
     free_stack: wgpu::Buffer,
     cell_offsets: wgpu::Buffer,
     cell_cursor: wgpu::Buffer,
+    cell_surfels: wgpu::Buffer,
     states: wgpu::Buffer,
     debug: wgpu::Buffer,
     /// Direct light per pixel (this frame's; the NEE pass or the direct-light part writes it).
@@ -538,7 +539,7 @@ impl Surfels {
                 ray_offsets,
                 tile_pixel,
                 cell_cursor.clone(),
-                cell_surfels,
+                cell_surfels.clone(),
                 pool.clone(),
                 pixel_direct.clone(),
                 debug.clone(),
@@ -548,6 +549,7 @@ impl Surfels {
             pool,
             free_stack,
             cell_offsets,
+            cell_surfels,
             cell_cursor,
             states,
             debug,
@@ -575,6 +577,22 @@ impl Surfels {
             spawned_last_frame: words[3],
             recycled_last_frame: words[4],
         }))
+    }
+
+    /// The grid's cell lists as `sort_cells` left them: each cell's slots (tests: sorted).
+    pub fn cell_lists(&self, gpu: &Gpu) -> Result<Vec<Vec<u32>>> {
+        let Some(r) = &self.res else {
+            return Ok(Vec::new());
+        };
+        let offsets: Vec<u32> =
+            readback::read_buffer(gpu, &r.cell_offsets, GRID_CELLS as usize + 1)?;
+        let total = offsets[GRID_CELLS as usize] as usize;
+        let lists: Vec<u32> = readback::read_buffer(gpu, &r.cell_surfels, total.max(1))?;
+        Ok(offsets
+            .windows(2)
+            .filter(|w| w[1] > w[0])
+            .map(|w| lists[w[0] as usize..w[1] as usize].to_vec())
+            .collect())
     }
 
     /// This frame's direct light per pixel (no emission), as `apply` adds it.
