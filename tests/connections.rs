@@ -389,3 +389,45 @@ fn surfel_hits_lit_by_regir() {
     assert!(coverage.served_share() > 0.7, "{coverage:?}");
     assert_eq!(regir.rgb, again.rgb, "same seed, different image");
 }
+
+/// ReSTIR GI's paths that end in a cache can have that cache lit by the world ReGIR clipmap
+/// (`cache_direct = "regir"`, the part Lumen and the surfels use themselves), for both caches:
+/// on many-lights the clipmap serves the cache's light lookups, the image stays finite, and
+/// its energy agrees with the power-sampled cache's.
+#[test]
+fn restir_gi_caches_lit_by_regir() {
+    for terminate in ["lumen-cards", "surfels"] {
+        let render = |mode: &str| {
+            // many-lights' 1,050 objects need a 512² atlas.
+            let mut t = params_atlas(terminate, 1, 512);
+            t.insert("cache_direct".into(), mode.into());
+            let (img, _, e) = run(t, builtin::many_lights(1024, 7), [32, 32], 3, 2, 5);
+            let coverage = e.inspect(|ctx, t| {
+                let any: &dyn std::any::Any = t.as_any();
+                any.downcast_ref::<gilab::techniques::restir::Restir>()
+                    .unwrap()
+                    .lighting
+                    .gi_cache_regir_coverage(ctx.gpu)
+                    .unwrap()
+                    .expect("the paths end in a cache")
+            });
+            (img, coverage)
+        };
+        let (power, unused) = render("power");
+        let (regir, coverage) = render("regir");
+        let (ep, er) = (energy(&power), energy(&regir));
+        eprintln!(
+            "restir, gi_terminate = {terminate}, many-lights 32², 3 + 2 frames: energy {ep:.4} (cache lit by power) vs {er:.4} (by ReGIR, {:+.2}%); clipmap served {} of {} lookups",
+            (er / ep - 1.0) * 100.0,
+            coverage.served,
+            coverage.lookups
+        );
+        assert_eq!(regir.non_finite_count(), 0, "{terminate}");
+        assert_eq!(
+            unused.lookups, 0,
+            "{terminate}: power sampling read the clipmap"
+        );
+        assert!(coverage.served_share() > 0.5, "{terminate}: {coverage:?}");
+        assert!((er / ep - 1.0).abs() < 0.1, "{terminate}: {er} vs {ep}");
+    }
+}

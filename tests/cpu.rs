@@ -1476,3 +1476,189 @@ fn instanced_bvh_matches_brute_force() {
         }
     }
 }
+
+/// glTF animations posed at a time (issue 36): the box room with an animation added in the
+/// test. "slide" moves the panel (LINEAR translation), turns the cube (LINEAR rotation, slerp)
+/// and carries the lamp (CUBICSPLINE translation); "blink" scales the cube (STEP). At
+/// t = 0.5 s the nodes hold hand-computed values, and the scene equals, bit for bit, the same
+/// file with those transforms written into its nodes and no animation.
+#[test]
+fn gltf_animation_poses_nodes() {
+    use gilab::scene::animation::PoseRequest;
+    use glam::{Quat, Vec4};
+    let dir = std::env::temp_dir().join(format!("gilab-anim-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let text = std::fs::read_to_string("scenes/box-room/box-room.gltf").unwrap();
+    let base: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let quat_y = |deg: f32| Quat::from_rotation_y(deg.to_radians());
+    let (r0, r1) = (quat_y(45.0), quat_y(135.0));
+    // Keyframe data, one accessor each: (floats, components, type).
+    let f = |v: &[f32]| v.to_vec();
+    let data: Vec<(Vec<f32>, usize, &str)> = vec![
+        (f(&[0.0, 2.0]), 1, "SCALAR"),
+        (f(&[0.0, 3.0, 0.0, 2.0, 3.0, 0.0]), 3, "VEC3"),
+        ([r0.to_array(), r1.to_array()].concat(), 4, "VEC4"),
+        // CUBICSPLINE: in-tangent, value, out-tangent per key.
+        (
+            f(&[
+                0.0, 0.0, 0.0, -1.5, 1.5, 1.0, 1.0, 0.0, 0.0, //
+                -1.0, 0.0, 0.0, 0.5, 1.5, 1.0, 0.0, 0.0, 0.0,
+            ]),
+            3,
+            "VEC3",
+        ),
+        (f(&[0.0, 0.25, 1.0]), 1, "SCALAR"),
+        (f(&[1.5, 1.5, 1.5, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5]), 3, "VEC3"),
+    ];
+    let mut doc = base.clone();
+    let mut bytes = Vec::new();
+    let buffer = doc["buffers"].as_array().unwrap().len();
+    let first_accessor = doc["accessors"].as_array().unwrap().len();
+    for (floats, comps, ty) in &data {
+        let offset = bytes.len();
+        bytes.extend(floats.iter().flat_map(|x| x.to_le_bytes()));
+        let view = doc["bufferViews"].as_array().unwrap().len();
+        doc["bufferViews"]
+            .as_array_mut()
+            .unwrap()
+            .push(serde_json::json!({
+                "buffer": buffer, "byteOffset": offset, "byteLength": floats.len() * 4
+            }));
+        let mut acc = serde_json::json!({
+            "bufferView": view, "componentType": 5126, "count": floats.len() / comps, "type": ty
+        });
+        if *ty == "SCALAR" {
+            acc["min"] = serde_json::json!([floats[0]]);
+            acc["max"] = serde_json::json!([floats[floats.len() - 1]]);
+        }
+        doc["accessors"].as_array_mut().unwrap().push(acc);
+    }
+    doc["buffers"]
+        .as_array_mut()
+        .unwrap()
+        .push(serde_json::json!({
+            "byteLength": bytes.len(),
+            "uri": format!("data:application/octet-stream;base64,{}", base64_decode::encode(&bytes))
+        }));
+    let a = |i: usize| first_accessor + i;
+    // Nodes: 2 panel, 3 cube, 4 lamp.
+    doc["animations"] = serde_json::json!([
+        {
+            "name": "slide",
+            "samplers": [
+                {"input": a(0), "output": a(1), "interpolation": "LINEAR"},
+                {"input": a(0), "output": a(2), "interpolation": "LINEAR"},
+                {"input": a(0), "output": a(3), "interpolation": "CUBICSPLINE"}
+            ],
+            "channels": [
+                {"sampler": 0, "target": {"node": 2, "path": "translation"}},
+                {"sampler": 1, "target": {"node": 3, "path": "rotation"}},
+                {"sampler": 2, "target": {"node": 4, "path": "translation"}}
+            ]
+        },
+        {
+            "name": "blink",
+            "samplers": [{"input": a(4), "output": a(5), "interpolation": "STEP"}],
+            "channels": [{"sampler": 0, "target": {"node": 3, "path": "scale"}}]
+        }
+    ]);
+    let animated = dir.join("animated.gltf");
+    std::fs::write(&animated, doc.to_string()).unwrap();
+    let pose = |time: f32, clip: Option<&str>| {
+        gltf_load::load_posed(
+            &animated,
+            false,
+            Some(&PoseRequest {
+                time,
+                clip: clip.map(str::to_string),
+            }),
+        )
+    };
+    let rest = gltf_load::load(&animated).unwrap();
+    assert_eq!(rest.animations.len(), 2);
+    assert_eq!(rest.animations[0].name, "slide");
+    assert_eq!(rest.animations[0].duration, 2.0);
+    let posed = pose(0.5, None).unwrap();
+
+    // By hand at t = 0.5 (u = 0.25 of [0, 2]): the panel 0.5 along x; the cube turned 67.5°
+    // (a quarter of the way from 45° to 135°) and scaled 0.5 (STEP: the key at 0.25); the lamp
+    // on the Hermite curve: x = -1.5 h00 + 1 * 2 h10 + 0.5 h01 + (-1) * 2 h11 with h00 =
+    // 0.84375, h10 = 0.140625, h01 = 0.15625, h11 = -0.046875, so -0.8125.
+    let panel_vertex = |s: &gilab::scene::Scene| {
+        let t = (0..s.triangles.len())
+            .find(|&t| s.materials[s.triangle_material[t] as usize].name == "panel light")
+            .unwrap();
+        s.positions[s.triangles[t][0] as usize]
+    };
+    let panel_shift = panel_vertex(&posed) - panel_vertex(&rest);
+    assert!(
+        (panel_shift - Vec3::new(0.5, 0.0, 0.0)).length() < 1e-5,
+        "{panel_shift}"
+    );
+    let lamp = posed.lights[0].position;
+    assert!(
+        (lamp - Vec3::new(-0.8125, 1.5, 1.0)).length() < 1e-5,
+        "{lamp}"
+    );
+    assert_eq!(posed.posed_at, Some(0.5));
+
+    // The same file with the sampled transforms written into the nodes, no animation.
+    let clips = {
+        // The library's own samples, so that the written floats are the ones it posed with.
+        use gilab::scene::animation::{Interpolation, Keyframes, Property};
+        let s = |k: usize, i| {
+            let (v, comps, _) = &data[k];
+            let vals: Vec<Vec4> = v
+                .chunks(*comps)
+                .map(|c| {
+                    Vec4::new(
+                        c[0],
+                        *c.get(1).unwrap_or(&0.0),
+                        *c.get(2).unwrap_or(&0.0),
+                        *c.get(3).unwrap_or(&0.0),
+                    )
+                })
+                .collect();
+            Keyframes::new(data[if k == 5 { 4 } else { 0 }].0.clone(), vals, i).unwrap()
+        };
+        (
+            s(1, Interpolation::Linear).sample(0.5, Property::Translation),
+            s(2, Interpolation::Linear).sample(0.5, Property::Rotation),
+            s(3, Interpolation::CubicSpline).sample(0.5, Property::Translation),
+            s(5, Interpolation::Step).sample(0.5, Property::Scale),
+        )
+    };
+    let (panel_t, cube_r, lamp_t, cube_s) = clips;
+    let expect_r = quat_y(67.5);
+    assert!(
+        Quat::from_vec4(cube_r).abs_diff_eq(expect_r, 1e-6),
+        "{cube_r}"
+    );
+    assert_eq!(cube_s.truncate(), Vec3::splat(0.5));
+    let mut baked = base;
+    baked["nodes"][2]["translation"] = serde_json::json!(panel_t.truncate().to_array());
+    baked["nodes"][3]["rotation"] = serde_json::json!(cube_r.to_array());
+    baked["nodes"][3]["scale"] = serde_json::json!(cube_s.truncate().to_array());
+    baked["nodes"][4]["translation"] = serde_json::json!(lamp_t.truncate().to_array());
+    let baked_path = dir.join("baked.gltf");
+    std::fs::write(&baked_path, baked.to_string()).unwrap();
+    let baked = gltf_load::load(&baked_path).unwrap();
+    assert_eq!(
+        posed.positions, baked.positions,
+        "posed geometry differs from the baked file"
+    );
+    assert_eq!(posed.normals, baked.normals);
+    assert_eq!(posed.lights, baked.lights);
+    assert_ne!(posed.positions, rest.positions);
+
+    // One clip alone: "blink" scales the cube; the panel stays where the file put it.
+    let blink = pose(0.5, Some("blink")).unwrap();
+    assert_eq!(panel_vertex(&blink), panel_vertex(&rest));
+    // Looping: "blink" lasts 1 s, so 1.5 s poses it as 0.5 s does.
+    assert_eq!(pose(1.5, Some("blink")).unwrap().positions, blink.positions);
+    let err = format!("{:#}", pose(0.5, Some("walk")).unwrap_err());
+    assert!(
+        err.contains("walk") && err.contains("slide, blink"),
+        "{err}"
+    );
+}

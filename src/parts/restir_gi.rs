@@ -6,6 +6,7 @@
 //! through [`RestirGi::layout`] at its group 2 (`gilab::restir`'s bindings).
 
 use crate::gpu::{timing::PassTimer, Gpu};
+use crate::parts::world_regir::WorldRegirSettings;
 use crate::render::params::Params;
 use crate::render::{PassInfo, RenderContext};
 use crate::scene::features::SceneFeatures;
@@ -22,7 +23,11 @@ pub struct RestirGi {
 impl Default for RestirGi {
     fn default() -> Self {
         RestirGi {
-            lighting: RestirLighting::new(Self::settings(false, GiTerminate::Path)),
+            lighting: RestirLighting::new(Self::settings(
+                false,
+                GiTerminate::Path,
+                WorldRegirSettings::from_params(&Params::new("restir", restir::PARAMS)),
+            )),
             built: false,
         }
     }
@@ -30,8 +35,13 @@ impl Default for RestirGi {
 
 impl RestirGi {
     /// ReSTIR's defaults with GI only: no DI candidates of any class (no DI passes run), no
-    /// ReGIR; sample paths end where `terminate` says.
-    pub fn settings(gi: bool, terminate: GiTerminate) -> RestirSettings {
+    /// ReGIR; sample paths end where `terminate` says, in a cache that picks its lights as
+    /// `cache_light` says.
+    pub fn settings(
+        gi: bool,
+        terminate: GiTerminate,
+        cache_light: WorldRegirSettings,
+    ) -> RestirSettings {
         let mut s = RestirSettings::from_params(&Params::new("restir", restir::PARAMS));
         s.candidates = 0;
         s.directional_candidates = 0;
@@ -39,12 +49,14 @@ impl RestirGi {
         s.regir = false;
         s.gi = gi;
         s.gi_terminate = terminate;
+        s.cache_light = cache_light;
         s
     }
 
-    /// Takes the family's `gi` and `gi_terminate` (the pass list reads them before `prepare`).
-    pub fn configure(&mut self, gi: bool, terminate: GiTerminate) {
-        self.lighting.settings = Self::settings(gi, terminate);
+    /// Takes the family's `gi`, `gi_terminate` and `cache_direct` (the pass list reads them
+    /// before `prepare`).
+    pub fn configure(&mut self, gi: bool, terminate: GiTerminate, cache_light: WorldRegirSettings) {
+        self.lighting.settings = Self::settings(gi, terminate, cache_light);
     }
 
     /// Builds ReSTIR's pipelines when `gi` is on and they are not built yet (or `rebuild`: a

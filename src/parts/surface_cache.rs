@@ -13,6 +13,7 @@
 //! share one, so each pane's timings include its own cache work (fair for A/B timing).
 
 use crate::gpu::{timing::PassTimer, Gpu};
+use crate::parts::world_regir::WorldRegirSettings;
 use crate::render::{pipelines, PassInfo, RenderContext, Technique};
 use crate::scene::features::SceneFeatures;
 use crate::techniques::lumen::Lumen;
@@ -39,10 +40,11 @@ impl SurfaceCache {
     /// A cache with `atlas_size`² texels that relights `update` of them (a fraction) per
     /// frame, direct and indirect light each; traced through the BVH (`tracing = "bvh"`: the
     /// connection then measures the cache, not the distance field's approximation).
-    pub fn new(atlas_size: u32, update: f32) -> Result<SurfaceCache> {
+    pub fn new(atlas_size: u32, update: f32, light: WorldRegirSettings) -> Result<SurfaceCache> {
         let mut lumen = Lumen::surface_cache();
         let texels = Self::budget(update) as i64;
-        let mut t = toml::Table::new();
+        // Its texels pick their lights as the holder's `cache_direct` says.
+        let mut t = light.to_table();
         t.insert("atlas_size".into(), (atlas_size as i64).into());
         t.insert("tracing".into(), "bvh".into());
         t.insert("direct_texels_per_frame".into(), texels.into());
@@ -58,6 +60,16 @@ impl SurfaceCache {
     /// budgets are for a 4096² atlas and scale with the atlas's area.
     pub fn budget(update: f32) -> u32 {
         ((update.clamp(0.0, 1.0) as f64 * 4096.0 * 4096.0).round() as u32).max(1)
+    }
+
+    /// The world ReGIR clipmap's lookup counts (`cache_direct = "regir"`; tests).
+    pub fn cache_regir_coverage(&self, gpu: &Gpu) -> Result<crate::parts::world_regir::Coverage> {
+        self.lumen.cache_regir_coverage(gpu)
+    }
+
+    /// How its texels pick their lights (`cache_direct`).
+    pub fn cache_light(&self) -> WorldRegirSettings {
+        self.lumen.settings.cache_light
     }
 
     /// (atlas size, texel budget) it was made with.

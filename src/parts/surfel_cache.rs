@@ -11,6 +11,7 @@
 //! ray continues as a path). Each engine entry holds its own cache, as with the surface cache.
 
 use crate::gpu::{timing::PassTimer, Gpu};
+use crate::parts::world_regir::WorldRegirSettings;
 use crate::render::{PassInfo, RenderContext, Technique};
 use crate::scene::features::SceneFeatures;
 use crate::techniques::surfels::{self, Surfels};
@@ -28,16 +29,27 @@ pub struct SurfelCache {
 
 impl SurfelCache {
     /// A cache of surfels that trace `ray_budget` rays per frame (the `surfels` technique's
-    /// `ray_budget`), its other settings the technique's defaults.
-    pub fn new(ray_budget: u32) -> Result<SurfelCache> {
+    /// `ray_budget`), whose ray hits pick their lights as `light` says (`cache_direct`), its
+    /// other settings the technique's defaults.
+    pub fn new(ray_budget: u32, light: WorldRegirSettings) -> Result<SurfelCache> {
         let mut surfels = Surfels::surfel_cache();
-        let mut t = toml::Table::new();
+        let mut t = light.to_table();
         t.insert("ray_budget".into(), (ray_budget as i64).into());
         surfels.set_params(&t)?;
         Ok(SurfelCache {
             surfels,
             ray_budget,
         })
+    }
+
+    /// The world ReGIR clipmap's lookup counts (`cache_direct = "regir"`; tests).
+    pub fn cache_regir_coverage(&self, gpu: &Gpu) -> Result<crate::parts::world_regir::Coverage> {
+        self.surfels.cache_regir_coverage(gpu)
+    }
+
+    /// How its ray hits pick their lights (`cache_direct`).
+    pub fn cache_light(&self) -> WorldRegirSettings {
+        self.surfels.settings.cache_light
     }
 
     /// The ray budget it was made with.

@@ -78,6 +78,22 @@ pub struct WorldRegirSettings {
 }
 
 impl WorldRegirSettings {
+    /// These settings as the parameter table's entries, for a family that hands them to a
+    /// cache it holds (ReSTIR GI's termination caches).
+    pub fn to_table(self) -> toml::Table {
+        let mut t = toml::Table::new();
+        t.insert(
+            "cache_direct".into(),
+            if self.regir { "regir" } else { "power" }.into(),
+        );
+        t.insert("cache_regir_slots".into(), (self.slots as i64).into());
+        t.insert(
+            "cache_regir_candidates".into(),
+            (self.lookup_candidates as i64).into(),
+        );
+        t
+    }
+
     pub fn from_params(p: &Params) -> WorldRegirSettings {
         WorldRegirSettings {
             regir: p.u32("cache_direct") == 1,

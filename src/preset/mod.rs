@@ -5,6 +5,7 @@
 
 pub mod experiment;
 
+use crate::scene::animation::PoseRequest;
 use crate::scene::environment::Environment;
 use crate::scene::shading::ShadingSettings;
 use crate::scene::{builtin, gltf_load, Camera, Scene};
@@ -190,6 +191,17 @@ pub struct SceneRef {
     /// two-level BVH: to compare the two on the same scene.
     #[serde(default = "yes", skip_serializing_if = "is_true")]
     pub instancing: bool,
+    /// Seconds into the scene's animations to pose it at (glTF files); unset: the rest pose.
+    /// `--set scene.time=T` renders one pose, so a reference exists for any frame.
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "time_f32"
+    )]
+    pub time: Option<f32>,
+    /// The one animation (glTF clip name) that plays; unset: every one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub animation: Option<String>,
 }
 
 fn yes() -> bool {
@@ -216,6 +228,15 @@ fn rotation_f32<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<f
         )));
     }
     Ok(v as f32)
+}
+fn time_f32<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Option<f32>, D::Error> {
+    let v = f64::deserialize(d)?;
+    if !v.is_finite() {
+        return Err(serde::de::Error::custom(format!(
+            "time {v}: expected a finite number of seconds"
+        )));
+    }
+    Ok(Some(v as f32))
 }
 fn intensity_f32<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<f32, D::Error> {
     let v = f64::deserialize(d)?;
@@ -548,6 +569,7 @@ impl LoadedPreset {
     fn load_scene_as_authored(&self) -> Result<Scene> {
         let src = &self.preset.scene.source;
         let Some(path) = self.scene_path() else {
+            self.refuse_pose_of_builtin()?;
             return builtin::build(src, &self.preset.scene.params);
         };
         let ext = path
@@ -558,6 +580,7 @@ impl LoadedPreset {
         if ext != "gltf" && ext != "glb" {
             if !path.exists() {
                 // Most likely a misspelt built-in name.
+                self.refuse_pose_of_builtin()?;
                 return builtin::build(src, &self.preset.scene.params);
             }
             bail!(
@@ -571,7 +594,25 @@ impl LoadedPreset {
                 path.display()
             );
         }
-        gltf_load::load_lit(&path, self.preset.scene.environment.is_some())
+        let s = &self.preset.scene;
+        let pose = (s.time.is_some() || s.animation.is_some()).then(|| PoseRequest {
+            time: s.time.unwrap_or(0.0),
+            clip: s.animation.clone(),
+        });
+        gltf_load::load_posed(&path, s.environment.is_some(), pose.as_ref())
+    }
+
+    /// `scene.time` and `scene.animation` pose a glTF file's animations: built-in scenes have
+    /// none, and a pose that would silently change nothing is refused.
+    fn refuse_pose_of_builtin(&self) -> Result<()> {
+        let s = &self.preset.scene;
+        if s.time.is_some() || s.animation.is_some() {
+            bail!(
+                "scene.time and scene.animation pose a glTF file's animations; the built-in scene '{}' has none",
+                s.source
+            );
+        }
+        Ok(())
     }
 
     pub fn camera(&self, scene: &Scene) -> Camera {

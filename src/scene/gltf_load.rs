@@ -37,6 +37,9 @@ use super::{
     tangents, AlphaMode, Camera, Material, MeshInstance, PunctualKind, PunctualLight, Sampler,
     Scene, Texture, TextureRef, UvTransform, Wrap,
 };
+use crate::scene::animation::{
+    posed_locals, Clip, ClipInfo, Interpolation, Keyframes, PoseRequest, Property, Track, Trs,
+};
 use anyhow::{anyhow, bail, Context, Result};
 use glam::{Mat3, Mat4, Quat, Vec2, Vec3, Vec4};
 use std::collections::HashMap;
@@ -49,7 +52,15 @@ pub fn load(path: &Path) -> Result<Scene> {
 /// `load`, told whether an environment map will light the scene (a preset's
 /// `scene.environment`): then a file without lights gets no default sky and no warning.
 pub fn load_lit(path: &Path, environment: bool) -> Result<Scene> {
-    load_inner(path, environment)
+    load_posed(path, environment, None)
+}
+
+/// `load_lit` with the file's animations posed at a time (`[scene] time` and `animation`):
+/// every animated node takes the local transform its channels hold then, and the scene is
+/// built from those transforms exactly as from a file that stored them. None: the nodes'
+/// own (rest) transforms.
+pub fn load_posed(path: &Path, environment: bool, pose: Option<&PoseRequest>) -> Result<Scene> {
+    load_inner(path, environment, pose)
         .with_context(|| format!("cannot load glTF scene {}", path.display()))
 }
 
@@ -91,7 +102,7 @@ fn open(path: &Path) -> Result<(gltf::Document, Option<Vec<u8>>, Usage)> {
     Ok((doc, blob, usage))
 }
 
-fn load_inner(path: &Path, environment: bool) -> Result<Scene> {
+fn load_inner(path: &Path, environment: bool, pose: Option<&PoseRequest>) -> Result<Scene> {
     let (doc, blob, usage) = open(path)?;
     let base = path.parent();
     let buffers = gltf::import_buffers(&doc, base, blob).map_err(|e| anyhow!("{e}"))?;
@@ -187,6 +198,32 @@ fn load_inner(path: &Path, environment: bool) -> Result<Scene> {
             uses[mesh.index()] += 1 + node.extension_value(INSTANCING).is_some() as usize;
         }
     }
+    if doc.skins().next().is_some() {
+        log::warn!(
+            "{file}: skinned meshes are drawn in their bind pose (skinning is not supported)"
+        );
+    }
+    let clips = read_animations(&doc, &buffers, &file);
+    scene.animations = clips.iter().map(ClipInfo::of).collect();
+    let posed = match pose {
+        Some(p) => {
+            scene.posed_at = Some(p.time);
+            posed_locals(&clips, p, |n| rest_trs(&doc, n))?
+        }
+        None => HashMap::new(),
+    };
+    if pose.is_none() && !clips.is_empty() {
+        log::info!(
+            "{file}: {} animation(s) ({}), shown at the rest pose: [scene] time = T poses them",
+            clips.len(),
+            scene
+                .animations
+                .iter()
+                .map(|c| format!("'{}' {:.2} s", c.name, c.duration))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
     let mut cache: HashMap<usize, Vec<Primitive>> = HashMap::new();
     let mut stack: Vec<(gltf::Node, Mat4)> =
         gltf_scene.nodes().map(|n| (n, Mat4::IDENTITY)).collect();
@@ -196,7 +233,11 @@ fn load_inner(path: &Path, environment: bool) -> Result<Scene> {
         if visited > 1_000_000 {
             bail!("node hierarchy too deep or cyclic");
         }
-        let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
+        let local = match posed.get(&node.index()) {
+            Some(m) => *m,
+            None => local_matrix(&node),
+        };
+        let world = parent * local;
         if let Some(mesh) = node.mesh() {
             let transforms = match read_instances(&node, &doc, &buffers) {
                 Ok(Some(instances)) => instances.into_iter().map(|m| world * m).collect(),
@@ -286,6 +327,102 @@ fn load_inner(path: &Path, environment: bool) -> Result<Scene> {
     }
     scene.validate()?;
     Ok(scene)
+}
+
+/// A node's own transform. TRS nodes go through [`Trs::matrix`], as animated ones do, so a pose
+/// equals a file with the sampled TRS written into its nodes, bit for bit.
+fn local_matrix(node: &gltf::Node) -> Mat4 {
+    match node.transform() {
+        gltf::scene::Transform::Matrix { matrix } => Mat4::from_cols_array_2d(&matrix),
+        gltf::scene::Transform::Decomposed {
+            translation,
+            rotation,
+            scale,
+        } => Trs {
+            translation: Vec3::from_array(translation),
+            rotation: Quat::from_array(rotation),
+            scale: Vec3::from_array(scale),
+        }
+        .matrix(),
+    }
+}
+
+/// A node's own translation, rotation and scale (a node given by a matrix is decomposed: glTF
+/// allows only TRS on animated nodes).
+fn rest_trs(doc: &gltf::Document, node: usize) -> Trs {
+    let (t, r, s) = doc
+        .nodes()
+        .nth(node)
+        .map(|n| n.transform().decomposed())
+        .unwrap_or(([0.0; 3], [0.0, 0.0, 0.0, 1.0], [1.0; 3]));
+    Trs {
+        translation: Vec3::from_array(t),
+        rotation: Quat::from_array(r),
+        scale: Vec3::from_array(s),
+    }
+}
+
+/// The file's animations as clips of node tracks. Lenient: a channel that cannot be read (bad
+/// accessor, keys out of order, morph-target weights, which are not built) is skipped with a
+/// warning naming it; the rest of the animation plays.
+fn read_animations(doc: &gltf::Document, buffers: &[gltf::buffer::Data], file: &str) -> Vec<Clip> {
+    use gltf::animation::util::ReadOutputs;
+    let mut clips = Vec::new();
+    for anim in doc.animations() {
+        let name = anim
+            .name()
+            .map(str::to_string)
+            .unwrap_or_else(|| format!("animation {}", anim.index()));
+        let mut tracks = Vec::new();
+        for (c, ch) in anim.channels().enumerate() {
+            let reader = ch.reader(|b| buffers.get(b.index()).map(|d| &d[..]));
+            let interpolation = match ch.sampler().interpolation() {
+                gltf::animation::Interpolation::Step => Interpolation::Step,
+                gltf::animation::Interpolation::Linear => Interpolation::Linear,
+                gltf::animation::Interpolation::CubicSpline => Interpolation::CubicSpline,
+            };
+            let read = || -> Result<Option<Track>> {
+                let times: Vec<f32> = reader
+                    .read_inputs()
+                    .ok_or_else(|| anyhow!("its input accessor cannot be read"))?
+                    .collect();
+                let (property, values): (Property, Vec<Vec4>) = match reader
+                    .read_outputs()
+                    .ok_or_else(|| anyhow!("its output accessor cannot be read"))?
+                {
+                    ReadOutputs::Translations(it) => (
+                        Property::Translation,
+                        it.map(|v| Vec3::from_array(v).extend(0.0)).collect(),
+                    ),
+                    ReadOutputs::Scales(it) => (
+                        Property::Scale,
+                        it.map(|v| Vec3::from_array(v).extend(0.0)).collect(),
+                    ),
+                    ReadOutputs::Rotations(r) => (
+                        Property::Rotation,
+                        r.into_f32().map(Vec4::from_array).collect(),
+                    ),
+                    ReadOutputs::MorphTargetWeights(_) => return Ok(None),
+                };
+                Ok(Some(Track {
+                    node: ch.target().node().index(),
+                    property,
+                    keys: Keyframes::new(times, values, interpolation)?,
+                }))
+            };
+            match read() {
+                Ok(Some(t)) => tracks.push(t),
+                Ok(None) => log::warn!(
+                    "{file}: animation '{name}', channel {c}: morph-target weights are not supported: skipped"
+                ),
+                Err(e) => log::warn!("{file}: animation '{name}', channel {c} skipped: {e:#}"),
+            }
+        }
+        if !tracks.is_empty() {
+            clips.push(Clip { name, tracks });
+        }
+    }
+    clips
 }
 
 /// Radiance of the sky a glTF without any light source gets.

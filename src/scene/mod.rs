@@ -1,6 +1,7 @@
 //! Scenes: the CPU-side triangle soup every technique renders (world space, one material per
 //! triangle), loaded from glTF or built procedurally, plus its BVH, features and GPU upload.
 
+pub mod animation;
 pub mod atrium;
 pub mod builtin;
 pub mod bvh;
@@ -307,6 +308,10 @@ pub struct Scene {
     /// level over the instances (`bvh::Bvh::build_instanced`). Their triangles are also in
     /// `triangles` (shading reads the flattened world-space records).
     pub instances: Vec<MeshInstance>,
+    /// The file's animations (glTF clips), and the pose the scene was loaded at (`[scene]
+    /// time`, None: the rest pose). Playback over time is not built yet: a scene is posed once.
+    pub animations: Vec<animation::ClipInfo>,
+    pub posed_at: Option<f32>,
 }
 
 /// One placement of a mesh: scene triangles `first_triangle..first_triangle + triangle_count`

@@ -86,7 +86,7 @@ impl Default for CallistoShadows {
         CallistoShadows {
             restir: {
                 let mut gi = RestirGi::default();
-                gi.configure(settings.gi, settings.gi_terminate);
+                gi.configure(settings.gi, settings.gi_terminate, settings.cache_light);
                 gi
             },
             restir_direct: RestirDirect::default(),
@@ -152,8 +152,11 @@ impl CallistoShadows {
     /// Builds ReSTIR GI's pipelines when `gi` is on and they are not built yet; its resources
     /// (the bind group `resolve` needs) in any case.
     fn ensure_restir(&mut self, ctx: &RenderContext, rebuild_gi: bool) -> Result<()> {
-        self.restir
-            .configure(self.settings.gi, self.settings.gi_terminate);
+        self.restir.configure(
+            self.settings.gi,
+            self.settings.gi_terminate,
+            self.settings.cache_light,
+        );
         self.restir.prepare(ctx, rebuild_gi)?;
         if self.settings.direct_restir && !self.restir_direct.is_built() {
             self.restir_direct.build(ctx)?;
@@ -486,8 +489,11 @@ impl Technique for CallistoShadows {
         self.params.set("callisto-shadows", params)?;
         self.settings = CallistoSettings::from_params(&self.params);
         // The pass list reads ReSTIR's settings before `apply_params` runs.
-        self.restir
-            .configure(self.settings.gi, self.settings.gi_terminate);
+        self.restir.configure(
+            self.settings.gi,
+            self.settings.gi_terminate,
+            self.settings.cache_light,
+        );
         Ok(())
     }
 

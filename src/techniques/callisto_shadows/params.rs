@@ -34,7 +34,9 @@ pub struct CallistoParamsGpu {
 /// Rate choices, in the order of `rate_mode` on the GPU.
 pub const RATES: &[&str] = &["variable", "full", "half", "quarter"];
 
-pub const PARAMS: &[ParamSpec] = &[
+/// Callisto's own parameters; [`PARAMS`] adds the caches' light sampling (`cache_direct`, for
+/// the cache ReSTIR GI's paths end in).
+const OWN_PARAMS: [ParamSpec; 16] = [
     ParamSpec {
         name: "rate",
         what: "shadow-ray rate per light and 2x2 quad: variable (chosen from last frame's shadow variance, perceptually weighted) or forced everywhere",
@@ -165,6 +167,11 @@ pub const PARAMS: &[ParamSpec] = &[
     },
 ];
 
+pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<16, 3, 19>(
+    OWN_PARAMS,
+    crate::parts::world_regir::PARAMS,
+);
+
 #[derive(Clone, Debug, PartialEq)]
 pub struct CallistoSettings {
     pub rate: u32,
@@ -185,6 +192,8 @@ pub struct CallistoSettings {
     pub gi_terminate: crate::parts::restir_gi::GiTerminate,
     /// `direct = "restir"`: the direct-light part replaces the tile shadows.
     pub direct_restir: bool,
+    /// How the cache ReSTIR GI's paths end in lights its points (`cache_direct`).
+    pub cache_light: crate::parts::world_regir::WorldRegirSettings,
 }
 
 impl CallistoSettings {
@@ -210,6 +219,7 @@ impl CallistoSettings {
                 _ => crate::parts::restir_gi::GiTerminate::Path,
             },
             direct_restir: p.u32("direct") == 1,
+            cache_light: crate::parts::world_regir::WorldRegirSettings::from_params(p),
         }
     }
 }

@@ -7,6 +7,7 @@
 use super::lighting::{PassFiles, PassPair, RestirLighting};
 use super::params::GiTerminate;
 use crate::gpu::{timing::PassTimer, Gpu};
+use crate::parts::world_regir::WorldRegirSettings;
 use crate::parts::{SurfaceCache, SurfelCache};
 use crate::render::{pipelines, PassInfo, RenderContext};
 use anyhow::Result;
@@ -46,22 +47,27 @@ pub(super) enum GiCache {
     Surfels(Box<SurfelCache>),
 }
 
-/// What a cache is made with: the termination and its sizes (atlas and texel budget, or
-/// surfel rays); a different key builds a new cache.
-type CacheKey = (GiTerminate, u32, u32);
+/// What a cache is made with: the termination, its sizes (atlas and texel budget, or surfel
+/// rays) and how it picks lights (`cache_direct`); a different key builds a new cache.
+type CacheKey = (GiTerminate, u32, u32, WorldRegirSettings);
 
 impl GiCache {
     fn new(key: CacheKey, cache_update: f32) -> Result<GiCache> {
         Ok(match key.0 {
-            GiTerminate::Surfels => GiCache::Surfels(Box::new(SurfelCache::new(key.1)?)),
-            _ => GiCache::Cards(Box::new(SurfaceCache::new(key.1, cache_update)?)),
+            GiTerminate::Surfels => GiCache::Surfels(Box::new(SurfelCache::new(key.1, key.3)?)),
+            _ => GiCache::Cards(Box::new(SurfaceCache::new(key.1, cache_update, key.3)?)),
         })
     }
 
     fn key(&self) -> CacheKey {
         match self {
-            GiCache::Cards(c) => (GiTerminate::LumenCards, c.sized().0, c.sized().1),
-            GiCache::Surfels(c) => (GiTerminate::Surfels, c.sized(), 0),
+            GiCache::Cards(c) => (
+                GiTerminate::LumenCards,
+                c.sized().0,
+                c.sized().1,
+                c.cache_light(),
+            ),
+            GiCache::Surfels(c) => (GiTerminate::Surfels, c.sized(), 0, c.cache_light()),
         }
     }
 
@@ -81,6 +87,13 @@ impl GiCache {
         match self {
             GiCache::Cards(c) => c.record(ctx, enc, timer),
             GiCache::Surfels(c) => c.record(ctx, enc, timer),
+        }
+    }
+
+    fn cache_regir_coverage(&self, gpu: &Gpu) -> Result<crate::parts::world_regir::Coverage> {
+        match self {
+            GiCache::Cards(c) => c.cache_regir_coverage(gpu),
+            GiCache::Surfels(c) => c.cache_regir_coverage(gpu),
         }
     }
 
@@ -219,15 +232,29 @@ impl RestirLighting {
         }
     }
 
+    /// The lookup counts of the world ReGIR clipmap that lights the cache the GI paths end in
+    /// (None without such a cache; tests).
+    pub fn gi_cache_regir_coverage(
+        &self,
+        gpu: &Gpu,
+    ) -> Result<Option<crate::parts::world_regir::Coverage>> {
+        self.gi
+            .cache
+            .as_ref()
+            .map(|c| c.cache.cache_regir_coverage(gpu))
+            .transpose()
+    }
+
     /// The cache the parameters ask for.
     fn cache_key(&self) -> CacheKey {
         let s = &self.settings;
         match s.gi_terminate {
-            GiTerminate::Surfels => (GiTerminate::Surfels, s.cache_ray_budget, 0),
+            GiTerminate::Surfels => (GiTerminate::Surfels, s.cache_ray_budget, 0, s.cache_light),
             _ => (
                 GiTerminate::LumenCards,
                 s.cache_atlas_size,
                 SurfaceCache::budget(s.cache_update),
+                s.cache_light,
             ),
         }
     }

@@ -34,7 +34,9 @@ pub struct RestirParamsGpu {
 
 /// ReSTIR's parameters: docs, ranges and defaults in one place (the talk's defaults: 8 initial
 /// candidates, max history 8, a few spatial neighbours).
-pub const PARAMS: &[ParamSpec] = &[
+/// ReSTIR's own parameters; [`PARAMS`] adds the caches' light sampling (`cache_direct`, for the
+/// cache a GI sample path ends in).
+const OWN_PARAMS: [ParamSpec; 21] = [
     ParamSpec {
         name: "candidates",
         what: "initial RIS candidates per pixel per frame from the local lights (emissive triangles, point, spot), by power or from the ReGIR cell",
@@ -205,6 +207,11 @@ pub const PARAMS: &[ParamSpec] = &[
     },
 ];
 
+pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<21, 3, 24>(
+    OWN_PARAMS,
+    crate::parts::world_regir::PARAMS,
+);
+
 /// Which initial candidates are visibility-tested before reuse (biased mode only).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum CandidateVisibility {
@@ -281,6 +288,8 @@ pub struct RestirSettings {
     pub cache_atlas_size: u32,
     pub cache_update: f32,
     pub cache_ray_budget: u32,
+    /// How the cache a GI path ends in lights its points (`cache_direct` and the clipmap's sizes).
+    pub cache_light: crate::parts::world_regir::WorldRegirSettings,
     /// Use ReGIR when the scene has many lights.
     pub regir: bool,
     /// Cell edge in world units; 0 = automatic (scene diagonal / 24).
@@ -310,6 +319,7 @@ impl RestirSettings {
             cache_atlas_size: p.u32("cache_atlas_size"),
             cache_update: p.f32("cache_update"),
             cache_ray_budget: p.u32("cache_ray_budget"),
+            cache_light: crate::parts::world_regir::WorldRegirSettings::from_params(p),
             regir: p.bool("regir"),
             regir_cell_size: p.f32("regir_cell_size"),
             regir_lights_per_cell: p.u32("regir_lights_per_cell"),
