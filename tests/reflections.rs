@@ -32,6 +32,7 @@ fn truth(roughness: f32) -> Image {
 }
 
 /// How an image compares with the reference.
+#[derive(Clone, Copy)]
 struct Score {
     /// Image luminance over the reference's.
     energy: f64,
@@ -104,6 +105,24 @@ fn lumen(scene: Scene, extra: toml::Table, frames: u32) -> (Image, RayCounts) {
 
 const FRAMES: u32 = 24;
 
+/// The family's own bias: its score on the same box with Lambert boxes
+/// (tests/data/mitsuba/cornell.gltf) against that box's reference; rendered once per family and
+/// test binary.
+fn diffuse_baseline(technique: &str) -> Score {
+    static BASELINES: std::sync::Mutex<Vec<(String, Score)>> = std::sync::Mutex::new(Vec::new());
+    let mut done = BASELINES.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some((_, s)) = done.iter().find(|(t, _)| t == technique) {
+        return *s;
+    }
+    let lambert_path = std::path::Path::new("tests/data/mitsuba/cornell.gltf");
+    let lambert = || gltf_load::load(lambert_path).unwrap();
+    let lambert_truth = common::shared_reference(lambert(), SIZE, 512, 11, 0, 0);
+    let (diffuse, _) = render(technique, lambert(), toml::Table::new(), FRAMES);
+    let s = score(&diffuse, &lambert_truth);
+    done.push((technique.to_string(), s));
+    s
+}
+
 /// Roughness 0.3: the boxes reflect the room. The family's own bias is measured on the same box
 /// with Lambert boxes (tests/data/mitsuba/cornell.gltf, its reference): the metal box may lose
 /// at most 3% of the energy beyond it, and at most 0.06 of mean block error (without
@@ -112,11 +131,7 @@ const FRAMES: u32 = 24;
 /// light that metal reflects onto the walls goes through the diffuse cache or surfels, which
 /// spread it evenly: docs/reflections.md.)
 fn reflects_the_room_in_glossy_metal(technique: &str) {
-    let lambert_path = std::path::Path::new("tests/data/mitsuba/cornell.gltf");
-    let lambert = || gltf_load::load(lambert_path).unwrap();
-    let lambert_truth = common::shared_reference(lambert(), SIZE, 512, 11, 0, 0);
-    let (diffuse, _) = render(technique, lambert(), toml::Table::new(), FRAMES);
-    let baseline = score(&diffuse, &lambert_truth);
+    let baseline = diffuse_baseline(technique);
 
     let truth = truth(0.3);
     let (traced, rays) = render(technique, metal_boxes(0.3), toml::Table::new(), FRAMES);
@@ -163,24 +178,29 @@ fn surfels_reflect_the_room_in_glossy_metal() {
 }
 
 /// The mirror (roughness 0: the delta lobe, emission along it) and rough metal (0.7: above
-/// reflection_max_roughness, no rays) keep the energy within 10%.
+/// reflection_max_roughness, no rays) keep the energy: at most 3% below Lumen's own Lambert-box
+/// baseline (until 2026-11-26 within 10% of the reference, which was mostly that baseline's
+/// own 8%; the world radiance cache, on by default since, takes about 1% more).
 #[test]
 fn lumen_mirror_and_rough_metal_keep_their_energy() {
+    let baseline = diffuse_baseline("lumen");
     for roughness in [0.0, 0.7] {
         let truth = truth(roughness);
         let (img, rays) = lumen(metal_boxes(roughness), toml::Table::new(), FRAMES);
         let s = score(&img, &truth);
         eprintln!(
-            "metal box, roughness {roughness}: energy {:.4}, blocks mean {:.3} worst {:.3}, {} reflection rays",
+            "metal box, roughness {roughness}: energy {:.4} (Lambert baseline {:.4}), blocks mean {:.3} worst {:.3}, {} reflection rays",
             s.energy,
+            baseline.energy,
             s.mean_block,
             s.worst_block,
             rays.kind("reflection")
         );
         assert!(
-            (s.energy - 1.0).abs() < 0.1,
-            "roughness {roughness}: energy {}",
-            s.energy
+            s.energy > baseline.energy - 0.03 && s.energy < 1.03,
+            "roughness {roughness}: energy {} against the diffuse baseline {}",
+            s.energy,
+            baseline.energy
         );
         if roughness > 0.4 {
             assert_eq!(rays.kind("reflection"), 0, "rough lobes trace no rays");

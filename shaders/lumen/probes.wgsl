@@ -31,7 +31,7 @@ const PROBES_ACTIVE: u32 = 128u;
 const STATE_PROBE_COUNT: u32 = 0u;
 const STATE_WORLD_RAYS: u32 = 1u;
 // World probes to update this frame: read but never traced at their position (first), and read
-// and traced before (refreshed round-robin from `world_update.x`).
+// and traced before (stalest first).
 const STATE_WORLD_NEW: u32 = 2u;
 const STATE_WORLD_OLD: u32 = 3u;
 // Indirect dispatch of the world trace (x, y, z) at words 4..6.
@@ -58,7 +58,7 @@ struct ProbeParams {
     jitter: vec4<u32>,
     // HZB mips, screen-trace step cap, world probes per axis, world levels.
     counts: vec4<u32>,
-    // World update: first slot, slot count, total slots, 0.
+    // World update: 0, probes per frame, total slots, history cap (updates in the running mean).
     world_update: vec4<u32>,
     // Word offsets in probe_state: adaptive map, world ray list; vec4 offsets in probe_data:
     // ray records, temporal cache.
@@ -69,7 +69,8 @@ struct ProbeParams {
     misc: vec4<f32>,
     // x: PROBES_* flags, y: 1 when last frame's probes and image exist, z: this frame's parity.
     flags: vec4<u32>,
-    // Word offsets in probe_state: world slot marks, world update list; 0; 0.
+    // Word offsets in probe_state: world slot marks, world update list, frame each slot was last
+    // traced (+ 1); 0.
     counts_b: vec4<u32>,
 }
 
@@ -287,9 +288,14 @@ fn world_slot(l: u32, g: vec3<i32>) -> u32 {
 }
 
 // xyz: the grid coordinate the slot was traced at; w: -1 never traced, else 2 x (updates, at
-// most 16) + the share of its rays that hit back faces (over a quarter: inside geometry).
+// most `world_cache_history`) + the share of its rays that hit back faces (over a quarter: inside geometry).
 fn world_header(slot: u32) -> vec4<f32> {
     return world_cache[world_slots() * WORLD_CELLS + slot];
+}
+
+// The frame slot was last traced at + 1 (0: never).
+fn world_traced_frame(slot: u32) -> u32 {
+    return atomicLoad(&probe_state[pp.counts_b.z + slot]);
 }
 
 fn world_updates(h: vec4<f32>) -> f32 {
@@ -320,6 +326,19 @@ struct WorldLookup {
     radiance: vec3<f32>,
     // Sum of the trilinear weights of valid probes (0: nothing known here).
     weight: f32,
+}
+
+// Probe spacing of the finest world-cache level whose probes surround p (the coarsest level's
+// when none does).
+fn world_spacing_at(p: vec3<f32>) -> f32 {
+    let n = f32(world_res());
+    for (var l = 0u; l < pp.counts.w; l++) {
+        let f = (p - pp.world_levels[l].xyz) / world_spacing(l);
+        if all(f >= vec3<f32>(0.0)) && all(f <= vec3<f32>(n - 1.0)) {
+            return world_spacing(l);
+        }
+    }
+    return world_spacing(pp.counts.w - 1u);
 }
 
 // Radiance arriving at p from direction d, interpolated from the finest level's eight probes

@@ -1,59 +1,120 @@
-// World probes to trace this frame (one workgroup, slot order, so the choice is deterministic):
-// slots read in the last 8 frames that were never traced at their current grid position go to
-// the "new" list, those traced before to the "old" list; world_update takes new ones first and
-// refreshes old ones round-robin with what is left of its fixed budget (the seed's fixed update
-// cost, variable lighting latency).
+// World probes to trace this frame (one workgroup, slot order within each group, so the choice is
+// deterministic). Slots read in the last 8 frames that were never traced at their current grid
+// position go to the "new" list. The others read go to the "old" list ordered by staleness: the
+// frames since each was last traced, in AGE_BUCKETS buckets, the stalest first. world_update
+// takes new ones first, then old ones in list order, with its fixed budget (the seed's fixed
+// update cost, variable lighting latency); the oldest probe is always next.
 #import gilab::frame::frame
-#import gilab::lumen_probes::{pp, probe_state, world_header, world_slot_coord, world_slots, STATE_WORLD_NEW, STATE_WORLD_OLD}
+#import gilab::lumen_probes::{pp, probe_state, world_header, world_slot_coord, world_slots, world_traced_frame, STATE_WORLD_NEW, STATE_WORLD_OLD}
 
 const RECENT_FRAMES: u32 = 8u;
+// Ages 1..AGE_BUCKETS - 1 frames have a bucket each; older probes share the last one.
+const AGE_BUCKETS: u32 = 64u;
 
 var<workgroup> scan_new: array<u32, 256>;
 var<workgroup> scan_old: array<u32, 256>;
+var<workgroup> histogram: array<atomic<u32>, AGE_BUCKETS>;
+var<workgroup> cutoff: u32;
+
+// 0: not read recently; 1: new; 2 + bucket: old, with its age bucket.
+fn classify(slot: u32) -> u32 {
+    let mark = atomicLoad(&probe_state[pp.counts_b.x + slot]);
+    if mark == 0u || mark + RECENT_FRAMES <= frame.frame_index {
+        return 0u;
+    }
+    let h = world_header(slot);
+    if h.w < 0.0 || any(vec3<i32>(h.xyz) != world_slot_coord(slot)) {
+        return 1u;
+    }
+    let age = frame.frame_index + 1u - world_traced_frame(slot);
+    return 2u + min(age, AGE_BUCKETS - 1u);
+}
+
+// Inclusive prefix sums of both scan arrays (Hillis-Steele).
+fn scan_both(li: u32) {
+    for (var step = 1u; step < 256u; step *= 2u) {
+        var a = scan_new[li];
+        var b = scan_old[li];
+        if li >= step {
+            a += scan_new[li - step];
+            b += scan_old[li - step];
+        }
+        workgroupBarrier();
+        scan_new[li] = a;
+        scan_old[li] = b;
+        workgroupBarrier();
+    }
+}
 
 @compute @workgroup_size(256, 1, 1)
 fn main(@builtin(local_invocation_index) li: u32) {
-    var base_new = 0u;
-    var base_old = 0u;
     let total = world_slots();
+    if li < AGE_BUCKETS {
+        atomicStore(&histogram[li], 0u);
+    }
+    workgroupBarrier();
+    // Pass 1: the new list (slot order) and the histogram of old probes' ages.
+    var base_new = 0u;
     for (var first = 0u; first < total; first += 256u) {
         let slot = first + li;
         var is_new = 0u;
-        var is_old = 0u;
         if slot < total {
-            let mark = atomicLoad(&probe_state[pp.counts_b.x + slot]);
-            if mark > 0u && mark + RECENT_FRAMES > frame.frame_index {
-                let h = world_header(slot);
-                let traced = h.w >= 0.0 && all(vec3<i32>(h.xyz) == world_slot_coord(slot));
-                is_old = select(0u, 1u, traced);
-                is_new = 1u - is_old;
+            let c = classify(slot);
+            is_new = select(0u, 1u, c == 1u);
+            if c >= 2u {
+                atomicAdd(&histogram[c - 2u], 1u);
             }
         }
         scan_new[li] = is_new;
-        scan_old[li] = is_old;
+        scan_old[li] = 0u;
         workgroupBarrier();
-        // Inclusive prefix sums (Hillis-Steele).
-        for (var step = 1u; step < 256u; step *= 2u) {
-            var a = scan_new[li];
-            var b = scan_old[li];
-            if li >= step {
-                a += scan_new[li - step];
-                b += scan_old[li - step];
-            }
-            workgroupBarrier();
-            scan_new[li] = a;
-            scan_old[li] = b;
-            workgroupBarrier();
-        }
+        scan_both(li);
         if is_new == 1u {
             atomicStore(&probe_state[pp.counts_b.y + base_new + scan_new[li] - 1u], slot);
         }
-        if is_old == 1u {
-            atomicStore(&probe_state[pp.counts_b.y + total + base_old + scan_old[li] - 1u], slot);
-        }
         base_new += scan_new[255];
-        base_old += scan_old[255];
         workgroupBarrier();
+    }
+    // The oldest bucket that the old probes' share of the budget reaches: buckets above it are
+    // listed first, the cutoff bucket after them (world_update takes what its budget allows).
+    if li == 0u {
+        let budget = pp.world_update.y - min(base_new, pp.world_update.y);
+        var taken = 0u;
+        var c = AGE_BUCKETS - 1u;
+        loop {
+            taken += atomicLoad(&histogram[c]);
+            if taken >= budget || c == 0u {
+                break;
+            }
+            c -= 1u;
+        }
+        cutoff = c;
+    }
+    let limit = workgroupUniformLoad(&cutoff);
+    // Passes 2 and 3: the old list, stalest buckets first.
+    var base_old = 0u;
+    for (var pass_index = 0u; pass_index < 2u; pass_index++) {
+        for (var first = 0u; first < total; first += 256u) {
+            let slot = first + li;
+            var is_old = 0u;
+            if slot < total {
+                let c = classify(slot);
+                if c >= 2u {
+                    let bucket = c - 2u;
+                    let wanted = select(bucket == limit, bucket > limit, pass_index == 0u);
+                    is_old = select(0u, 1u, wanted);
+                }
+            }
+            scan_new[li] = 0u;
+            scan_old[li] = is_old;
+            workgroupBarrier();
+            scan_both(li);
+            if is_old == 1u {
+                atomicStore(&probe_state[pp.counts_b.y + total + base_old + scan_old[li] - 1u], slot);
+            }
+            base_old += scan_old[255];
+            workgroupBarrier();
+        }
     }
     if li == 0u {
         atomicStore(&probe_state[STATE_WORLD_NEW], base_new);

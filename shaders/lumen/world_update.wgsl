@@ -1,11 +1,14 @@
 // Traces world radiance cache probes (one workgroup of 256 per probe, one ray per 16x16 cell,
-// jittered within it each update): this frame's share of the new-then-old list of world_select.
+// jittered within it each update): this frame's share of the new-then-stalest list of
+// world_select.
 // Rays start at the probe's centre; back faces closer than one probe spacing vote the probe
 // inside geometry (over a quarter: unusable). A cell keeps the running mean of its radiance and
-// hit distance (the lookup's visibility test) over at most 16 updates while the probe stays at
-// the same grid position. (Skipping hits closer than a spacing, as a screen ray that read the
-// probe already covered that stretch, was tried: it continued rays through walls, a leak on
-// thin-wall and 5% of the furnace lost.)
+// hit distance (the lookup's visibility test) over at most `world_cache_history` updates while
+// the probe stays at the same grid position (a short history follows the surface cache's light
+// with less lag). The frame a probe was traced goes to the staleness word world_select reads.
+// (Skipping hits closer than a spacing, as a screen ray that read the probe already covered that
+// stretch, was tried: it continued rays through walls, a leak on thin-wall and 5% of the furnace
+// lost.)
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts, RAY_CACHE}
 #import gilab::rng::{rng_init, rand_pair, STREAM_LUMEN_WORLD}
@@ -25,8 +28,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
     if wid.x < n_new {
         slot = atomicLoad(&probe_state[pp.counts_b.y + wid.x]);
     } else if wid.x - n_new < n_old {
-        let k = (pp.world_update.x + wid.x - n_new) % n_old;
-        slot = atomicLoad(&probe_state[pp.counts_b.y + total + k]);
+        slot = atomicLoad(&probe_state[pp.counts_b.y + total + wid.x - n_new]);
     }
     let live = slot < total;
     var g = vec3<i32>(0);
@@ -60,11 +62,12 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
         var n = 1.0;
         var mean = vec4<f32>(radiance, dist);
         if same {
-            n = min(updates + 1.0, 16.0);
+            n = min(updates + 1.0, f32(pp.world_update.w));
             mean = old + (vec4<f32>(radiance, dist) - old) / n;
         }
         world_cache[slot * WORLD_CELLS + j] = mean;
         if j == 0u {
+            atomicStore(&probe_state[pp.counts_b.z + slot], frame.frame_index + 1u);
             let inside = f32(atomicLoad(&back_faces)) / f32(WORLD_CELLS);
             world_cache[total * WORLD_CELLS + slot] = vec4<f32>(vec3<f32>(g), 2.0 * n + min(inside, 0.999));
         }

@@ -1154,11 +1154,11 @@ impl Lumen {
         let levels = s.world_cache_levels;
         let per_axis = s.world_cache_probes;
         let mut v = vec![
-            pass("world select", s.world_cache, world(format!("{levels} clipmap levels of {per_axis}^3 probes around the camera; marks the ones screen probes read"))),
+            pass("world select", s.world_cache, world(format!("{levels} clipmap levels of {per_axis}^3 probes around the camera; lists the ones screen probes read, never-traced first, then the stalest"))),
             pass(
                 "world update",
                 s.world_cache && s.world_probes_per_frame > 0,
-                world(format!("{} marked probes per frame, 256 {tracing} rays each (16x16 cells), lit from the surface cache", s.world_probes_per_frame)),
+                world(format!("{} listed probes per frame, 256 {tracing} rays each (16x16 cells), lit from the surface cache, mean of the last {} updates", s.world_probes_per_frame, s.world_cache_history)),
             ),
             pass(
                 "hzb",
@@ -1201,7 +1201,7 @@ impl Lumen {
                 "world trace",
                 true,
                 if s.world_cache {
-                    format!("{tracing} rays to {} scene units, then the world cache (or on to the end where it is empty)", s.world_cache_distance)
+                    format!("{tracing} rays to {} scene units (at least a world probe diagonal), then the world cache (or on to the end where it is empty)", s.world_cache_distance)
                 } else {
                     format!("{tracing} rays to the first hit, lit from the surface cache")
                 },

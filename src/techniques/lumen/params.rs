@@ -3,7 +3,7 @@
 use crate::render::params::{ParamKind, ParamSpec, Params};
 
 /// Lumen's own parameters; [`PARAMS`] adds the reflections part's.
-const OWN_PARAMS: [ParamSpec; 26] = [
+const OWN_PARAMS: [ParamSpec; 27] = [
     ParamSpec {
         name: "tracing",
         what: "what rays trace: the global distance field (the seed's software ray tracing) or the scene's triangles through the BVH (its hardware ray tracing); both read the same surface cache",
@@ -104,13 +104,13 @@ const OWN_PARAMS: [ParamSpec; 26] = [
         name: "world_cache",
         what: "the world radiance cache: clipmaps of 16x16-cell probes around the camera; probe rays stop at world_cache_distance and a miss reads it",
         higher: "on: distant and small bright sources seen by 256 directions per probe, cheaper probe rays",
-        lower: "off (default until its energy loss is found: docs/known-issues.md): probe rays go the whole way",
+        lower: "off: probe rays go the whole way",
         kind: ParamKind::Bool,
-        default: 0.0,
+        default: 1.0,
     },
     ParamSpec {
         name: "world_cache_distance",
-        what: "length of screen probe rays before they read the world cache, in scene units (the seed's 2 m; level 0's probes are a quarter of it apart)",
+        what: "length of screen probe rays before they read the world cache, in scene units (the seed's 2 m; level 0's probes are a quarter of it apart); at least the probe diagonal of the level around the screen probe, as the seed's probe TMin",
         higher: "more exact nearby light, longer rays",
         lower: "more light from the coarser world cache",
         kind: ParamKind::Float { min: 0.05, max: 1000.0 },
@@ -134,11 +134,19 @@ const OWN_PARAMS: [ParamSpec; 26] = [
     },
     ParamSpec {
         name: "world_probes_per_frame",
-        what: "world probes traced per frame (256 rays each): probes read but never traced first, then a round-robin refresh of the others (fixed cost, variable latency)",
+        what: "world probes traced per frame (256 rays each): probes read but never traced first, then the others, stalest first (fixed cost, variable latency)",
         higher: "the world cache fills and follows light changes sooner",
         lower: "fewer cache rays per frame",
         kind: ParamKind::Int { min: 0, max: 4096 },
-        default: 64.0,
+        default: 128.0,
+    },
+    ParamSpec {
+        name: "world_cache_history",
+        what: "updates a world probe's running mean spans (each update is 256 fresh rays; 1: the latest update alone): a short history follows the surface cache's light with less lag",
+        higher: "less noise in the world cache",
+        lower: "less lag behind the surface cache (a cold start or a light change)",
+        kind: ParamKind::Int { min: 1, max: 16 },
+        default: 1.0,
     },
     ParamSpec {
         name: "spatial_filter",
@@ -215,13 +223,13 @@ const OWN_PARAMS: [ParamSpec; 26] = [
 ];
 
 /// Lumen's parameters and its reflections part's.
-const WITH_REFLECTIONS: [ParamSpec; 32] = crate::render::params::concat_params::<26, 6, 32>(
+const WITH_REFLECTIONS: [ParamSpec; 33] = crate::render::params::concat_params::<27, 6, 33>(
     OWN_PARAMS,
     crate::parts::reflections::PARAMS,
 );
 
 /// Lumen's parameters and its parts' (reflections, the cache's light sampling).
-pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<32, 3, 35>(
+pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<33, 3, 36>(
     WITH_REFLECTIONS,
     crate::parts::world_regir::PARAMS,
 );
@@ -253,6 +261,7 @@ pub struct LumenSettings {
     pub world_cache_levels: u32,
     pub world_cache_probes: u32,
     pub world_probes_per_frame: u32,
+    pub world_cache_history: u32,
     pub spatial_filter: bool,
     pub temporal_filter: bool,
     pub contact_ao: bool,
@@ -290,6 +299,7 @@ impl LumenSettings {
             world_cache_levels: p.u32("world_cache_levels"),
             world_cache_probes: p.u32("world_cache_probes"),
             world_probes_per_frame: p.u32("world_probes_per_frame"),
+            world_cache_history: p.u32("world_cache_history"),
             spatial_filter: p.bool("spatial_filter"),
             temporal_filter: p.bool("temporal_filter"),
             contact_ao: p.bool("contact_ao"),

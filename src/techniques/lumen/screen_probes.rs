@@ -129,7 +129,6 @@ pub struct ScreenProbes {
     sizes: Sizes,
     frame: u32,
     history: bool,
-    world_cursor: u32,
 }
 
 fn r2_jitter(frame: u32, spacing: u32) -> [u32; 2] {
@@ -191,7 +190,8 @@ impl ScreenProbes {
         let world_slots = s.world_cache_levels * res * res * res;
         let marks_offset = list_offset + max_probes * PROBE_CELLS as u32;
         let update_offset = marks_offset + world_slots;
-        let state_words = update_offset as u64 + 2 * world_slots as u64;
+        let traced_offset = update_offset + 2 * world_slots;
+        let state_words = traced_offset as u64 + world_slots as u64;
         let mp = max_probes as u64;
         let rays_offset = 8 * mp;
         let cache_offset = rays_offset + 2 * mp * PROBE_CELLS;
@@ -253,7 +253,12 @@ impl ScreenProbes {
             grid: [tiles[0], tiles[1], spacing, max_probes],
             adaptive: [cells[0], cells[1], cell, uniform],
             counts: [hzb_levels, s.screen_trace_steps, res, s.world_cache_levels],
-            world_update: [0, s.world_probes_per_frame, world_slots, 0],
+            world_update: [
+                0,
+                s.world_probes_per_frame,
+                world_slots,
+                s.world_cache_history,
+            ],
             offsets: [
                 adaptive_offset,
                 list_offset,
@@ -267,7 +272,7 @@ impl ScreenProbes {
                 PROBE_TEMPORAL_WEIGHT,
                 PIXEL_TEMPORAL_WEIGHT,
             ],
-            counts_b: [marks_offset, update_offset, 0, 0],
+            counts_b: [marks_offset, update_offset, traced_offset, 0],
             ..Default::default()
         };
         let mut probes = ScreenProbes {
@@ -286,7 +291,6 @@ impl ScreenProbes {
             },
             frame: 0,
             history: false,
-            world_cursor: 0,
         };
         probes.reset(gpu);
         Ok(probes)
@@ -349,8 +353,8 @@ impl ScreenProbes {
         p.jitter = [jitter[0], jitter[1], prev[0], prev[1]];
         p.flags = [Self::flags(s), self.history as u32, self.frame & 1, 0];
         p.counts[1] = s.screen_trace_steps;
-        p.world_update[0] = self.world_cursor;
         p.world_update[1] = s.world_probes_per_frame;
+        p.world_update[3] = s.world_cache_history;
         p.misc[0] = s.world_cache_distance;
         let res = s.world_cache_probes as i32;
         for l in 0..s.world_cache_levels as usize {
@@ -364,7 +368,6 @@ impl ScreenProbes {
         ctx.gpu
             .queue
             .write_buffer(&self.params_buffer, 0, bytemuck::bytes_of(&self.gpu_params));
-        self.world_cursor = self.world_cursor.wrapping_add(s.world_probes_per_frame);
     }
 
     /// Records the final gather; `integrate` leaves per-pixel irradiance for `apply`.
