@@ -88,6 +88,48 @@ fn surfels_converge_near_reference_on_cornell() {
     assert_eq!(rays.invalid_samples, 0);
 }
 
+/// The seed's irradiance sharing, measured where it can show: the bright-wall room (a spot light,
+/// so the pixels' direct light has no noise and a frame's error is the surfels' own), 2,048
+/// surfel rays a frame (about 2 per surfel: the seed's regime at 1080p; the default budget at
+/// 64² gives each surfel about 60 rays a frame and little variance to share). One frame alone
+/// after 16, sharing on against off at the same budget: the error against the reference is
+/// printed and must not grow, and the energy moves by under 2% (the weights are the gather's,
+/// so light is not carried across surfaces).
+#[test]
+fn irradiance_sharing_against_none() {
+    let truth = shared_reference(bright_wall_room(), [64, 64], 256, 3, 0, 0);
+    let mut results = Vec::new();
+    for sharing in [false, true] {
+        let mut p = toml::Table::new();
+        p.insert("irradiance_sharing".into(), sharing.into());
+        p.insert("accumulate".into(), false.into());
+        p.insert("ray_budget".into(), 2048.into());
+        let mut e = engine("surfels", p, bright_wall_room(), [64, 64], 3);
+        frames(&mut e, 16);
+        let img = e.read_output().unwrap();
+        let rays = e.ray_counts().unwrap();
+        assert_eq!(rays.invalid_samples, 0);
+        let m = metrics::compare(&img, &truth).unwrap();
+        let flip = gilab::compare::flip::ldr_flip(&img, &truth, &Default::default()).unwrap();
+        let ratio = energy(&img) / energy(&truth);
+        eprintln!(
+            "surfels, bright-wall room 64², frame 16 alone, irradiance sharing {sharing}: relMSE {:.3e}, FLIP {flip:.4}, energy ratio {ratio:.4}, {} surfel rays",
+            m.rel_mse,
+            rays.kind("surfel")
+        );
+        results.push((m.rel_mse, ratio));
+    }
+    let ((off, off_energy), (on, on_energy)) = (results[0], results[1]);
+    assert!(
+        on <= off * 1.02,
+        "sharing relMSE {on:.3e} against {off:.3e}"
+    );
+    assert!(
+        (on_energy / off_energy - 1.0).abs() < 0.02,
+        "sharing moved the energy: {on_energy} against {off_energy}"
+    );
+}
+
 /// Luminance inside the thin-wall room (interior light off: the truth is exactly 0) seen from
 /// inside after surfels were spawned outside in the sun: the seed's leak through thin walls.
 fn interior_luminance_after_outside_view(radial_depth: bool) -> f64 {
@@ -215,7 +257,7 @@ fn guiding_lowers_per_surfel_variance() {
 
 /// The back-wall lamp switched on after 32 frames: per frame after the switch, the mean
 /// irradiance over live surfels (what lags; the pixels' direct light does not), and the error
-/// of the image averaged over frames 64..96 after the switch against the lamp-on reference.
+/// of the image averaged over frames 48..64 after the switch against the lamp-on reference.
 fn lag(msme: bool, truth: &Image) -> (Vec<f64>, f64) {
     let mut p = toml::Table::new();
     p.insert("msme".into(), msme.into());
@@ -235,8 +277,10 @@ fn lag(msme: bool, truth: &Image) -> (Vec<f64>, f64) {
     e.change_scene(Arc::new(on), gpu_scene).unwrap();
     let camera = e.camera;
     let mut irradiance = Vec::new();
-    for frame in 0..96 {
-        if frame == 64 {
+    // 64 frames after the switch (96 before 2026-11-26, for CI time: MSME settled in 38),
+    // the last 16 averaged for the error.
+    for frame in 0..64 {
+        if frame == 48 {
             e.move_camera(camera);
         }
         e.render_frame().unwrap();
@@ -259,7 +303,7 @@ fn msme_settles_faster_than_running_mean_after_a_light_change() {
     let truth = render_reference(
         builtin::cornell_with_lamp(Some(40.0)),
         [64, 64],
-        512,
+        256,
         64,
         5,
         0,
@@ -280,9 +324,9 @@ fn msme_settles_faster_than_running_mean_after_a_light_change() {
     };
     let (m, r) = (settle(&msme), settle(&running));
     eprintln!(
-        "lamp switched on: frames until the mean surfel irradiance stays within 5% of its settled value: MSME {m:?}, running mean {r:?} (of 96); relMSE of frames 64-96 against the reference: MSME {msme_error:.3e}, running mean {running_error:.3e}"
+        "lamp switched on: frames until the mean surfel irradiance stays within 5% of its settled value: MSME {m:?}, running mean {r:?} (of 64); relMSE of frames 48-64 against the reference: MSME {msme_error:.3e}, running mean {running_error:.3e}"
     );
-    let m = m.expect("MSME settles within 96 frames");
+    let m = m.expect("MSME settles within 64 frames");
     assert!(r.is_none_or(|r| m < r), "MSME {m} vs running mean {r:?}");
     assert!(
         msme_error <= running_error * 1.1,

@@ -1,20 +1,19 @@
 // Integration (per slot with rays this frame): the frame's irradiance estimate (mean of its
-// rays) goes into the multiscale mean estimator (Stachowiak 2018 / Barré-Brisebois 2019, as the
+// rays; with `irradiance_sharing`, blended with its neighbours' where it is uncertain, below)
+// goes into the multiscale mean estimator (Stachowiak 2018 / Barré-Brisebois 2019, as the
 // seed uses it): a short-term mean and variance steer the long-term mean's blend, so a change
 // is caught within a few frames while a steady surfel keeps averaging down. With `msme` off, a
 // plain running mean over all rays. The rays also update the guiding map (moving average of
-// radiance per texel, renormalised to max 1) and the radial Gaussian depth (moving averages of
-// hit distance and its square, distances clamped to the surfel's diameter).
+// radiance per texel, renormalised to max 1); estimate.wgsl has updated the radial depth.
 #import gilab::frame::frame
 #import gilab::math::luminance
-#import gilab::surfels::{params, surfels, states, guide, depth, ray_offsets, ray_results, has_flag, is_live, SurfelState, FLAG_MSME, GUIDE_TEXELS, GUIDE_WORDS, DEPTH_TEXELS}
+#import gilab::surfels::{params, surfels, states, guide, ray_offsets, ray_results, frame_estimates, cell_offsets, cell_surfels, has_flag, is_live, cell_of, grid_center_for, depth_visibility, SurfelState, FLAG_MSME, FLAG_SHARING, FLAG_RADIAL_DEPTH, GUIDE_TEXELS, GUIDE_WORDS, MAX_GATHER, PLANE_STRETCH}
 
 const LUMA: vec3<f32> = vec3<f32>(0.299, 0.587, 0.114);
 // Short-term window at REFERENCE_RAYS rays per frame (the estimator's blend factor).
 const SHORT_BLEND: f32 = 0.08;
 const REFERENCE_RAYS: f32 = 8.0;
 const GUIDE_BLEND: f32 = 0.25;
-const DEPTH_BLEND: f32 = 0.1;
 
 // One estimator step with the frame estimate y of `rays` rays: the more rays, the more a
 // frame's estimate is trusted (larger short-term blend).
@@ -54,6 +53,68 @@ fn multiscale_mean(st: ptr<function, SurfelState>, y_in: vec3<f32>, rays: f32) {
     (*st).variance = vec4<f32>(variance, inconsistency);
 }
 
+// Irradiance sharing (seed 001, "Irradiance Sharing": the same weights as a gather, Mahalanobis
+// footprint and radial depth, between the trace and the estimator). The surfels in this surfel's
+// grid cell whose footprint (scaled by SHARE_RADIUS) holds its centre, facing its way and seeing it by their depth maps,
+// lend their frame estimates, weighted by footprint, normal, visibility and ray count. The blend
+// follows the surfel's own uncertainty: the short-term relative variance of a frame's estimate
+// over the frames it has integrated (at most SHARE_FRAMES), so young surfels share most and
+// converged ones keep their own value (no lasting blur).
+const SHARE_VARIANCE: f32 = 0.05;
+// Surfels spawn where coverage is low, so a neighbour's own footprint seldom holds a surfel's
+// centre: sharing reads neighbours within twice their radius (the same ellipsoid, scaled).
+const SHARE_RADIUS: f32 = 2.0;
+const SHARE_FRAMES: f32 = 32.0;
+
+fn shared_estimate(slot: u32, y: vec3<f32>, rays: f32, st: SurfelState) -> vec3<f32> {
+    let s = surfels[slot];
+    let p = s.pos_radius.xyz;
+    let n = s.normal_id.xyz;
+    var sum = y * rays;
+    var weight = rays;
+    let cell = cell_of(p, grid_center_for(frame.camera_pos.xyz));
+    let first = atomicLoad(&cell_offsets[cell]);
+    let end = min(atomicLoad(&cell_offsets[cell + 1u]), first + MAX_GATHER);
+    for (var i = first; i < end; i++) {
+        let other = cell_surfels[i];
+        let e = frame_estimates[other];
+        if other == slot || e.w <= 0.0 {
+            continue;
+        }
+        let o = surfels[other];
+        let r = o.pos_radius.w;
+        let on = o.normal_id.xyz;
+        let n_w = dot(n, on);
+        if r <= 0.0 || n_w <= 0.0 {
+            continue;
+        }
+        let v = p - o.pos_radius.xyz;
+        let off_plane = dot(v, on);
+        let in_plane = v - off_plane * on;
+        let d2 = (dot(in_plane, in_plane) + PLANE_STRETCH * PLANE_STRETCH * off_plane * off_plane) / (SHARE_RADIUS * SHARE_RADIUS * r * r);
+        if d2 >= 1.0 {
+            continue;
+        }
+        var vis = 1.0;
+        let t = length(v);
+        if has_flag(FLAG_RADIAL_DEPTH) && t > 1e-6 {
+            vis = depth_visibility(other, on, v / t, t);
+        }
+        let w = (1.0 - d2) * n_w * vis * e.w;
+        sum += e.xyz * w;
+        weight += w;
+    }
+    let neighbours = sum / weight;
+    // Before its first integration a surfel's variance is unknown: it takes the shared value.
+    var share = 1.0;
+    if st.info.z > 0u {
+        let m = max(dot(LUMA, st.short_mean.xyz), 1e-4);
+        let v = dot(LUMA, st.variance.xyz) / (m * m) / min(f32(st.info.z), SHARE_FRAMES);
+        share = v / (v + SHARE_VARIANCE);
+    }
+    return mix(y, neighbours, share);
+}
+
 // The plain running mean over every ray so far (the `msme = false` baseline); the short-term
 // mean and variance are still tracked, for ray requests and the variance view.
 fn running_mean(st: ptr<function, SurfelState>, y: vec3<f32>, rays: f32) {
@@ -84,8 +145,6 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let first = ray_offsets[slot];
-    let diameter = 2.0 * surfels[slot].pos_radius.w;
-    var sum = vec3<f32>(0.0);
     var texel_sum: array<f32, 36>;
     var texel_count: array<u32, 36>;
     for (var t = 0u; t < GUIDE_TEXELS; t++) {
@@ -93,17 +152,15 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         texel_count[t] = 0u;
     }
     for (var k = 0u; k < count; k++) {
-        let a = ray_results[2u * (first + k)];
         let b = ray_results[2u * (first + k) + 1u];
-        sum += a.xyz;
         let gt = min(u32(b.y), GUIDE_TEXELS - 1u);
         texel_sum[gt] += b.x;
         texel_count[gt] += 1u;
-        let di = slot * DEPTH_TEXELS + min(u32(b.z), DEPTH_TEXELS - 1u);
-        let z = min(a.w, diameter);
-        depth[di] = mix(depth[di], vec2<f32>(z, z * z), DEPTH_BLEND);
     }
-    let y = sum / f32(count);
+    var y = frame_estimates[slot].xyz;
+    if has_flag(FLAG_SHARING) {
+        y = shared_estimate(slot, y, f32(count), st);
+    }
     if has_flag(FLAG_MSME) {
         multiscale_mean(&st, y, f32(count));
     } else {

@@ -32,6 +32,7 @@ const FLAG_SKY: u32 = 8u;
 const FLAG_ACCUMULATE: u32 = 16u;
 const FLAG_REFLECTIONS: u32 = 32u;
 const FLAG_CACHE_ONLY: u32 = 64u;
+const FLAG_SHARING: u32 = 128u;
 
 // One surfel's geometry. radius 0 marks a free slot.
 struct Surfel {
@@ -107,6 +108,9 @@ const NONE: u32 = 0xffffffffu;
 // Per pixel, from the reflections part (src/parts/reflections.rs): (specular radiance, 0), then
 // a second plane (directional albedo of a lobe too rough to trace, hit kind).
 @group(#{SURFELS_GROUP}) @binding(19) var<storage, read_write> pixel_specular: array<vec4<f32>>;
+// Per slot: this frame's irradiance estimate (mean of its rays) and its ray count (0: no rays),
+// which integrate's irradiance sharing reads for the neighbours (estimate.wgsl).
+@group(#{SURFELS_GROUP}) @binding(20) var<storage, read_write> frame_estimates: array<vec4<f32>>;
 
 fn has_flag(f: u32) -> bool {
     return (params.flags & f) != 0u;

@@ -58,7 +58,7 @@ const RAY_RESULT_BYTES: u64 = 32;
 /// The centre grid spans this fraction of the scene's diagonal.
 const GRID_FRACTION: f32 = 0.1;
 
-const ENTRIES: [(&str, &str); 12] = [
+const ENTRIES: [(&str, &str); 13] = [
     ("recycle", "surfels/recycle.wgsl"),
     ("push", "surfels/push.wgsl"),
     ("coverage", "surfels/coverage.wgsl"),
@@ -68,6 +68,7 @@ const ENTRIES: [(&str, &str); 12] = [
     ("sort_cells", "surfels/sort_cells.wgsl"),
     ("allocate", "surfels/allocate.wgsl"),
     ("trace", "surfels/trace.wgsl"),
+    ("estimate", "surfels/estimate.wgsl"),
     ("integrate", "surfels/integrate.wgsl"),
     ("direct", "surfels/direct_nee.wgsl"),
     ("apply", "surfels/apply.wgsl"),
@@ -273,7 +274,7 @@ impl Surfels {
     fn layouts(&mut self, gpu: &Gpu) -> &Layouts {
         self.layouts.get_or_insert_with(|| {
             let mut entries = vec![pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE)];
-            for b in 1..=19 {
+            for b in 1..=20 {
                 entries.push(pipelines::storage_entry(b, false));
             }
             Layouts {
@@ -308,6 +309,7 @@ impl Surfels {
             (s.accumulate, FLAG_ACCUMULATE),
             (self.reflections_active(), FLAG_REFLECTIONS),
             (self.cache_only, FLAG_CACHE_ONLY),
+            (s.sharing, FLAG_SHARING),
         ] {
             if on {
                 flags |= flag;
@@ -442,6 +444,7 @@ impl Surfels {
         let pixel_direct = buf("surfel pixel direct", pixels * 16);
         let debug = buf("surfel debug", 2 * pixels * 16);
         let pixel_specular = buf("surfel pixel specular", 2 * pixels * 16);
+        let frame_estimates = buf("surfel frame estimates", max * 16);
         let args = pipelines::indirect_args_buffer(gpu, "surfel trace args", 1);
         let bind_group = pipelines::buffers_bind_group(
             gpu,
@@ -468,6 +471,7 @@ impl Surfels {
                 &pixel_direct,
                 &debug,
                 &pixel_specular,
+                &frame_estimates,
             ],
         );
         let args_bind_group =
@@ -660,7 +664,8 @@ impl Technique for Surfels {
                     if !lights { " skipped: no lights" } else if s.cache_light.regir && f.many_lights { " (light from the world ReGIR clipmap)" } else { " (light by power)" }
                 ),
             ),
-            pass("integrate", true, format!("{}; guiding map; radial depth {}", if s.msme { "multiscale mean estimator" } else { "plain running mean (msme off)" }, if s.radial_depth { "on" } else { "off" })),
+            pass("estimate", true, format!("each surfel's frame estimate (mean of its rays){}; radial depth {}", if s.sharing { " for irradiance sharing" } else { "" }, if s.radial_depth { "on" } else { "off" })),
+            pass("integrate", true, format!("{}{}; guiding map", if s.sharing { "irradiance sharing with the cell's surfels (gather weights, by uncertainty), then " } else { "" }, if s.msme { "multiscale mean estimator" } else { "plain running mean (msme off)" })),
         ];
         v.push(pass(
             "sky",
@@ -880,6 +885,7 @@ impl Technique for Surfels {
         .flatten()
         .collect();
         pipelines::list_pass(enc, timer, "trace", p.get("trace"), &groups, &r.args, 0);
+        pass(enc, timer, "estimate", per_slot);
         pass(enc, timer, "integrate", per_slot);
         let image = [ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1];
         if self.cache_only {

@@ -7,7 +7,7 @@ use crate::render::params::{ParamKind, ParamSpec, Params};
 pub const MAX_RAYS_PER_SURFEL: u32 = 4096;
 
 /// The surfels' own parameters; [`PARAMS`] adds the reflections part's.
-const OWN_PARAMS: [ParamSpec; 9] = [
+const OWN_PARAMS: [ParamSpec; 10] = [
     ParamSpec {
         name: "max_surfels",
         what: "size of the surfel pool, allocated up front (the seed's fixed budget)",
@@ -55,6 +55,14 @@ const OWN_PARAMS: [ParamSpec; 9] = [
         default: 1.0,
     },
     ParamSpec {
+        name: "irradiance_sharing",
+        what: "the seed's irradiance sharing: a surfel's frame estimate is blended with its grid neighbours' (gather weights: footprint, normal, radial depth; by ray count) as much as its own estimate is uncertain, before the estimator",
+        higher: "on: less blotchy noise while surfels are young, a little blur between neighbours",
+        lower: "off: each surfel integrates its own rays only",
+        kind: ParamKind::Bool,
+        default: 1.0,
+    },
+    ParamSpec {
         name: "direct",
         what: "direct light per pixel: next-event estimation of one light by power, or ReSTIR DI (its passes with GI off)",
         higher: "restir: far less noise with many lights (ReGIR where the scene has them), more passes",
@@ -94,11 +102,13 @@ const OWN_PARAMS: [ParamSpec; 9] = [
     },
 ];
 
-const WITH_REFLECTIONS: [ParamSpec; 15] =
-    crate::render::params::concat_params::<9, 6, 15>(OWN_PARAMS, crate::parts::reflections::PARAMS);
+const WITH_REFLECTIONS: [ParamSpec; 16] = crate::render::params::concat_params::<10, 6, 16>(
+    OWN_PARAMS,
+    crate::parts::reflections::PARAMS,
+);
 
 /// The surfels' parameters and their parts' (reflections, the ray hits' light sampling).
-pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<15, 3, 18>(
+pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<16, 3, 19>(
     WITH_REFLECTIONS,
     crate::parts::world_regir::PARAMS,
 );
@@ -111,6 +121,7 @@ pub struct SurfelSettings {
     pub guiding: bool,
     pub radial_depth: bool,
     pub msme: bool,
+    pub sharing: bool,
     pub direct_restir: bool,
     pub coverage_target: f32,
     pub surfel_size: f32,
@@ -131,6 +142,7 @@ impl SurfelSettings {
             guiding: p.bool("guiding"),
             radial_depth: p.bool("radial_depth"),
             msme: p.bool("msme"),
+            sharing: p.bool("irradiance_sharing"),
             direct_restir: p.u32("direct") == 1,
             coverage_target: p.f32("coverage_target"),
             surfel_size: p.f32("surfel_size"),
@@ -170,3 +182,5 @@ pub const FLAG_REFLECTIONS: u32 = 32;
 /// Cache-only mode (`Surfels::surfel_cache`): apply marks the surfels the pixels see (what
 /// recycling keeps) and writes no pixel.
 pub const FLAG_CACHE_ONLY: u32 = 64;
+/// Irradiance sharing between neighbouring surfels before the estimator.
+pub const FLAG_SHARING: u32 = 128;
