@@ -55,8 +55,9 @@ fn multiscale_mean(st: ptr<function, SurfelState>, y_in: vec3<f32>, rays: f32) {
 
 // Irradiance sharing (seed 001, "Irradiance Sharing": the same weights as a gather, Mahalanobis
 // footprint and radial depth, between the trace and the estimator). The surfels in this surfel's
-// grid cell whose footprint (scaled by SHARE_RADIUS) holds its centre, facing its way and seeing it by their depth maps,
-// lend their frame estimates, weighted by footprint, normal, visibility and ray count. The blend
+// grid cell whose footprint (scaled by SHARE_RADIUS) holds its centre, facing its way and
+// seeing it by their depth maps, lend their frame estimates, weighted by footprint, normal,
+// visibility and ray count. The blend
 // follows the surfel's own uncertainty: the short-term relative variance of a frame's estimate
 // over the frames it has integrated (at most SHARE_FRAMES), so young surfels share most and
 // converged ones keep their own value (no lasting blur).

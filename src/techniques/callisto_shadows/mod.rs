@@ -118,7 +118,7 @@ const OWN_SHADER_FILES: [&str; 11] = [
 ];
 
 /// With the cache parts' (compiled only with `gi_terminate = "lumen-cards"` or `"surfels"`).
-const SHADER_FILES: [&str; 50] = crate::render::concat_files(
+const SHADER_FILES: [&str; 51] = crate::render::concat_files(
     crate::render::concat_files::<11, 25, 36>(
         OWN_SHADER_FILES,
         crate::techniques::lumen::SURFACE_CACHE_FILES,

@@ -76,9 +76,9 @@ const ENTRIES: [(&str, &str); 13] = [
 const RAY_OWNER: &str = "surfels/ray_owner.wgsl";
 
 /// The surfels' entry files and their parts' (direct light, reflections), for hot reload.
-const SHADER_FILES: [&str; 24] = crate::render::concat_files(
-    crate::render::concat_files::<19, 4, 23>(
-        crate::render::concat_files::<14, 5, 19>(
+const SHADER_FILES: [&str; 25] = crate::render::concat_files(
+    crate::render::concat_files::<20, 4, 24>(
+        crate::render::concat_files::<15, 5, 20>(
             SURFEL_CACHE_FILES,
             crate::parts::restir_direct::SHADER_FILES,
         ),
@@ -89,7 +89,7 @@ const SHADER_FILES: [&str; 24] = crate::render::concat_files(
 
 /// Every entry file the surfels compile without their parts: what the surfel-cache part
 /// (`crate::parts::SurfelCache`, this technique in cache-only mode) builds.
-pub const SURFEL_CACHE_FILES: [&str; 14] = [
+pub const SURFEL_CACHE_FILES: [&str; 15] = [
     "surfels/recycle.wgsl",
     "surfels/push.wgsl",
     "surfels/coverage.wgsl",
@@ -100,6 +100,7 @@ pub const SURFEL_CACHE_FILES: [&str; 14] = [
     "surfels/allocate.wgsl",
     "surfels/ray_owner.wgsl",
     "surfels/trace.wgsl",
+    "surfels/estimate.wgsl",
     "surfels/integrate.wgsl",
     "surfels/direct_nee.wgsl",
     "surfels/apply.wgsl",
