@@ -1,7 +1,8 @@
 //! Parts connected across families (issue 34, shared/seeds/003 "Making Connections"): ReSTIR GI
-//! sample paths that end in Lumen's surface cache (`gi_terminate = "lumen-cards"`) or in the
-//! surfels (`"surfels"`) against paths traced to the end, the reference and the furnace's closed
-//! form; stability, determinism and the refusal of combinations that are not built; and the
+//! sample paths that end in Lumen's surface cache (`gi_terminate = "lumen-cards"`), in Lumen's
+//! world radiance cache (`"lumen-world"`) or in the surfels (`"surfels"`) against paths traced
+//! to the end, the reference and the furnace's closed form; stability, determinism and the
+//! refusal of unknown terminations; and the
 //! caches lit by the world ReGIR clipmap (`cache_direct = "regir"`) against power sampling.
 
 mod common;
@@ -87,7 +88,11 @@ fn cache_terminations_keep_multi_bounce_light() {
     eprintln!(
         "cornell 64², {frames} frames: path (gi_bounces 1) energy {r_path1:.4} of the reference at {rays_path1:.2} rays/px/frame"
     );
-    for (terminate, cache_kind) in [("lumen-cards", "cache"), ("surfels", "surfel")] {
+    for (terminate, cache_kind) in [
+        ("lumen-cards", "cache"),
+        ("lumen-world", "cache"),
+        ("surfels", "surfel"),
+    ] {
         let (img, rpp, e) = run(
             params(terminate, 1),
             builtin::cornell(),
@@ -171,6 +176,7 @@ fn furnace_with_each_termination() {
     for (terminate, bounces, warmup, bound) in [
         ("path", 0, 0, 0.03),
         ("lumen-cards", 1, 64, 0.04),
+        ("lumen-world", 1, 64, 0.04),
         ("surfels", 1, 64, 0.04),
     ] {
         // A 128² atlas: the furnace is uniform, texel resolution changes nothing here. No
@@ -203,7 +209,7 @@ fn furnace_with_each_termination() {
 /// Hard cases stay finite with each cache; the same seed gives the same image twice.
 #[test]
 fn cache_terminations_are_finite_and_deterministic() {
-    for terminate in ["lumen-cards", "surfels"] {
+    for terminate in ["lumen-cards", "lumen-world", "surfels"] {
         let run_once = || {
             let (img, _, _) = run(
                 params(terminate, 1),
@@ -222,16 +228,16 @@ fn cache_terminations_are_finite_and_deterministic() {
     }
 }
 
-/// A termination that is not built (`lumen-world`) is refused with one clear line; the engine
-/// keeps its previous parameters.
+/// A termination that does not exist is refused with one clear line that lists the ones that
+/// do; the technique keeps its previous parameters.
 #[test]
-fn unbuilt_terminations_are_refused() {
+fn unknown_terminations_are_refused() {
     let mut t = gilab::techniques::create_technique("restir").unwrap();
     let mut p = toml::Table::new();
-    p.insert("gi_terminate".into(), "lumen-world".into());
+    p.insert("gi_terminate".into(), "lumen-voxels".into());
     let err = t.set_params(&p).unwrap_err().to_string();
     assert!(
-        err.contains("lumen-world") && err.contains("not built yet"),
+        err.contains("lumen-voxels") && err.contains("lumen-world") && !err.contains('\n'),
         "{err}"
     );
     assert_eq!(

@@ -23,6 +23,12 @@
 #import gilab::math::INV_PI
 #import gilab::surface_cache::cache_at_hit
 #endif
+#ifdef GI_TERMINATE_WORLD
+#import gilab::math::INV_PI
+#import gilab::scene::{materials, tri_material}
+#import gilab::surface_cache::cache_at_hit
+#import gilab::world_cache::{world_lookup, world_tmin_at}
+#endif
 #ifdef GI_TERMINATE_SURFELS
 #import gilab::math::INV_PI
 #import gilab::brdf::{diffuse_color, specular_albedo_average}
@@ -103,7 +109,9 @@ fn add_contribution(out: ptr<function, PathResult>, c: vec3<f32>, depth: u32) {
 // GI_TERMINATE_CACHE (ReSTIR GI's `gi_terminate = "lumen-cards"`) the path ends in the surface
 // cache at hit `max_depth` (bound at group SURFACE_CACHE_GROUP by the caller); with
 // GI_TERMINATE_SURFELS (`"surfels"`) in the surfels' irradiance there (group SURFELS_GROUP)
-// where surfels cover the hit, and is traced on to the end where none do. With
+// where surfels cover the hit, and is traced on to the end where none do; with
+// GI_TERMINATE_WORLD (`"lumen-world"`) in Lumen's world radiance cache seen from there (group
+// WORLD_CACHE_GROUP, beside the surface cache at SURFACE_CACHE_GROUP). With
 // `skip_first_emission` the emission of the first hit is left out (ReSTIR GI: direct light
 // from emitters is ReSTIR DI's job).
 fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, max_depth: u32, skip_first_emission: bool) -> PathResult {
@@ -163,6 +171,52 @@ fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, 
             let c = cache_at_hit(hit.tri, surf.position, surf.geo_normal, hit.t);
             if c.weight > 1e-4 {
                 out.radiance += throughput * c.albedo * c.indirect * INV_PI;
+            }
+            break;
+        }
+#endif
+#ifdef GI_TERMINATE_WORLD
+        // The path ends at this hit in Lumen's world radiance cache (src/parts/world_cache.rs),
+        // read as a Lumen screen-probe ray reads it: NEE of the lights at full weight (the
+        // cache holds the sky its probes saw, so NEE leaves the sky out); one BSDF-sampled
+        // direction traced to the cache's TMin, where a hit reads the surface cache's reflected
+        // light; past it the world probes around the ray's end, in its direction, marked read so
+        // that they are traced; where none is traced yet the ray goes on to its end (surface
+        // cache, or sky). Emitters the ray meets add nothing: NEE counted them.
+        if depth + 1u >= max_bounces {
+            let direct = next_event(surf, wo, rng, 0.0, false);
+            out.shadow_rays += direct.shadow_rays;
+            out.radiance += throughput * direct.radiance;
+            let bs = bsdf_sample(m, surf.normal, wo, rand(rng), rand_pair(rng));
+            if bs.valid && dot(bs.wi, surf.geo_normal) > 0.0 {
+                let o = spawn_ray_origin(surf.position, surf.geo_normal, bs.wi);
+                let reach = world_tmin_at(surf.position);
+                var h = trace_closest(o, bs.wi, 0.0, reach);
+                out.indirect_rays += 1u;
+                var l = vec3<f32>(0.0);
+                if h.tri == NO_HIT {
+                    let w = world_lookup(o + bs.wi * reach, bs.wi, true);
+                    if w.weight > 0.0 {
+                        l = w.radiance;
+                    } else {
+                        h = trace_closest(o, bs.wi, reach, 1e30);
+                        out.indirect_rays += 1u;
+                        if h.tri == NO_HIT {
+                            l = sky_radiance(bs.wi);
+                        }
+                    }
+                }
+                if h.tri != NO_HIT {
+                    let s = hit_surface(o, bs.wi, h);
+                    // The back of a single-sided surface (a ray that started inside geometry)
+                    // gives no light, as in Lumen's own traces.
+                    let double_sided = materials[tri_material(h.tri)].emissive.w > 0.5;
+                    if s.front_face || double_sided {
+                        let c = cache_at_hit(h.tri, s.position, s.geo_normal, h.t);
+                        l = c.albedo * (c.direct + c.indirect) * INV_PI;
+                    }
+                }
+                out.radiance += throughput * bs.weight * l;
             }
             break;
         }

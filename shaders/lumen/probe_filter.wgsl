@@ -3,7 +3,8 @@
 // each weighted by how close it lies to the probe's plane, and dropped when the point its ray
 // hit, seen from this probe, is more than 10 degrees off the cell's direction (the angle error
 // that keeps contact shadows). Adaptive probes and `spatial_filter = false` copy.
-#import gilab::lumen_probes::{probe_data, load_probe, parity, probe_count, probes_flag, cache_index, filtered_index, tiles, tile_probe, plane_weight, cell_dir, PROBE_RES, PROBES_SPATIAL}
+#import gilab::equal_area::cell_dir
+#import gilab::lumen_probes::{probe_data, load_probe, parity, probe_count, probes_flag, cache_index, filtered_index, tiles, tile_probe, plane_weight, PROBE_RES, PROBES_SPATIAL}
 
 const MAX_ANGLE_COS: f32 = 0.9848;
 

@@ -2,15 +2,13 @@
 // the tile (the seed jitters the placement grid every frame), on the surface the G-buffer holds.
 #import gilab::primary::current_surface
 #import gilab::frame::frame
-#import gilab::lumen_probes::{pp, probe_state, tiles, spacing, tile_probe, store_probe, parity, ScreenProbe, STATE_PROBE_COUNT, STATE_WORLD_RAYS, STATE_WORLD_NEW, STATE_WORLD_OLD}
+#import gilab::lumen_probes::{pp, probe_state, tiles, spacing, tile_probe, store_probe, parity, ScreenProbe, STATE_PROBE_COUNT, STATE_WORLD_RAYS}
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if all(gid.xy == vec2<u32>(0u)) {
         atomicStore(&probe_state[STATE_PROBE_COUNT], pp.adaptive.w);
         atomicStore(&probe_state[STATE_WORLD_RAYS], 0u);
-        atomicStore(&probe_state[STATE_WORLD_NEW], 0u);
-        atomicStore(&probe_state[STATE_WORLD_OLD], 0u);
     }
     if gid.x >= tiles().x || gid.y >= tiles().y {
         return;

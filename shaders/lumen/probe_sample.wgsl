@@ -10,7 +10,9 @@
 #import gilab::math::luminance
 #import gilab::primary::current_surface
 #import gilab::rng::{rng_init, rand, rand_pair, STREAM_LUMEN_PROBE_RAYS}
-#import gilab::lumen_probes::{pp, probe_data, load_probe, parity, probe_count, probes_flag, previous_match, cache_index, ray_index, cell_dir, world_lookup, spacing, PROBE_CELLS, PROBE_RES, NO_PROBE, DEFENSIVE, PROBES_PRODUCT, PROBES_WORLD_CACHE}
+#import gilab::equal_area::cell_dir
+#import gilab::world_cache::world_lookup
+#import gilab::lumen_probes::{pp, probe_data, load_probe, parity, probe_count, probes_flag, previous_match, cache_index, ray_index, spacing, PROBE_CELLS, PROBE_RES, NO_PROBE, DEFENSIVE, PROBES_PRODUCT, PROBES_WORLD_CACHE}
 
 var<workgroup> normals: array<vec3<f32>, 16>;
 var<workgroup> pdf: array<f32, 64>;

@@ -1,18 +1,15 @@
 // Lumen's final gather (part 2, shared/seeds/000 "Screen Space Radiance Caching"): screen probes
-// on the G-buffer, last frame's hierarchical-Z for screen traces, and the world radiance cache.
-// Bind group 3; layout must match src/techniques/lumen/screen_probes.rs.
+// on the G-buffer, last frame's hierarchical-Z for screen traces; the world radiance cache is a
+// part (gilab::world_cache) whose bindings share this group. Bind group 3; layout must match
+// src/techniques/lumen/screen_probes.rs.
 #define_import_path gilab::lumen_probes
 
-#import gilab::math::PI
 #import gilab::frame::frame
 #import gilab::primary::previous_pixel_position
 
-// Screen probes hold 8x8 equal-area octahedral cells over the whole sphere (equal solid angle
-// per cell, so a cell's radiance integrates with one weight); world probes 16x16.
+// Screen probes hold 8x8 equal-area octahedral cells over the whole sphere (gilab::equal_area).
 const PROBE_RES: u32 = 8u;
 const PROBE_CELLS: u32 = 64u;
-const WORLD_RES: u32 = 16u;
-const WORLD_CELLS: u32 = 256u;
 const NO_PROBE: u32 = 0xffffffffu;
 // Samples a probe's importance sampling mixes in uniformly over the directions its pixels see
 // (defensive sampling: a stale or wrong lighting estimate cannot starve a direction).
@@ -30,10 +27,7 @@ const PROBES_ACTIVE: u32 = 128u;
 // Words of `probe_state`.
 const STATE_PROBE_COUNT: u32 = 0u;
 const STATE_WORLD_RAYS: u32 = 1u;
-// World probes to update this frame: read but never traced at their position (first), and read
-// and traced before (stalest first).
-const STATE_WORLD_NEW: u32 = 2u;
-const STATE_WORLD_OLD: u32 = 3u;
+// (Words 2 and 3 are free.)
 // Indirect dispatch of the world trace (x, y, z) at words 4..6.
 const STATE_WORLD_ARGS: u32 = 4u;
 // Statistics since the last history reset: screen-trace hits, rays continued in the world,
@@ -44,10 +38,6 @@ const STATE_ADAPTIVE: u32 = 10u;
 const STATE_WORLD_READS: u32 = 11u;
 
 struct ProbeParams {
-    // Per world-cache level: xyz the centre of its probe (0, 0, 0), w the probe spacing.
-    world_levels: array<vec4<f32>, 4>,
-    // Per world-cache level: the grid coordinate of probe (0, 0, 0).
-    world_base: array<vec4<i32>, 4>,
     // Per HZB mip: (word offset in probe_state, width, height, 0).
     hzb_mips: array<vec4<u32>, 16>,
     // Tiles x, tiles y, probe spacing in pixels, probe capacity.
@@ -56,10 +46,8 @@ struct ProbeParams {
     adaptive: vec4<u32>,
     // This frame's placement jitter (x, y) and last frame's.
     jitter: vec4<u32>,
-    // HZB mips, screen-trace step cap, world probes per axis, world levels.
+    // HZB mips, screen-trace step cap, 0, 0.
     counts: vec4<u32>,
-    // World update: 0, probes per frame, total slots, history cap (updates in the running mean).
-    world_update: vec4<u32>,
     // Word offsets in probe_state: adaptive map, world ray list; vec4 offsets in probe_data:
     // ray records, temporal cache.
     offsets: vec4<u32>,
@@ -69,9 +57,6 @@ struct ProbeParams {
     misc: vec4<f32>,
     // x: PROBES_* flags, y: 1 when last frame's probes and image exist, z: this frame's parity.
     flags: vec4<u32>,
-    // Word offsets in probe_state: world slot marks, world update list, frame each slot was last
-    // traced (+ 1); 0.
-    counts_b: vec4<u32>,
 }
 
 @group(3) @binding(0) var<uniform> pp: ProbeParams;
@@ -81,9 +66,7 @@ struct ProbeParams {
 // Per pixel and parity: last frame's reflected radiance (screen traces read it) and the
 // temporally filtered irradiance.
 @group(3) @binding(3) var<storage, read_write> pixel_data: array<vec4<f32>>;
-// World cache: WORLD_CELLS texels per slot (rgb radiance, samples), then one header per slot
-// (grid coordinate, fraction of rays that hit a back face; w < 0: never traced).
-@group(3) @binding(4) var<storage, read_write> world_cache: array<vec4<f32>>;
+// The world radiance cache's lookup bindings (24, 26) sit in this group too: gilab::world_cache.
 
 fn probes_flag(f: u32) -> bool {
     return (pp.flags.x & f) != 0u;
@@ -99,56 +82,6 @@ fn history_valid() -> bool {
 
 fn max_probes() -> u32 {
     return pp.grid.w;
-}
-
-// ---------------------------------------------------------------------------------------------
-// Equal-area octahedral mapping (Clarberg 2008): uv in [0, 1]^2 <-> unit direction.
-
-fn copy_sign(v: vec2<f32>, s: vec2<f32>) -> vec2<f32> {
-    return select(abs(v), -abs(v), s < vec2<f32>(0.0));
-}
-
-fn equal_area_dir(uv_in: vec2<f32>) -> vec3<f32> {
-    let uv = 2.0 * uv_in - 1.0;
-    let a = abs(uv);
-    let sd = 1.0 - a.x - a.y;
-    let r = 1.0 - abs(sd);
-    var phi = 0.0;
-    if r > 0.0 {
-        phi = (PI / 4.0) * ((a.y - a.x) / r + 1.0);
-    }
-    let s = r * sqrt(max(2.0 - r * r, 0.0));
-    let xy = copy_sign(vec2<f32>(s * cos(phi), s * sin(phi)), uv);
-    return normalize(vec3<f32>(xy, select(-1.0, 1.0, sd >= 0.0) * (1.0 - r * r)));
-}
-
-fn equal_area_uv(d: vec3<f32>) -> vec2<f32> {
-    let ad = abs(d);
-    let r = sqrt(max(1.0 - ad.z, 0.0));
-    let a = max(ad.x, ad.y);
-    let b = min(ad.x, ad.y);
-    var phi = 0.0;
-    if a > 0.0 {
-        phi = atan(b / a) * 2.0 / PI;
-    }
-    if ad.x < ad.y {
-        phi = 1.0 - phi;
-    }
-    var uv = vec2<f32>(r - phi * r, phi * r);
-    if d.z < 0.0 {
-        uv = 1.0 - uv.yx;
-    }
-    return copy_sign(uv, d.xy) * 0.5 + 0.5;
-}
-
-fn octa_cell(d: vec3<f32>, res: u32) -> u32 {
-    let c = min(vec2<u32>(equal_area_uv(d) * f32(res)), vec2<u32>(res - 1u));
-    return c.y * res + c.x;
-}
-
-fn cell_dir(cell: u32, res: u32, offset: vec2<f32>) -> vec3<f32> {
-    let c = vec2<f32>(f32(cell % res), f32(cell / res));
-    return equal_area_dir((c + offset) / f32(res));
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -263,137 +196,6 @@ fn lit_index(par: u32, pixel: u32) -> u32 {
 // Temporally filtered irradiance (rgb, history frames) of pixel i, parity `par`.
 fn irradiance_index(par: u32, pixel: u32) -> u32 {
     return pp.offsets_b.y + par * pixels() + pixel;
-}
-
-// ---------------------------------------------------------------------------------------------
-// World radiance cache: camera-centred clipmaps of probes (toroidal slots), 16x16 cells each.
-
-fn world_res() -> u32 {
-    return pp.counts.z;
-}
-
-fn world_slots() -> u32 {
-    return pp.world_update.z;
-}
-
-fn world_spacing(l: u32) -> f32 {
-    return pp.world_levels[l].w;
-}
-
-// Slot of grid coordinate g of level l (toroidal: a scroll reuses the slots it leaves).
-fn world_slot(l: u32, g: vec3<i32>) -> u32 {
-    let n = i32(world_res());
-    let w = ((g % n) + n) % n;
-    return l * u32(n * n * n) + u32((w.z * n + w.y) * n + w.x);
-}
-
-// xyz: the grid coordinate the slot was traced at; w: -1 never traced, else 2 x (updates, at
-// most `world_cache_history`) + the share of its rays that hit back faces (over a quarter: inside geometry).
-fn world_header(slot: u32) -> vec4<f32> {
-    return world_cache[world_slots() * WORLD_CELLS + slot];
-}
-
-// The frame slot was last traced at + 1 (0: never).
-fn world_traced_frame(slot: u32) -> u32 {
-    return atomicLoad(&probe_state[pp.counts_b.z + slot]);
-}
-
-fn world_updates(h: vec4<f32>) -> f32 {
-    return floor(h.w * 0.5);
-}
-
-fn world_inside(h: vec4<f32>) -> f32 {
-    return h.w - 2.0 * floor(h.w * 0.5);
-}
-
-// Grid coordinate of slot `slot` as the level stands now.
-fn world_slot_coord(slot: u32) -> vec3<i32> {
-    let n = i32(world_res());
-    let per = u32(n * n * n);
-    let l = slot / per;
-    let r = i32(slot % per);
-    let w = vec3<i32>(r % n, (r / n) % n, r / (n * n));
-    let base = pp.world_base[l].xyz;
-    // The coordinate in [base, base + n) with this remainder.
-    return base + (((w - base) % n) + n) % n;
-}
-
-fn world_probe_pos(l: u32, g: vec3<i32>) -> vec3<f32> {
-    return pp.world_levels[l].xyz + vec3<f32>(g - pp.world_base[l].xyz) * world_spacing(l);
-}
-
-struct WorldLookup {
-    radiance: vec3<f32>,
-    // Sum of the trilinear weights of valid probes (0: nothing known here).
-    weight: f32,
-}
-
-// Probe spacing of the finest world-cache level whose probes surround p (the coarsest level's
-// when none does).
-fn world_spacing_at(p: vec3<f32>) -> f32 {
-    let n = f32(world_res());
-    for (var l = 0u; l < pp.counts.w; l++) {
-        let f = (p - pp.world_levels[l].xyz) / world_spacing(l);
-        if all(f >= vec3<f32>(0.0)) && all(f <= vec3<f32>(n - 1.0)) {
-            return world_spacing(l);
-        }
-    }
-    return world_spacing(pp.counts.w - 1u);
-}
-
-// Radiance arriving at p from direction d, interpolated from the finest level's eight probes
-// around p that were traced at their current position and are not inside geometry. `mark`: ask
-// for those probes to be traced (debug views read without asking).
-fn world_lookup(p: vec3<f32>, d: vec3<f32>, mark: bool) -> WorldLookup {
-    var out = WorldLookup(vec3<f32>(0.0), 0.0);
-    let cell = octa_cell(d, WORLD_RES);
-    for (var l = 0u; l < pp.counts.w; l++) {
-        let s = world_spacing(l);
-        let f = (p - pp.world_levels[l].xyz) / s;
-        let n = f32(world_res());
-        if any(f < vec3<f32>(0.0)) || any(f > vec3<f32>(n - 1.0)) {
-            continue;
-        }
-        let i0 = vec3<i32>(floor(f));
-        let t = f - floor(f);
-        var sum = vec3<f32>(0.0);
-        var weight = 0.0;
-        for (var k = 0u; k < 8u; k++) {
-            let o = vec3<i32>(i32(k & 1u), i32((k >> 1u) & 1u), i32(k >> 2u));
-            let g = pp.world_base[l].xyz + i0 + o;
-            let slot = world_slot(l, g);
-            if mark {
-                world_mark(slot);
-            }
-            let h = world_header(slot);
-            if h.w < 0.0 || world_inside(h) > 0.25 || any(vec3<i32>(h.xyz) != g) {
-                continue;
-            }
-            // Visibility (DDGI's test, hard): a probe whose rays towards p stop short of it sees
-            // p behind a surface: the far side of a wall (a leak) or outside a closed room.
-            let v = p - world_probe_pos(l, g);
-            let r = length(v);
-            if r > 1e-4 * s && world_cache[slot * WORLD_CELLS + octa_cell(v / r, WORLD_RES)].w < 0.9 * r {
-                continue;
-            }
-            let texel = world_cache[slot * WORLD_CELLS + cell];
-            let b = select(1.0 - t, t, vec3<bool>(o == vec3<i32>(1)));
-            let w = b.x * b.y * b.z;
-            sum += w * texel.xyz;
-            weight += w;
-        }
-        if weight > 0.05 {
-            out.radiance = sum / weight;
-            out.weight = weight;
-            return out;
-        }
-    }
-    return out;
-}
-
-// Marks a world probe slot as read this frame (the update pass traces read slots first).
-fn world_mark(slot: u32) {
-    atomicMax(&probe_state[pp.counts_b.x + slot], frame.frame_index + 1u);
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -7,7 +7,8 @@
 // point known to be free (world_trace).
 #import gilab::frame::frame
 #import gilab::primary::previous_surface
-#import gilab::lumen_probes::{pp, probe_state, probe_data, pixel_data, load_probe, parity, probe_count, probes_flag, history_valid, ray_index, equal_area_dir, hzb_load, lit_index, PROBES_SCREEN_TRACES, STATE_WORLD_RAYS, STATE_SCREEN_HITS, PROBE_CELLS}
+#import gilab::equal_area::equal_area_dir
+#import gilab::lumen_probes::{pp, probe_state, probe_data, pixel_data, load_probe, parity, probe_count, probes_flag, history_valid, ray_index, hzb_load, lit_index, PROBES_SCREEN_TRACES, STATE_WORLD_RAYS, STATE_SCREEN_HITS, PROBE_CELLS}
 
 struct ScreenResult {
     hit: bool,

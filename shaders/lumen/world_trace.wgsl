@@ -1,19 +1,15 @@
 // Probe rays the screen traces could not resolve (the compacted list), continued from their last
 // free point in the `tracing` mode (SDF or BVH) and lit from the surface cache. With the world
-// radiance cache the ray stops at `world_cache_distance` (or a probe diagonal, below) and a miss
+// radiance cache the ray stops at `world_cache_distance` (or a probe diagonal) and a miss
 // reads the world probes around its end point in its direction; where none is traced yet, it
 // goes on to the end.
 #import gilab::counters::{flush_counts, no_counts, RAY_PROBE}
 #import gilab::frame::frame
 #import gilab::lumen::{trace_scene_on, hit_radiance, has_flag, FLAG_BVH}
-#import gilab::lumen_probes::{pp, probe_state, probe_data, load_probe, parity, probes_flag, ray_index, equal_area_dir, world_lookup, world_spacing_at, PROBES_WORLD_CACHE, PROBE_CELLS, STATE_WORLD_RAYS, STATE_WORLD_CONTINUED, STATE_WORLD_READS}
+#import gilab::equal_area::equal_area_dir
+#import gilab::lumen_probes::{pp, probe_state, probe_data, load_probe, parity, probes_flag, ray_index, PROBES_WORLD_CACHE, PROBE_CELLS, STATE_WORLD_RAYS, STATE_WORLD_CONTINUED, STATE_WORLD_READS}
+#import gilab::world_cache::{world_lookup, world_tmin_at}
 #import gilab::sky::sky_radiance
-
-// A ray reads the world cache only past the diagonal of a probe cell of the level around the
-// screen probe (the seed's probe TMin): nearer, the eight probes' parallax and visibility
-// dominate (Cornell from its camera, whose box falls in the third level: -3.3% of the light at
-// world_cache_distance alone, -0.9% with this floor).
-const PROBE_DIAGONALS: f32 = 1.7320508;
 
 @compute @workgroup_size(64, 1, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
@@ -39,7 +35,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             n = d;
         }
         let cached = probes_flag(PROBES_WORLD_CACHE);
-        let t_cache = max(pp.misc.x, PROBE_DIAGONALS * world_spacing_at(q.pos));
+        // The seed's probe TMin (gilab::world_cache).
+        let t_cache = world_tmin_at(q.pos);
         let reach = select(1e30, max(t_cache - t_free, 0.0), cached);
         var h = trace_scene_on(o, n, d, reach, t_free);
         counts[RAY_PROBE] += 1u;

@@ -7,7 +7,7 @@
 // radiance per texel, renormalised to max 1); estimate.wgsl has updated the radial depth.
 #import gilab::frame::frame
 #import gilab::math::luminance
-#import gilab::surfels::{params, surfels, states, guide, ray_offsets, ray_results, frame_estimates, cell_offsets, cell_surfels, has_flag, is_live, cell_of, grid_center_for, depth_visibility, SurfelState, FLAG_MSME, FLAG_SHARING, FLAG_RADIAL_DEPTH, GUIDE_TEXELS, GUIDE_WORDS, MAX_GATHER, PLANE_STRETCH}
+#import gilab::surfels::{params, surfels, states, guide, ray_offsets, ray_results, frame_estimates, cell_offsets, cell_surfels, has_flag, is_live, cell_of, grid_center_for, depth_visibility, SurfelState, FLAG_MSME, FLAG_SHARING, FLAG_RADIAL_DEPTH, GUIDE_TEXELS, GUIDE_WORDS, MAX_GATHER, footprint_d2}
 
 const LUMA: vec3<f32> = vec3<f32>(0.299, 0.587, 0.114);
 // Short-term window at REFERENCE_RAYS rays per frame (the estimator's blend factor).
@@ -90,9 +90,7 @@ fn shared_estimate(slot: u32, y: vec3<f32>, rays: f32, st: SurfelState) -> vec3<
             continue;
         }
         let v = p - o.pos_radius.xyz;
-        let off_plane = dot(v, on);
-        let in_plane = v - off_plane * on;
-        let d2 = (dot(in_plane, in_plane) + PLANE_STRETCH * PLANE_STRETCH * off_plane * off_plane) / (SHARE_RADIUS * SHARE_RADIUS * r * r);
+        let d2 = footprint_d2(v, on, SHARE_RADIUS * r);
         if d2 >= 1.0 {
             continue;
         }

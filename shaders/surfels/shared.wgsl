@@ -298,6 +298,15 @@ fn depth_visibility(slot: u32, n: vec3<f32>, dir: vec3<f32>, t: f32) -> f32 {
     return p * p * p;
 }
 
+// Squared distance of offset v from a surfel's centre in units of `radius`, its off-plane part
+// stretched by PLANE_STRETCH (the footprint is an ellipsoid flattened along the normal n): under
+// 1 inside. The gather's weights and the estimate sharing's use it.
+fn footprint_d2(v: vec3<f32>, n: vec3<f32>, radius: f32) -> f32 {
+    let off_plane = dot(v, n);
+    let in_plane = v - off_plane * n;
+    return (dot(in_plane, in_plane) + PLANE_STRETCH * PLANE_STRETCH * off_plane * off_plane) / (radius * radius);
+}
+
 // mark_seen: the surfels that weigh in have lit a visible pixel this frame (recycling).
 fn gather(p: vec3<f32>, n: vec3<f32>, center: vec3<f32>, mark_seen: bool) -> Gather {
     var g = Gather(vec3<f32>(0.0), 0.0, 0.0, 0.0, vec3<f32>(0.0), 0.0, NONE, 0u);
@@ -333,9 +342,7 @@ fn gather(p: vec3<f32>, n: vec3<f32>, center: vec3<f32>, mark_seen: bool) -> Gat
             g.cell_irradiance += st.mean.xyz * n_w * vis;
             g.cell_weight += n_w * vis;
         }
-        let off_plane = dot(v, sn);
-        let in_plane = v - off_plane * sn;
-        let d2 = (dot(in_plane, in_plane) + PLANE_STRETCH * PLANE_STRETCH * off_plane * off_plane) / (r * r);
+        let d2 = footprint_d2(v, sn, r);
         if d2 >= 1.0 {
             continue;
         }

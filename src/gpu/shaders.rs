@@ -67,6 +67,8 @@ pub const DEFAULT_SURFELS_GROUP: u32 = 2;
 /// The bind group of the world ReGIR clipmap's bindings (shaders/parts/world_regir/shared.wgsl)
 /// when a pipeline sets nothing else: the part's own build pass binds it there.
 pub const DEFAULT_WORLD_REGIR_GROUP: u32 = 2;
+/// Group of the world radiance cache's bindings when no pipeline def says (Lumen's probe group).
+pub const DEFAULT_WORLD_CACHE_GROUP: u32 = 3;
 
 impl ShaderVariant {
     fn defs(self) -> std::collections::HashMap<String, ShaderDefValue> {
@@ -171,6 +173,10 @@ impl ShaderLibrary {
         defs.insert(
             "WORLD_REGIR_GROUP".into(),
             ShaderDefValue::UInt(DEFAULT_WORLD_REGIR_GROUP),
+        );
+        defs.insert(
+            "WORLD_CACHE_GROUP".into(),
+            ShaderDefValue::UInt(DEFAULT_WORLD_CACHE_GROUP),
         );
         for (name, value) in &self.pipeline_defs {
             defs.insert(name.clone(), ShaderDefValue::UInt(*value));

@@ -20,6 +20,11 @@
 //! - [`reflections::Reflections`]: specular indirect light (GGX rays, hit lighting from a surface
 //!   cache when the family has one, reuse, temporal and bilateral denoising) into two planes
 //!   per pixel that the family adds. Used by `lumen` (`reflections = "traced"`).
+//! - [`world_cache::WorldCache`]: Lumen's world radiance cache (clipmaps of probes around the
+//!   camera, the read ones traced each frame through Lumen's scene representation) and its
+//!   lookup (`gilab::world_cache`, at the bind group a pass names with `WORLD_CACHE_GROUP`).
+//!   Used by `lumen`'s screen probes and by ReSTIR GI (`gi_terminate = "lumen-world"`, held by
+//!   the surface cache it needs for short rays).
 //! - [`world_regir::WorldRegir`]: a world-space ReGIR clipmap from which the caches pick the
 //!   lights of their points (`gilab::cache_light`, at the bind group a pass names with
 //!   `WORLD_REGIR_GROUP`). Used by `lumen`'s card texels and the surfels' ray hits
@@ -30,6 +35,7 @@ pub mod restir_direct;
 pub mod restir_gi;
 pub mod surface_cache;
 pub mod surfel_cache;
+pub mod world_cache;
 pub mod world_regir;
 
 pub use reflections::Reflections;
@@ -37,4 +43,5 @@ pub use restir_direct::RestirDirect;
 pub use restir_gi::RestirGi;
 pub use surface_cache::SurfaceCache;
 pub use surfel_cache::SurfelCache;
+pub use world_cache::WorldCache;
 pub use world_regir::WorldRegir;

@@ -34,13 +34,22 @@ pub fn lookup_defs(group: u32) -> [(&'static str, u32); 1] {
 pub struct SurfaceCache {
     lumen: Lumen,
     lookup: Option<wgpu::BindGroup>,
+    /// Whether it holds Lumen's world radiance cache (`gi_terminate = "lumen-world"`).
+    world: bool,
 }
 
 impl SurfaceCache {
     /// A cache with `atlas_size`² texels that relights `update` of them (a fraction) per
     /// frame, direct and indirect light each; traced through the BVH (`tracing = "bvh"`: the
-    /// connection then measures the cache, not the distance field's approximation).
-    pub fn new(atlas_size: u32, update: f32, light: WorldRegirSettings) -> Result<SurfaceCache> {
+    /// connection then measures the cache, not the distance field's approximation). With
+    /// `world`, it also keeps Lumen's world radiance cache (Lumen's default sizes and update
+    /// budget), whose probes its reader marks and whose lookup it binds beside its own.
+    pub fn new(
+        atlas_size: u32,
+        update: f32,
+        light: WorldRegirSettings,
+        world: bool,
+    ) -> Result<SurfaceCache> {
         let mut lumen = Lumen::surface_cache();
         let texels = Self::budget(update) as i64;
         // Its texels pick their lights as the holder's `cache_direct` says.
@@ -49,10 +58,12 @@ impl SurfaceCache {
         t.insert("tracing".into(), "bvh".into());
         t.insert("direct_texels_per_frame".into(), texels.into());
         t.insert("indirect_texels_per_frame".into(), texels.into());
+        t.insert("world_cache".into(), world.into());
         lumen.set_params(&t)?;
         Ok(SurfaceCache {
             lumen,
             lookup: None,
+            world,
         })
     }
 
@@ -72,14 +83,20 @@ impl SurfaceCache {
         self.lumen.settings.cache_light
     }
 
+    /// Whether it keeps the world radiance cache too.
+    pub fn has_world(&self) -> bool {
+        self.world
+    }
+
     /// (atlas size, texel budget) it was made with.
     pub fn sized(&self) -> (u32, u32) {
         let s = &self.lumen.settings;
         (s.atlas_size, s.direct_texels_per_frame)
     }
 
-    /// Layout of the lookup's bind group (the group a reading pass sets `SURFACE_CACHE_GROUP` to).
-    pub fn lookup_layout(gpu: &Gpu) -> wgpu::BindGroupLayout {
+    /// Layout of the lookup's bind group (the group a reading pass sets `SURFACE_CACHE_GROUP`
+    /// to), with the world cache's lookup bindings when `world` (`WORLD_CACHE_GROUP`, the same).
+    pub fn lookup_layout(gpu: &Gpu, world: bool) -> wgpu::BindGroupLayout {
         let mut entries: Vec<wgpu::BindGroupLayoutEntry> = LOOKUP_BINDINGS
             .iter()
             .map(|&b| pipelines::storage_entry(b, b <= 3))
@@ -89,15 +106,20 @@ impl SurfaceCache {
                 .iter()
                 .map(|&b| crate::techniques::lumen::texture_entry(b)),
         );
+        if world {
+            entries.extend(crate::parts::world_cache::lookup_entries());
+        }
         pipelines::layout(gpu, "surface cache lookup", &entries)
     }
 
     /// Builds the cache's pipelines and resources (on error the previous ones stay).
     pub fn build(&mut self, ctx: &RenderContext) -> Result<()> {
         self.lumen.build(ctx)?;
-        self.lookup = self
-            .lumen
-            .surface_cache_bind_group(ctx.gpu, &Self::lookup_layout(ctx.gpu));
+        self.lookup = self.lumen.surface_cache_bind_group(
+            ctx.gpu,
+            &Self::lookup_layout(ctx.gpu, self.world),
+            self.world,
+        );
         Ok(())
     }
 
@@ -120,9 +142,11 @@ impl SurfaceCache {
     ) {
         self.lumen.render(ctx, enc, timer);
         // A scene edit can replace the card buffers: the lookup follows every frame.
-        self.lookup = self
-            .lumen
-            .surface_cache_bind_group(ctx.gpu, &Self::lookup_layout(ctx.gpu));
+        self.lookup = self.lumen.surface_cache_bind_group(
+            ctx.gpu,
+            &Self::lookup_layout(ctx.gpu, self.world),
+            self.world,
+        );
     }
 
     /// Forgets the cache's lighting (it relights over the next frames).

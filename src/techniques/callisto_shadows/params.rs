@@ -151,10 +151,10 @@ const OWN_PARAMS: [ParamSpec; 16] = [
     },
     ParamSpec {
         name: "gi_terminate",
-        what: "where ReSTIR GI's sample paths end when gi is on, as in the restir technique: traced to the end, or at their first hit in Lumen's surface cache or the surfels (the cache parts, with restir's default atlas, update share and surfel ray budget)",
-        higher: "lumen-cards or surfels: multi-bounce light at about one bounce's price, biased by the cache",
+        what: "where ReSTIR GI's sample paths end when gi is on, as in the restir technique: traced to the end, or at their first hit in Lumen's surface cache, Lumen's world radiance cache or the surfels (the cache parts, with restir's default atlas, update share and surfel ray budget)",
+        higher: "lumen-cards, lumen-world or surfels: multi-bounce light at about one bounce's price, biased by the cache",
         lower: "path: unbiased, every bounce traced",
-        kind: ParamKind::Choice(&["path", "lumen-cards", "surfels"]),
+        kind: ParamKind::Choice(&["path", "lumen-cards", "lumen-world", "surfels"]),
         default: 0.0,
     },
     ParamSpec {
@@ -213,11 +213,7 @@ impl CallistoSettings {
             blur_radius: p.u32("blur_radius"),
             accumulate: p.bool("accumulate"),
             gi: p.bool("gi"),
-            gi_terminate: match p.u32("gi_terminate") {
-                1 => crate::parts::restir_gi::GiTerminate::LumenCards,
-                2 => crate::parts::restir_gi::GiTerminate::Surfels,
-                _ => crate::parts::restir_gi::GiTerminate::Path,
-            },
+            gi_terminate: crate::parts::restir_gi::GiTerminate::from_index(p.u32("gi_terminate")),
             direct_restir: p.u32("direct") == 1,
             cache_light: crate::parts::world_regir::WorldRegirSettings::from_params(p),
         }

@@ -46,6 +46,7 @@ use screen_probes::{ProbePipelines, ScreenProbes};
 
 use crate::gpu::{readback, timing::PassTimer, Gpu};
 use crate::parts::reflections::HitCache;
+use crate::parts::world_cache::{WorldCache, WorldCachePipelines};
 use crate::parts::{Reflections, RestirDirect, WorldRegir};
 use crate::render::params::Params;
 use crate::render::primary::FrameInputs;
@@ -149,6 +150,7 @@ struct Pipelines {
     query: wgpu::ComputePipeline,
     apply: wgpu::ComputePipeline,
     probes: ProbePipelines,
+    world: WorldCachePipelines,
 }
 
 impl Pipelines {
@@ -183,6 +185,9 @@ struct Resources {
     index_buffer: wgpu::Buffer,
     capture_depth_view: wgpu::TextureView,
     gpu_params: LumenParamsGpu,
+    /// The world radiance cache (a part: `crate::parts::world_cache`), read by the screen
+    /// probes and, through the surface-cache part, by ReSTIR GI's `lumen-world` paths.
+    world: WorldCache,
     probes: ScreenProbes,
 }
 
@@ -282,8 +287,8 @@ pub const SURFACE_CACHE_FILES: [&str; 25] = [
     "lumen/gather.wgsl",
     "lumen/apply.wgsl",
     "lumen/query.wgsl",
-    "lumen/world_select.wgsl",
-    "lumen/world_update.wgsl",
+    "parts/world_cache/select.wgsl",
+    "parts/world_cache/update.wgsl",
     "lumen/hzb_build.wgsl",
     "lumen/hzb_top.wgsl",
     "lumen/probe_place.wgsl",
@@ -690,6 +695,7 @@ impl Lumen {
             &layouts[7],
             &[&buffers[18]],
         );
+        let world = WorldCache::new(gpu, s.world_cache_settings())?;
         let res = Resources {
             params_buffer,
             buffers,
@@ -706,7 +712,8 @@ impl Lumen {
             index_buffer,
             capture_depth_view,
             gpu_params,
-            probes: ScreenProbes::new(ctx, &layouts[5], &s)?,
+            probes: ScreenProbes::new(ctx, &layouts[5], &s, &world)?,
+            world,
         };
         // Every brick free, every slot unbuilt.
         let stack: Vec<u32> = (0..pool_bricks).rev().collect();
@@ -802,11 +809,13 @@ impl Lumen {
     }
 
     /// A bind group of the cache's lookup bindings (`crate::parts::surface_cache`) under
-    /// `layout`, over the current buffers; `None` before `build`.
+    /// `layout`, over the current buffers, and the world cache's lookup bindings when `world`;
+    /// `None` before `build`.
     pub fn surface_cache_bind_group(
         &self,
         gpu: &Gpu,
         layout: &wgpu::BindGroupLayout,
+        world: bool,
     ) -> Option<wgpu::BindGroup> {
         use crate::parts::surface_cache::{LOOKUP_BINDINGS, LOOKUP_TEXTURES};
         let r = self.res.as_ref()?;
@@ -822,6 +831,9 @@ impl Lumen {
                 binding: b,
                 resource: wgpu::BindingResource::TextureView(view),
             });
+        }
+        if world {
+            entries.extend(r.world.entries());
         }
         Some(gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("surface cache lookup"),
@@ -959,7 +971,7 @@ impl Lumen {
         if (needed && !self.reflections.is_built()) || (rebuild && self.reflections.is_built()) {
             // The cache's lookup bindings alone: with all of Lumen's group the trace pass would
             // bind more storage buffers than a stage may.
-            let layout = crate::parts::SurfaceCache::lookup_layout(ctx.gpu);
+            let layout = crate::parts::SurfaceCache::lookup_layout(ctx.gpu, false);
             self.reflections
                 .build(ctx, Some(HitCache::SurfaceCache(&layout)))?;
         }
@@ -1139,12 +1151,11 @@ impl Lumen {
 }
 
 impl Lumen {
-    /// What the screen-probe final gather runs this frame, and why (the UI's pass list).
-    fn probe_passes(&self, f: &SceneFeatures) -> Vec<PassInfo> {
+    /// The world radiance cache's passes (they run with `world_cache` when `reader` reads it).
+    fn world_passes(&self, reader: &str) -> Vec<PassInfo> {
         let s = &self.settings;
-        let pass = |name, runs, why: String| PassInfo { name, runs, why };
         let tracing = if s.bvh { "BVH" } else { "SDF" };
-        let world = |why: String| {
+        let why = |why: String| {
             if s.world_cache {
                 why
             } else {
@@ -1153,13 +1164,27 @@ impl Lumen {
         };
         let levels = s.world_cache_levels;
         let per_axis = s.world_cache_probes;
-        let mut v = vec![
-            pass("world select", s.world_cache, world(format!("{levels} clipmap levels of {per_axis}^3 probes around the camera; lists the ones screen probes read, never-traced first, then the stalest"))),
-            pass(
-                "world update",
-                s.world_cache && s.world_probes_per_frame > 0,
-                world(format!("{} listed probes per frame, 256 {tracing} rays each (16x16 cells), lit from the surface cache, mean of the last {} updates", s.world_probes_per_frame, s.world_cache_history)),
-            ),
+        vec![
+            PassInfo {
+                name: "world select",
+                runs: s.world_cache,
+                why: why(format!("{levels} clipmap levels of {per_axis}^3 probes around the camera; lists the ones {reader} read, never-traced first, then the stalest")),
+            },
+            PassInfo {
+                name: "world update",
+                runs: s.world_cache && s.world_probes_per_frame > 0,
+                why: why(format!("{} listed probes per frame, 256 {tracing} rays each (16x16 cells), lit from the surface cache, mean of the last {} updates", s.world_probes_per_frame, s.world_cache_history)),
+            },
+        ]
+    }
+
+    /// What the screen-probe final gather runs this frame, and why (the UI's pass list).
+    fn probe_passes(&self, f: &SceneFeatures) -> Vec<PassInfo> {
+        let s = &self.settings;
+        let pass = |name, runs, why: String| PassInfo { name, runs, why };
+        let tracing = if s.bvh { "BVH" } else { "SDF" };
+        let mut v = self.world_passes("screen probes");
+        v.extend([
             pass(
                 "hzb",
                 s.screen_traces,
@@ -1221,7 +1246,7 @@ impl Lumen {
                     if s.contact_ao { ", contact AO" } else { "" }
                 ),
             ),
-        ];
+        ]);
         if !f.has_glossy && !f.has_mirror {
             return v;
         }
@@ -1322,6 +1347,9 @@ impl Technique for Lumen {
             },
         ));
         if self.cache_only {
+            if s.world_cache {
+                v.extend(self.world_passes("ReSTIR GI's paths"));
+            }
             return v;
         }
         let tracing = if s.bvh { "BVH" } else { "SDF" };
@@ -1402,6 +1430,7 @@ impl Technique for Lumen {
             compute.push(ctx.pipeline(entry, &lumen)?);
         }
         let probes = ProbePipelines::build(ctx, &lumen, &probe_layout)?;
+        let world = WorldCachePipelines::build(ctx, &lumen)?;
         let sdf_args = pipelines::compute_pipeline(
             gpu,
             ctx.shaders,
@@ -1454,6 +1483,7 @@ impl Technique for Lumen {
             query,
             apply,
             probes,
+            world,
         });
         if !self.refresh_for_scene(ctx)? {
             self.build_resources(ctx)?;
@@ -1518,7 +1548,13 @@ impl Technique for Lumen {
                         .expect("built with layouts")
                         .probes
                         .clone();
-                    r.probes = ScreenProbes::new(ctx, &layout, &self.settings)?;
+                    let w = self.settings.world_cache_settings();
+                    let ws =
+                        |s: crate::parts::world_cache::WorldCacheSettings| (s.levels, s.probes);
+                    if ws(r.world.settings()) != ws(w) {
+                        r.world = WorldCache::new(ctx.gpu, w)?;
+                    }
+                    r.probes = ScreenProbes::new(ctx, &layout, &self.settings, &r.world)?;
                 }
                 let r = self.res.as_mut().expect("resources");
                 r.gpu_params.rays_per_pixel = self.settings.rays_per_pixel;
@@ -1540,6 +1576,7 @@ impl Technique for Lumen {
             return;
         };
         r.probes.reset(gpu);
+        r.world.reset(gpu);
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         for b in [12usize, 13, 14, 16, 17] {
             enc.clear_buffer(r.buffer(b), 0, None);
@@ -1613,8 +1650,8 @@ impl Technique for Lumen {
         let direct_restir = self.direct_restir() && self.restir_direct.is_built();
         let reflections = self.reflections_active() && self.reflections.is_built();
         let lookup = if reflections {
-            let layout = crate::parts::SurfaceCache::lookup_layout(ctx.gpu);
-            self.surface_cache_bind_group(ctx.gpu, &layout)
+            let layout = crate::parts::SurfaceCache::lookup_layout(ctx.gpu, false);
+            self.surface_cache_bind_group(ctx.gpu, &layout, false)
         } else {
             None
         };
@@ -1662,6 +1699,13 @@ impl Technique for Lumen {
                 [probes.div_ceil(4), 1, 1],
             );
         }
+        // The world cache: its uniforms every frame (readers need them), its passes when on and
+        // read (by the screen probes, or in cache-only mode by the part's reader).
+        let world = self.settings.world_cache_settings();
+        let world_read = self.cache_only || self.settings.screen_probes;
+        let update = self.settings.world_cache && world_read;
+        r.world
+            .record(ctx, enc, timer, bg, &p.world, &world, update);
         if self.cache_only {
             return;
         }

@@ -274,6 +274,17 @@ pub struct LumenSettings {
 }
 
 impl LumenSettings {
+    /// The world radiance cache part's settings (`crate::parts::world_cache`).
+    pub fn world_cache_settings(&self) -> crate::parts::world_cache::WorldCacheSettings {
+        crate::parts::world_cache::WorldCacheSettings {
+            levels: self.world_cache_levels,
+            probes: self.world_cache_probes,
+            probes_per_frame: self.world_probes_per_frame,
+            history: self.world_cache_history,
+            distance: self.world_cache_distance,
+        }
+    }
+
     pub fn from_params(p: &Params) -> Self {
         LumenSettings {
             bvh: p.u32("tracing") == 1,

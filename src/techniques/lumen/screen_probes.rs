@@ -1,18 +1,18 @@
 //! Lumen's final gather, part 2 (shared/seeds/000, "Screen Space Radiance Caching"): screen
 //! probes with product importance sampling, screen traces through last frame's hierarchical Z,
-//! the world radiance cache, probe-space filtering and full-resolution integration. Bind group 3
-//! of shaders/lumen/probes.wgsl; the passes are recorded by `ScreenProbes::record`.
+//! rays past a probe's TMin read the world radiance cache (`crate::parts::world_cache`, whose
+//! bindings share this group), probe-space filtering and full-resolution integration. Bind group
+//! 3 of shaders/lumen/probes.wgsl; the passes are recorded by `ScreenProbes::record`.
 
 use super::params::LumenSettings;
 use crate::gpu::{readback, timing::PassTimer, Gpu};
+use crate::parts::world_cache::{self, WorldCache};
 use crate::render::{pipelines, RenderContext};
 use anyhow::Result;
-use glam::Vec3;
 
-/// The passes of the final gather, in the order they run (file, timer name).
-pub const PASSES: [(&str, &str); 12] = [
-    ("world select", "lumen/world_select.wgsl"),
-    ("world update", "lumen/world_update.wgsl"),
+/// The passes of the final gather, in the order they run (timer name, file); the world cache's
+/// own passes run before them.
+pub const PASSES: [(&str, &str); 10] = [
     ("hzb", "lumen/hzb_build.wgsl"),
     ("hzb top", "lumen/hzb_top.wgsl"),
     ("probe place", "lumen/probe_place.wgsl"),
@@ -27,10 +27,6 @@ pub const PASSES: [(&str, &str); 12] = [
 pub const INTEGRATE: (&str, &str) = ("integrate", "lumen/integrate.wgsl");
 
 const PROBE_CELLS: u64 = 64;
-/// World probes sit off the round coordinates walls are modelled at: a probe exactly on a
-/// zero-thickness wall sees both rooms and leaked the sunlit side into thin-wall's dark room.
-const WORLD_GRID_OFFSET: Vec3 = Vec3::new(0.382, 0.618, 0.271);
-const WORLD_CELLS: u64 = 256;
 const HEADER_WORDS: u32 = 16;
 const MAX_WORKGROUPS: u32 = 65_535;
 /// Floors of the temporal blends: probes keep about 4 frames (the seed's), pixels about 10.
@@ -55,19 +51,15 @@ pub const PROBES_ACTIVE: u32 = 128;
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct ProbeParamsGpu {
-    pub world_levels: [[f32; 4]; 4],
-    pub world_base: [[i32; 4]; 4],
     pub hzb_mips: [[u32; 4]; 16],
     pub grid: [u32; 4],
     pub adaptive: [u32; 4],
     pub jitter: [u32; 4],
     pub counts: [u32; 4],
-    pub world_update: [u32; 4],
     pub offsets: [u32; 4],
     pub offsets_b: [u32; 4],
     pub misc: [f32; 4],
     pub flags: [u32; 4],
-    pub counts_b: [u32; 4],
 }
 
 /// Screen-probe statistics since the last history reset (tests, README).
@@ -88,7 +80,6 @@ struct Sizes {
     cells: [u32; 2],
     max_probes: u32,
     hzb_levels: u32,
-    world_slots: u32,
 }
 
 /// The final gather's pipelines (groups: scene, frame, lumen, probes), in `PASSES` order.
@@ -143,20 +134,23 @@ fn r2_jitter(frame: u32, spacing: u32) -> [u32; 2] {
 }
 
 impl ScreenProbes {
+    /// Bindings 0..=3 and the world cache's lookup (24, 26).
     pub fn layout(gpu: &Gpu) -> wgpu::BindGroupLayout {
         let mut entries = vec![pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE)];
-        for b in 1..=4 {
+        for b in 1..=3 {
             entries.push(pipelines::storage_entry(b, false));
         }
+        entries.extend(world_cache::lookup_entries());
         pipelines::layout(gpu, "lumen probes", &entries)
     }
 
-    /// GPU resources for an image of `extent` with `s`; errors where a buffer would exceed the
-    /// device's binding limit or a dispatch its workgroup limit.
+    /// GPU resources for an image of `extent` with `s`, bound beside `world`'s; errors where a
+    /// buffer would exceed the device's binding limit or a dispatch its workgroup limit.
     pub fn new(
         ctx: &RenderContext,
         layout: &wgpu::BindGroupLayout,
         s: &LumenSettings,
+        world: &WorldCache,
     ) -> Result<ScreenProbes> {
         let gpu = ctx.gpu;
         let [w, h] = ctx.extent;
@@ -186,29 +180,22 @@ impl ScreenProbes {
         }
         let adaptive_offset = offset;
         let list_offset = adaptive_offset + cells[0] * cells[1];
-        let res = s.world_cache_probes;
-        let world_slots = s.world_cache_levels * res * res * res;
-        let marks_offset = list_offset + max_probes * PROBE_CELLS as u32;
-        let update_offset = marks_offset + world_slots;
-        let traced_offset = update_offset + 2 * world_slots;
-        let state_words = traced_offset as u64 + world_slots as u64;
+        let state_words = list_offset as u64 + max_probes as u64 * PROBE_CELLS;
         let mp = max_probes as u64;
         let rays_offset = 8 * mp;
         let cache_offset = rays_offset + 2 * mp * PROBE_CELLS;
         let filtered_offset = cache_offset + 2 * mp * PROBE_CELLS;
         let probe_vec4s = filtered_offset + mp * PROBE_CELLS;
         let pixels = w as u64 * h as u64;
-        let world_vec4s = world_slots as u64 * (WORLD_CELLS + 1);
         let limit = gpu.device.limits().max_storage_buffer_binding_size;
         for (what, bytes) in [
             ("screen probe data", probe_vec4s * 16),
             ("pixel history", 4 * pixels * 16),
-            ("world radiance cache", world_vec4s * 16),
             ("probe state", state_words * 4),
         ] {
             anyhow::ensure!(
                 bytes <= limit,
-                "lumen: the {what} needs {} MiB, over this device's {} MiB binding limit (a larger probe_spacing or fewer world_cache_probes)",
+                "lumen: the {what} needs {} MiB, over this device's {} MiB binding limit (a larger probe_spacing)",
                 bytes >> 20,
                 limit >> 20
             );
@@ -234,31 +221,27 @@ impl ScreenProbes {
         let buffers = vec![
             pipelines::storage_buffer(gpu, "lumen probe data", probe_vec4s * 16),
             pipelines::storage_buffer(gpu, "lumen pixel history", 4 * pixels * 16),
-            pipelines::storage_buffer(gpu, "lumen world cache", world_vec4s * 16),
         ];
-        let bind_group = pipelines::buffers_bind_group(
-            gpu,
-            "lumen probes",
+        let mut entries: Vec<wgpu::BindGroupEntry> =
+            [&params_buffer, &state, &buffers[0], &buffers[1]]
+                .into_iter()
+                .enumerate()
+                .map(|(i, b)| wgpu::BindGroupEntry {
+                    binding: i as u32,
+                    resource: b.as_entire_binding(),
+                })
+                .collect();
+        entries.extend(world.entries());
+        let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("lumen probes"),
             layout,
-            &[
-                &params_buffer,
-                &state,
-                &buffers[0],
-                &buffers[1],
-                &buffers[2],
-            ],
-        );
+            entries: &entries,
+        });
         let gpu_params = ProbeParamsGpu {
             hzb_mips,
             grid: [tiles[0], tiles[1], spacing, max_probes],
             adaptive: [cells[0], cells[1], cell, uniform],
-            counts: [hzb_levels, s.screen_trace_steps, res, s.world_cache_levels],
-            world_update: [
-                0,
-                s.world_probes_per_frame,
-                world_slots,
-                s.world_cache_history,
-            ],
+            counts: [hzb_levels, s.screen_trace_steps, 0, 0],
             offsets: [
                 adaptive_offset,
                 list_offset,
@@ -272,7 +255,6 @@ impl ScreenProbes {
                 PROBE_TEMPORAL_WEIGHT,
                 PIXEL_TEMPORAL_WEIGHT,
             ],
-            counts_b: [marks_offset, update_offset, traced_offset, 0],
             ..Default::default()
         };
         let mut probes = ScreenProbes {
@@ -287,7 +269,6 @@ impl ScreenProbes {
                 cells,
                 max_probes,
                 hzb_levels,
-                world_slots,
             },
             frame: 0,
             history: false,
@@ -296,24 +277,13 @@ impl ScreenProbes {
         Ok(probes)
     }
 
-    /// Forgets every probe, the pixel history and the world cache.
+    /// Forgets every probe and the pixel history.
     pub fn reset(&mut self, gpu: &Gpu) {
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         enc.clear_buffer(&self.state, 0, None);
         enc.clear_buffer(&self.buffers[0], 0, None);
         enc.clear_buffer(&self.buffers[1], 0, None);
         gpu.submit("lumen: screen probe reset", enc.finish());
-        // World probes: no texel traced, headers "never traced" (w = -1).
-        let slots = self.sizes.world_slots as u64;
-        let mut enc = gpu.device.create_command_encoder(&Default::default());
-        enc.clear_buffer(&self.buffers[2], 0, Some(slots * WORLD_CELLS * 16));
-        gpu.submit("lumen: screen probe reset", enc.finish());
-        let headers = vec![[0.0f32, 0.0, 0.0, -1.0]; slots as usize];
-        gpu.queue.write_buffer(
-            &self.buffers[2],
-            slots * WORLD_CELLS * 16,
-            bytemuck::cast_slice(&headers),
-        );
         self.history = false;
     }
 
@@ -344,7 +314,7 @@ impl ScreenProbes {
         flags
     }
 
-    /// Per-frame uniforms: jitter, parity, world clipmaps around the camera, update window.
+    /// Per-frame uniforms: jitter, parity.
     fn prepare(&mut self, ctx: &RenderContext, s: &LumenSettings) {
         let spacing = s.probe_spacing;
         let jitter = r2_jitter(self.frame, spacing);
@@ -353,18 +323,7 @@ impl ScreenProbes {
         p.jitter = [jitter[0], jitter[1], prev[0], prev[1]];
         p.flags = [Self::flags(s), self.history as u32, self.frame & 1, 0];
         p.counts[1] = s.screen_trace_steps;
-        p.world_update[1] = s.world_probes_per_frame;
-        p.world_update[3] = s.world_cache_history;
         p.misc[0] = s.world_cache_distance;
-        let res = s.world_cache_probes as i32;
-        for l in 0..s.world_cache_levels as usize {
-            let spacing = s.world_cache_distance / 4.0 * (1u32 << l) as f32;
-            let cam = ctx.camera.position / spacing;
-            let base = (cam.floor().as_ivec3()) - glam::IVec3::splat(res / 2);
-            let origin = (base.as_vec3() + WORLD_GRID_OFFSET) * spacing;
-            p.world_levels[l] = [origin.x, origin.y, origin.z, spacing];
-            p.world_base[l] = [base.x, base.y, base.z, 0];
-        }
         ctx.gpu
             .queue
             .write_buffer(&self.params_buffer, 0, bytemuck::bytes_of(&self.gpu_params));
@@ -387,12 +346,9 @@ impl ScreenProbes {
         let probes = [z.max_probes, 1, 1];
         for (i, (name, _)) in PASSES.iter().enumerate() {
             let workgroups = match *name {
-                "world select" | "world update" if !s.world_cache => continue,
-                "world update" if s.world_probes_per_frame == 0 => continue,
                 "hzb" | "hzb top" if !(s.screen_traces && self.history) => continue,
                 "hzb top" if z.hzb_levels <= 5 => continue,
-                "world select" | "world args" | "hzb top" => [1, 1, 1],
-                "world update" => [s.world_probes_per_frame.min(MAX_WORKGROUPS), 1, 1],
+                "world args" | "hzb top" => [1, 1, 1],
                 "hzb" => [w.div_ceil(16), h.div_ceil(16), 1],
                 "probe place" => [z.tiles[0].div_ceil(8), z.tiles[1].div_ceil(8), 1],
                 "probe adaptive" => [z.cells[0].div_ceil(8), z.cells[1].div_ceil(8), 1],
@@ -442,19 +398,5 @@ impl ScreenProbes {
             adaptive_probes: words[10] as u64,
             world_cache_reads: words[11] as u64,
         })
-    }
-
-    /// World-cache clipmap spacing of level 0 (scene units).
-    pub fn world_spacing(s: &LumenSettings) -> f32 {
-        s.world_cache_distance / 4.0
-    }
-
-    /// The camera-centred extent of the world cache's coarsest level.
-    pub fn world_extent(s: &LumenSettings) -> Vec3 {
-        Vec3::splat(
-            Self::world_spacing(s)
-                * (1u32 << (s.world_cache_levels - 1)) as f32
-                * s.world_cache_probes as f32,
-        )
     }
 }

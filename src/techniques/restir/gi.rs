@@ -42,6 +42,7 @@ pub(super) struct CacheTermination {
 }
 
 /// The caches a GI sample path can end in: parts, each with a lookup at bind group CACHE_GROUP.
+/// `Cards` serves `lumen-cards` and, built with its world radiance cache, `lumen-world`.
 pub(super) enum GiCache {
     Cards(Box<SurfaceCache>),
     Surfels(Box<SurfelCache>),
@@ -55,14 +56,23 @@ impl GiCache {
     fn new(key: CacheKey, cache_update: f32) -> Result<GiCache> {
         Ok(match key.0 {
             GiTerminate::Surfels => GiCache::Surfels(Box::new(SurfelCache::new(key.1, key.3)?)),
-            _ => GiCache::Cards(Box::new(SurfaceCache::new(key.1, cache_update, key.3)?)),
+            t => GiCache::Cards(Box::new(SurfaceCache::new(
+                key.1,
+                cache_update,
+                key.3,
+                t == GiTerminate::LumenWorld,
+            )?)),
         })
     }
 
     fn key(&self) -> CacheKey {
         match self {
             GiCache::Cards(c) => (
-                GiTerminate::LumenCards,
+                if c.has_world() {
+                    GiTerminate::LumenWorld
+                } else {
+                    GiTerminate::LumenCards
+                },
                 c.sized().0,
                 c.sized().1,
                 c.cache_light(),
@@ -113,19 +123,28 @@ impl GiCache {
 
     /// The temporal pass's shader defs (path.wgsl's termination and the lookup's group) and
     /// the lookup's layout.
-    fn reader(&self, gpu: &Gpu) -> ([(&'static str, u32); 2], wgpu::BindGroupLayout) {
+    fn reader(&self, gpu: &Gpu) -> (Vec<(&'static str, u32)>, wgpu::BindGroupLayout) {
+        use crate::parts::{surface_cache, surfel_cache, world_cache};
         match self {
-            GiCache::Cards(_) => (
-                [
-                    ("GI_TERMINATE_CACHE", 1),
-                    crate::parts::surface_cache::lookup_defs(CACHE_GROUP)[0],
+            GiCache::Cards(c) if c.has_world() => (
+                vec![
+                    ("GI_TERMINATE_WORLD", 1),
+                    surface_cache::lookup_defs(CACHE_GROUP)[0],
+                    world_cache::lookup_defs(CACHE_GROUP)[0],
                 ],
-                SurfaceCache::lookup_layout(gpu),
+                SurfaceCache::lookup_layout(gpu, true),
+            ),
+            GiCache::Cards(_) => (
+                vec![
+                    ("GI_TERMINATE_CACHE", 1),
+                    surface_cache::lookup_defs(CACHE_GROUP)[0],
+                ],
+                SurfaceCache::lookup_layout(gpu, false),
             ),
             GiCache::Surfels(_) => (
-                [
+                vec![
                     ("GI_TERMINATE_SURFELS", 1),
-                    crate::parts::surfel_cache::lookup_defs(CACHE_GROUP)[0],
+                    surfel_cache::lookup_defs(CACHE_GROUP)[0],
                 ],
                 SurfelCache::lookup_layout(gpu),
             ),
@@ -250,8 +269,8 @@ impl RestirLighting {
         let s = &self.settings;
         match s.gi_terminate {
             GiTerminate::Surfels => (GiTerminate::Surfels, s.cache_ray_budget, 0, s.cache_light),
-            _ => (
-                GiTerminate::LumenCards,
+            t => (
+                t,
                 s.cache_atlas_size,
                 SurfaceCache::budget(s.cache_update),
                 s.cache_light,

@@ -151,7 +151,7 @@ const OWN_PARAMS: [ParamSpec; 21] = [
     },
     ParamSpec {
         name: "gi_terminate",
-        what: "where a GI sample path ends: path (traced to gi_bounces), or at its first hit (hit gi_bounces with a cache) in a radiance cache that holds the further bounces, built and updated in the same frame: lumen-cards (Lumen's surface cache; the seed's connection) or surfels (the surfels' irradiance where surfels cover the hit, the path traced on where none do); lumen-world is not built yet",
+        what: "where a GI sample path ends: path (traced to gi_bounces), or at its first hit (hit gi_bounces with a cache) in a radiance cache that holds the further bounces, built and updated in the same frame: lumen-cards (Lumen's surface cache; the seed's connection), lumen-world (Lumen's world radiance cache seen from the hit: one BSDF ray to the probes' TMin, the surface cache where it hits, the world probes past it) or surfels (the surfels' irradiance where surfels cover the hit, the path traced on where none do)",
         higher: "a cache: multi-bounce light at the price of one ray per path, biased by the cache (coarse texels or surfels, diffuse only, lag; lumen-cards: no light where no card covers a hit)",
         lower: "path: unbiased with gi_bounces = 0, every bounce traced",
         kind: ParamKind::Choice(&["path", "lumen-cards", "lumen-world", "surfels"]),
@@ -239,6 +239,8 @@ pub enum GiTerminate {
     Path,
     /// Lumen's surface cache (`crate::parts::SurfaceCache`) at the path's last hit.
     LumenCards,
+    /// Lumen's world radiance cache (`crate::parts::WorldCache`, held by a surface cache for
+    /// the short rays before its TMin) seen from the path's last hit.
     LumenWorld,
     /// The surfels' irradiance (`crate::parts::SurfelCache`) at the path's last hit.
     Surfels,
@@ -262,7 +264,7 @@ impl GiTerminate {
 
     /// Whether the path ends in a cache (one that is built).
     pub fn cache(self) -> bool {
-        matches!(self, Self::LumenCards | Self::Surfels)
+        matches!(self, Self::LumenCards | Self::LumenWorld | Self::Surfels)
     }
 }
 
@@ -330,13 +332,7 @@ impl RestirSettings {
 impl RestirSettings {
     /// Combinations that cannot run, as one line.
     pub fn check(&self) -> anyhow::Result<()> {
-        match self.gi_terminate {
-            GiTerminate::LumenWorld => anyhow::bail!(
-                "gi_terminate = \"{}\" is not built yet: use \"path\", \"lumen-cards\" or \"surfels\" (docs/parts.md)",
-                self.gi_terminate.name()
-            ),
-            _ => Ok(()),
-        }
+        Ok(())
     }
 }
 

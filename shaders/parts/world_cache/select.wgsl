@@ -5,7 +5,7 @@
 // takes new ones first, then old ones in list order, with its fixed budget (the seed's fixed
 // update cost, variable lighting latency); the oldest probe is always next.
 #import gilab::frame::frame
-#import gilab::lumen_probes::{pp, probe_state, world_header, world_slot_coord, world_slots, world_traced_frame, STATE_WORLD_NEW, STATE_WORLD_OLD}
+#import gilab::world_cache::{wc, world_lists, world_header, world_slot_coord, world_slots, world_read_frame, world_traced_frame, world_list_offset, WORLD_STATE_NEW, WORLD_STATE_OLD}
 
 const RECENT_FRAMES: u32 = 8u;
 // Ages 1..AGE_BUCKETS - 1 frames have a bucket each; older probes share the last one.
@@ -18,7 +18,7 @@ var<workgroup> cutoff: u32;
 
 // 0: not read recently; 1: new; 2 + bucket: old, with its age bucket.
 fn classify(slot: u32) -> u32 {
-    let mark = atomicLoad(&probe_state[pp.counts_b.x + slot]);
+    let mark = world_read_frame(slot);
     if mark == 0u || mark + RECENT_FRAMES <= frame.frame_index {
         return 0u;
     }
@@ -70,7 +70,7 @@ fn main(@builtin(local_invocation_index) li: u32) {
         workgroupBarrier();
         scan_both(li);
         if is_new == 1u {
-            atomicStore(&probe_state[pp.counts_b.y + base_new + scan_new[li] - 1u], slot);
+            world_lists[world_list_offset() + base_new + scan_new[li] - 1u] = slot;
         }
         base_new += scan_new[255];
         workgroupBarrier();
@@ -78,7 +78,7 @@ fn main(@builtin(local_invocation_index) li: u32) {
     // The oldest bucket that the old probes' share of the budget reaches: buckets above it are
     // listed first, the cutoff bucket after them (world_update takes what its budget allows).
     if li == 0u {
-        let budget = pp.world_update.y - min(base_new, pp.world_update.y);
+        let budget = wc.shape.w - min(base_new, wc.shape.w);
         var taken = 0u;
         var c = AGE_BUCKETS - 1u;
         loop {
@@ -110,14 +110,14 @@ fn main(@builtin(local_invocation_index) li: u32) {
             workgroupBarrier();
             scan_both(li);
             if is_old == 1u {
-                atomicStore(&probe_state[pp.counts_b.y + total + base_old + scan_old[li] - 1u], slot);
+                world_lists[world_list_offset() + total + base_old + scan_old[li] - 1u] = slot;
             }
             base_old += scan_old[255];
             workgroupBarrier();
         }
     }
     if li == 0u {
-        atomicStore(&probe_state[STATE_WORLD_NEW], base_new);
-        atomicStore(&probe_state[STATE_WORLD_OLD], base_old);
+        world_lists[WORLD_STATE_NEW] = base_new;
+        world_lists[WORLD_STATE_OLD] = base_old;
     }
 }

@@ -13,7 +13,8 @@
 #import gilab::counters::{flush_counts, no_counts, RAY_CACHE}
 #import gilab::rng::{rng_init, rand_pair, STREAM_LUMEN_WORLD}
 #import gilab::lumen::{trace_scene, hit_radiance}
-#import gilab::lumen_probes::{pp, probe_state, world_cache, world_header, world_slot_coord, world_probe_pos, world_slots, world_spacing, world_res, world_updates, cell_dir, WORLD_RES, WORLD_CELLS, STATE_WORLD_NEW, STATE_WORLD_OLD}
+#import gilab::equal_area::cell_dir
+#import gilab::world_cache::{wc, world_lists, world_cache, world_header, world_slot_coord, world_probe_pos, world_slots, world_spacing, world_res, world_updates, world_list_offset, world_frames_index, WORLD_RES, WORLD_CELLS, WORLD_STATE_NEW, WORLD_STATE_OLD}
 #import gilab::sky::sky_radiance
 
 var<workgroup> back_faces: atomic<u32>;
@@ -22,13 +23,13 @@ var<workgroup> back_faces: atomic<u32>;
 fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) j: u32) {
     var counts = no_counts();
     let total = world_slots();
-    let n_new = atomicLoad(&probe_state[STATE_WORLD_NEW]);
-    let n_old = atomicLoad(&probe_state[STATE_WORLD_OLD]);
+    let n_new = world_lists[WORLD_STATE_NEW];
+    let n_old = world_lists[WORLD_STATE_OLD];
     var slot = 0xffffffffu;
     if wid.x < n_new {
-        slot = atomicLoad(&probe_state[pp.counts_b.y + wid.x]);
+        slot = world_lists[world_list_offset() + wid.x];
     } else if wid.x - n_new < n_old {
-        slot = atomicLoad(&probe_state[pp.counts_b.y + total + wid.x - n_new]);
+        slot = world_lists[world_list_offset() + total + wid.x - n_new];
     }
     let live = slot < total;
     var g = vec3<i32>(0);
@@ -62,12 +63,12 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
         var n = 1.0;
         var mean = vec4<f32>(radiance, dist);
         if same {
-            n = min(updates + 1.0, f32(pp.world_update.w));
+            n = min(updates + 1.0, f32(wc.update.x));
             mean = old + (vec4<f32>(radiance, dist) - old) / n;
         }
         world_cache[slot * WORLD_CELLS + j] = mean;
         if j == 0u {
-            atomicStore(&probe_state[pp.counts_b.z + slot], frame.frame_index + 1u);
+            world_cache[world_frames_index(slot)].y = f32(frame.frame_index + 1u);
             let inside = f32(atomicLoad(&back_faces)) / f32(WORLD_CELLS);
             world_cache[total * WORLD_CELLS + slot] = vec4<f32>(vec3<f32>(g), 2.0 * n + min(inside, 0.999));
         }
