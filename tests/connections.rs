@@ -57,18 +57,10 @@ fn run_technique(
     frames: u32,
     seed: u32,
 ) -> (Image, f64, Engine) {
-    let mut e = engine(technique, params, scene, size, seed);
-    for _ in 0..warmup {
-        e.render_frame().unwrap();
-    }
-    e.reset();
-    for _ in 0..frames {
-        e.render_frame().unwrap();
-    }
-    let rays = e.ray_counts().unwrap();
-    assert_eq!(rays.invalid_samples, 0, "NaN/Inf samples");
+    let (img, rays, e) =
+        common::render_after_warmup(technique, params, scene, size, warmup, frames, seed);
     let rpp = rays.total() as f64 / (size[0] as f64 * size[1] as f64 * frames as f64);
-    (e.read_output().unwrap(), rpp, e)
+    (img, rpp, e)
 }
 
 /// The seed's claim on the Cornell box: a one-bounce path that ends in a cache keeps the

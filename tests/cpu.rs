@@ -219,7 +219,7 @@ fn gpu_struct_members_match_rust_fields() {
             directional_candidates,
             sky_candidates,
             single_pool,
-            pad,
+            gi_cosine,
         ]
     );
 }

@@ -16,9 +16,10 @@
 #import gilab::frame::{frame, FLAG_NO_PRIMARY_EMISSION}
 #import gilab::counters::{flush_counts, no_counts, RAY_SHADOW, COUNT_INVALID_SAMPLES}
 #import gilab::accumulate::accumulate_sample
-#import gilab::primary::{current_surface, previous_surface, previous_pixel_position, GSurface}
+#import gilab::primary::{current_surface, previous_surface, previous_pixel_position, surface_material, GSurface}
 #import gilab::restir::{gi_reservoirs, gi_sky, reservoir_index, gi_contribution, gi_visible}
-#import gilab::callisto::{params, current, history, debug_out, pixel_direct, parity}
+#import gilab::callisto::{params, current, history, debug_out, pixel_direct, pixel_specular, parity}
+#import gilab::brdf::specular_eval
 
 // Last frame's surface at the reprojected pixel is the same surface: normals within ~25 degrees
 // and on this surface's plane (1% of the depth). No depth-difference test: the jittered camera
@@ -136,9 +137,20 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 }
                 l += direct + current[2u * params.pixels + idx].xyz;
             }
+            // Pixels the reflections part traces take their specular indirect light from it;
+            // ReSTIR GI's sample (which the full BSDF weighs) then gives its diffuse share only.
+            let m = surface_material(s);
+            let traced = params.reflections == 1u && sqrt(m.alpha) <= params.reflection_max_roughness;
+            if traced {
+                l += pixel_specular[idx].xyz;
+            }
             if params.gi == 1u {
                 // Indirect light: this frame's sky sample plus the resampled GI sample, visibility re-checked.
-                l += gi_sky[idx].xyz;
+                // (w = 1: a mirror's sample, which the reflections part replaces where it traces.)
+                let gs = gi_sky[idx];
+                if !(traced && gs.w > 0.5) {
+                    l += gs.xyz;
+                }
                 let ri = reservoir_index(parity(), idx);
                 let g = gi_reservoirs[ri];
                 if g.big_w > 0.0 {
@@ -146,7 +158,13 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     if any(e.value > vec3<f32>(0.0)) {
                         counts[RAY_SHADOW] += 1u;
                         if gi_visible(s, g) {
-                            l += e.value * g.big_w;
+                            var value = e.value;
+                            if traced {
+                                let n = s.normal_alpha.xyz;
+                                let spec = specular_eval(m, n, s.wo_dist.xyz, e.wi).f;
+                                value = max(value - spec * max(dot(n, e.wi), 0.0) * g.radiance.xyz * e.geom, vec3<f32>(0.0));
+                            }
+                            l += value * g.big_w;
                         }
                     }
                 }

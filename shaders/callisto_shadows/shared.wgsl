@@ -39,8 +39,10 @@ struct CallistoParams {
     // Samples per pixel of the lights outside the tile's list, picked by power.
     tail_samples: u32,
     direct_restir: u32,
-    pad_b: u32,
-    pad_c: u32,
+    // 1: the reflections part traces pixels whose perceptual roughness is at most
+    // reflection_max_roughness, and resolve adds its specular light (binding 8).
+    reflections: u32,
+    reflection_max_roughness: f32,
 }
 
 const TILE: u32 = 16u;
@@ -74,6 +76,9 @@ const NO_SLOT: u32 = 0xffffffffu;
 @group(3) @binding(6) var<storage, read_write> debug_out: array<vec4<f32>>;
 // Direct light per pixel from the direct-light part (`direct = "restir"`; src/parts/).
 @group(3) @binding(7) var<storage, read_write> pixel_direct: array<vec4<f32>>;
+// The reflections part's output (`reflections = "traced"`): per pixel the traced specular
+// radiance, then a second plane (rough albedo, hit kind).
+@group(3) @binding(8) var<storage, read_write> pixel_specular: array<vec4<f32>>;
 
 fn parity() -> u32 {
     return frame.frame_index & 1u;

@@ -1,13 +1,14 @@
-// ReSTIR GI pass 1: one cosine-sampled sample path per pixel from the primary surface (its
-// first hit's own emission left out); the hit point and its outgoing radiance become a
-// candidate, merged with last frame's GI reservoir at the reprojected pixel.
+// ReSTIR GI pass 1: one sample path per pixel from the primary surface, its direction drawn by
+// the BSDF (or cosine-weighted, `gi_sampling`), its first hit's own emission left out; the hit
+// point and its outgoing radiance become a candidate, merged with last frame's GI reservoir at
+// the reprojected pixel. A mirror's (delta) sample lights its own pixel only.
 #import gilab::rng::{rng_init, rand, rand_pair, STREAM_GI_SAMPLE}
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts, RAY_SHADOW, RAY_INDIRECT}
 #import gilab::math::{PI, to_world, luminance}
 #import gilab::ray::spawn_ray_origin
 #import gilab::sampling::sample_cosine_hemisphere
-#import gilab::brdf::bsdf_eval
+#import gilab::brdf::{bsdf_eval, bsdf_sample, BsdfSample}
 #import gilab::path::trace_path
 #import gilab::primary::{reproject, current_surface, previous_surface, surface_material}
 #import gilab::restir::{params, gi_reservoirs, gi_sky, GiReservoir, reservoir_index, parity, empty_gi_reservoir, gi_contribution, gi_target, gi_update, gi_jacobian_ok, similar, TEMPORAL_SEGMENT}
@@ -21,28 +22,49 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let s = current_surface(idx);
         var r = empty_gi_reservoir();
         var sky = vec3<f32>(0.0);
+        var sky_w = 0.0;
         if s.pos.w > 0.5 && params.gi == 1u {
             let n = s.normal_alpha.xyz;
-            let local = sample_cosine_hemisphere(rand_pair(&rng));
-            let wi = to_world(local, n);
-            let pdf = local.z / PI;
+            let m = surface_material(s);
+            let wo = s.wo_dist.xyz;
+            // The sample's direction: by the BSDF (diffuse and GGX lobes mixed by the specular
+            // weight, `bsdf_sample`), or cosine-weighted (`gi_sampling = "cosine"`). weight =
+            // f cos / pdf, pdf in solid angle (0 for a mirror's delta lobe).
+            var bs = BsdfSample(vec3<f32>(0.0), vec3<f32>(0.0), 0.0, false, false);
+            if params.gi_cosine == 1u {
+                let local = sample_cosine_hemisphere(rand_pair(&rng));
+                bs.wi = to_world(local, n);
+                bs.pdf = local.z / PI;
+                bs.valid = bs.pdf > 0.0;
+                bs.weight = bsdf_eval(m, n, wo, bs.wi).f * local.z / max(bs.pdf, 1e-30);
+            } else {
+                bs = bsdf_sample(m, n, wo, rand(&rng), rand_pair(&rng));
+            }
             r.m = 1.0;
-            if pdf > 0.0 && dot(wi, s.geo_specular.xyz) > 0.0 {
-                let path = trace_path(spawn_ray_origin(s.pos.xyz, s.geo_specular.xyz, wi), wi, &rng, params.gi_bounces, true);
+            if bs.valid && dot(bs.wi, s.geo_specular.xyz) > 0.0 {
+                let wi = bs.wi;
+                // A mirror's path keeps its first hit's emission: NEE at the pixel cannot reach
+                // an emitter through a delta lobe.
+                let path = trace_path(spawn_ray_origin(s.pos.xyz, s.geo_specular.xyz, wi), wi, &rng, params.gi_bounces, !bs.is_delta);
                 counts[RAY_INDIRECT] += path.first_rays + path.indirect_rays;
                 counts[RAY_SHADOW] += path.shadow_rays;
-                if path.first_hit.w > 0.5 {
+                if bs.is_delta {
+                    // A delta lobe has no density another pixel's reconnection could use: the
+                    // sample lights its own pixel only, through the per-pixel term (w = 1 marks
+                    // it for a family that traces mirrors itself).
+                    sky = bs.weight * path.radiance;
+                    sky_w = 1.0;
+                } else if path.first_hit.w > 0.5 {
                     let cand = GiReservoir(path.first_hit, vec4<f32>(path.first_normal, 0.0), vec4<f32>(path.radiance, 0.0), 0.0, 0.0, 0.0, 0.0);
                     let e = gi_contribution(s, cand);
                     if e.geom > 0.0 {
                         // Area-measure source pdf: solid-angle pdf times the geometry term.
-                        gi_update(&r, cand, luminance(e.value) / (pdf * e.geom), 0.0, rand(&rng));
+                        gi_update(&r, cand, luminance(e.value) / (bs.pdf * e.geom), 0.0, rand(&rng));
                     }
                 } else if params.sky_candidates == 0u {
                     // Sky without a DI sky class: direct light from the environment,
                     // estimated by this sample alone (with the class, it is ReSTIR DI's).
-                    let f = bsdf_eval(surface_material(s), n, s.wo_dist.xyz, wi).f;
-                    sky = f * local.z * path.radiance / pdf;
+                    sky = bs.weight * path.radiance;
                 }
             }
             r.target_pdf = gi_target(s, r);
@@ -85,7 +107,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             }
         }
         gi_reservoirs[reservoir_index(TEMPORAL_SEGMENT, idx)] = r;
-        gi_sky[idx] = vec4<f32>(sky, 0.0);
+        gi_sky[idx] = vec4<f32>(sky, sky_w);
     }
     flush_counts(local_index, counts);
 }

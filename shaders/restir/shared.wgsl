@@ -53,7 +53,8 @@ struct RestirParams {
     sky_candidates: u32,
     // 1: one power-proportional pool over all lights instead of classes; no sky candidates.
     single_pool: u32,
-    pad: u32,
+    // 1: GI sample directions cosine-sampled; 0: by the BSDF (`gi_sampling`).
+    gi_cosine: u32,
 }
 
 const VISIBILITY_PER_CLASS: u32 = 1u;

@@ -104,6 +104,14 @@ pub const PARAMS: [ParamSpec; 6] = [
     },
 ];
 
+/// [`PARAMS`] with `reflections = "none"` as the default: for a family whose default is
+/// direct light only (Callisto's shadows), where traced reflections are an opt-in.
+pub const fn params_off_by_default() -> [ParamSpec; 6] {
+    let mut p = PARAMS;
+    p[0].default = 1.0;
+    p
+}
+
 /// What the family's parameters choose.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ReflectionSettings {
@@ -394,6 +402,21 @@ impl Reflections {
     /// copies into its own debug buffer.
     pub fn debug_buffer(&self) -> Option<&wgpu::Buffer> {
         self.buffers.as_ref().map(|b| &b.debug)
+    }
+
+    /// The passes as a family's pass list shows them: they run when the family's
+    /// `reflections = "traced"` (`on`) and the scene has a surface with a specular layer.
+    pub fn family_passes(
+        &self,
+        on: bool,
+        f: &crate::scene::features::SceneFeatures,
+    ) -> Vec<PassInfo> {
+        let why_not = if !on {
+            "reflections = none: specular surfaces get direct specular only"
+        } else {
+            "no surface with a specular layer (metal or specular factor) in the scene"
+        };
+        self.passes(on && f.min_specular_roughness.is_some(), why_not)
     }
 
     /// The passes as a family's pass list shows them; `runs`: the family turned them on and the

@@ -83,6 +83,12 @@ impl RestirGi {
         self.lighting.bind_group()
     }
 
+    /// The surface cache its paths end in, when they end in one and it is built: its lookup
+    /// bind group and whether the world cache's bindings are in it (`SurfaceCache::lookup_layout`).
+    pub fn surface_cache(&self) -> Option<(&wgpu::BindGroup, bool)> {
+        self.lighting.gi_surface_cache()
+    }
+
     /// This frame's GI passes (and the cache's), when `gi` is on.
     pub fn record(
         &mut self,

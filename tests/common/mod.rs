@@ -83,6 +83,30 @@ pub fn render_technique(
     (e.read_output().unwrap(), rays)
 }
 
+/// `warmup` frames (the technique's caches fill), the accumulation reset, then `frames`
+/// accumulated; fails on NaN/Inf samples. The image, the accumulated run's rays, the engine.
+pub fn render_after_warmup(
+    technique: &str,
+    params: toml::Table,
+    scene: Scene,
+    size: [u32; 2],
+    warmup: u32,
+    frames: u32,
+    seed: u32,
+) -> (Image, RayCounts, Engine) {
+    let mut e = engine(technique, params, scene, size, seed);
+    for _ in 0..warmup {
+        e.render_frame().unwrap();
+    }
+    e.reset();
+    for _ in 0..frames {
+        e.render_frame().unwrap();
+    }
+    let rays = e.ray_counts().unwrap();
+    assert_eq!(rays.invalid_samples, 0, "NaN/Inf samples");
+    (e.read_output().unwrap(), rays, e)
+}
+
 /// Renders `scene` with the reference path tracer: `spp` samples per pixel in frames of `spf`.
 pub fn render_reference(
     scene: Scene,

@@ -32,7 +32,8 @@ mod params;
 pub use params::{CallistoParamsGpu, CallistoSettings, MAX_LIGHTS_PER_TILE, PARAMS, RATES};
 
 use crate::gpu::{timing::PassTimer, Gpu};
-use crate::parts::{RestirDirect, RestirGi};
+use crate::parts::reflections::HitCache;
+use crate::parts::{Reflections, RestirDirect, RestirGi};
 use crate::render::params::Params;
 use crate::render::primary::FrameInputs;
 use crate::render::{pipelines, DebugView, PassInfo, RenderContext, Technique};
@@ -57,6 +58,8 @@ struct Resources {
     bind_group: wgpu::BindGroup,
     /// `pixel_direct` (binding 7) for the direct-light part's pass to write.
     direct_bind_group: wgpu::BindGroup,
+    /// `pixel_specular` (binding 8) for the reflections part's filter to write.
+    specular_bind_group: wgpu::BindGroup,
     /// Cleared on a history reset: tile lists, rates, stats, shadow-mask history.
     clear_on_reset: Vec<wgpu::Buffer>,
     debug: wgpu::Buffer,
@@ -71,6 +74,15 @@ pub struct CallistoShadows {
     restir: RestirGi,
     /// The direct-light part for `direct = "restir"` (built the first time it is needed).
     restir_direct: RestirDirect,
+    /// The reflections part (built the first time a scene with a specular layer needs it): its
+    /// rays' hits are lit by one NEE sample (Callisto has no cache of its own).
+    reflections: Reflections,
+    /// Whether the scene has a surface with a specular layer (the reflections part runs).
+    specular: bool,
+    /// What the reflections part was built to light its hits with besides NEE: None (nothing),
+    /// Some(world): the surface cache ReSTIR GI's paths end in (`gi_terminate = "lumen-cards"`
+    /// or `"lumen-world"`), whose lookup layout holds the world cache's bindings when `world`.
+    reflection_cache: Option<bool>,
     layout: Option<wgpu::BindGroupLayout>,
     empty: Option<(wgpu::BindGroupLayout, wgpu::BindGroup)>,
     pipelines: Option<Pipelines>,
@@ -90,6 +102,9 @@ impl Default for CallistoShadows {
                 gi
             },
             restir_direct: RestirDirect::default(),
+            reflections: Reflections::default(),
+            specular: false,
+            reflection_cache: None,
             settings,
             params,
             layout: None,
@@ -103,7 +118,12 @@ impl Default for CallistoShadows {
 
 /// Callisto's entry files, ReSTIR's (GI, and the direct-light part's DI passes) and the
 /// direct-light part's shading.
-const OWN_SHADER_FILES: [&str; 11] = [
+const OWN_SHADER_FILES: [&str; 15] = crate::render::concat_files::<11, 4, 15>(
+    CALLISTO_AND_RESTIR_FILES,
+    crate::parts::reflections::SHADER_FILES,
+);
+
+const CALLISTO_AND_RESTIR_FILES: [&str; 11] = [
     CULL,
     SHADOWS,
     MEAN,
@@ -118,8 +138,8 @@ const OWN_SHADER_FILES: [&str; 11] = [
 ];
 
 /// With the cache parts' (compiled only with `gi_terminate = "lumen-cards"` or `"surfels"`).
-const SHADER_FILES: [&str; 51] = crate::render::concat_files(
-    crate::render::concat_files::<11, 25, 36>(
+const SHADER_FILES: [&str; 55] = crate::render::concat_files(
+    crate::render::concat_files::<15, 25, 40>(
         OWN_SHADER_FILES,
         crate::techniques::lumen::SURFACE_CACHE_FILES,
     ),
@@ -131,7 +151,7 @@ impl CallistoShadows {
         self.layout
             .get_or_insert_with(|| {
                 let mut entries = vec![pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE)];
-                for b in 1..=7 {
+                for b in 1..=8 {
                     entries.push(pipelines::storage_entry(b, false));
                 }
                 pipelines::layout(gpu, "callisto", &entries)
@@ -163,6 +183,41 @@ impl CallistoShadows {
         }
         if self.restir_direct.is_built() {
             self.restir_direct.build_resources(ctx);
+        }
+        Ok(())
+    }
+
+    /// The reflections part runs: `reflections = "traced"` on a scene with a specular layer.
+    fn reflections_active(&self) -> bool {
+        self.settings.reflections && self.specular
+    }
+
+    /// Builds the reflections part when it is needed and not built, or built for another hit
+    /// cache (`rebuild`: a shader change rebuilds it if built), and passes it the settings. Its
+    /// hits get one NEE sample, plus the surface cache's indirect light where ReSTIR GI's paths
+    /// end in one (call after `ensure_restir`, which builds that cache).
+    fn prepare_reflections(&mut self, ctx: &RenderContext, rebuild: bool) -> Result<()> {
+        self.reflections.settings = self.settings.reflection.clone();
+        self.specular = ctx.scene.data.features.min_specular_roughness.is_some();
+        let needed = self.reflections_active();
+        let cache = self.restir.surface_cache().map(|(_, world)| world);
+        let stale = self.reflections.is_built() && cache != self.reflection_cache;
+        if (needed && !self.reflections.is_built())
+            || (rebuild && self.reflections.is_built())
+            || stale
+        {
+            match cache {
+                Some(world) => {
+                    let layout = crate::parts::SurfaceCache::lookup_layout(ctx.gpu, world);
+                    self.reflections
+                        .build(ctx, Some(HitCache::SurfaceCache(&layout)))?;
+                }
+                None => self.reflections.build(ctx, None)?,
+            }
+            self.reflection_cache = cache;
+        }
+        if self.reflections.is_built() {
+            self.reflections.build_resources(ctx);
         }
         Ok(())
     }
@@ -201,7 +256,8 @@ impl CallistoShadows {
             pixels,
             tail_samples: s.tail_samples,
             direct_restir: (s.direct_restir && self.lights > 0) as u32,
-            pad: [0; 2],
+            reflections: self.reflections_active() as u32,
+            reflection_max_roughness: s.reflection.max_roughness,
         }
     }
 
@@ -221,6 +277,7 @@ impl CallistoShadows {
         let history = buf("callisto history", 2 * px * 32);
         let debug = buf("callisto debug", 2 * px * 16);
         let pixel_direct = buf("callisto pixel direct", px * 16);
+        let pixel_specular = buf("callisto pixel specular", 2 * px * 16);
         let uniform = wgpu::util::DeviceExt::create_buffer_init(
             &gpu.device,
             &wgpu::util::BufferInitDescriptor {
@@ -243,14 +300,23 @@ impl CallistoShadows {
                 &history,
                 &debug,
                 &pixel_direct,
+                &pixel_specular,
             ],
         );
         let output = self.restir_direct.output_layout(gpu).clone();
         let direct_bind_group =
             pipelines::buffers_bind_group(gpu, "callisto pixel direct", &output, &[&pixel_direct]);
+        let specular_layout = self.reflections.output_layout(gpu).clone();
+        let specular_bind_group = pipelines::buffers_bind_group(
+            gpu,
+            "callisto pixel specular",
+            &specular_layout,
+            &[&pixel_specular],
+        );
         self.res = Some(Resources {
             bind_group,
             direct_bind_group,
+            specular_bind_group,
             clear_on_reset: vec![lists, rates, stats, history],
             debug,
             tiles,
@@ -360,6 +426,7 @@ impl Technique for CallistoShadows {
             v.splice(0..0, direct);
         }
         v.extend(self.restir.passes(f));
+        v.extend(self.reflections.family_passes(s.reflections, f));
         v
     }
 
@@ -387,6 +454,7 @@ impl Technique for CallistoShadows {
         }
         // Rebuild ReSTIR GI's pipelines too when it runs (hot reload of its shaders).
         self.ensure_restir(ctx, self.settings.gi)?;
+        self.prepare_reflections(ctx, true)?;
         self.pipelines = Some(built);
         self.build_resources(ctx);
         Ok(())
@@ -394,6 +462,7 @@ impl Technique for CallistoShadows {
 
     fn apply_params(&mut self, ctx: &RenderContext) -> Result<()> {
         self.ensure_restir(ctx, false)?;
+        self.prepare_reflections(ctx, false)?;
         self.build_resources(ctx);
         Ok(())
     }
@@ -401,6 +470,7 @@ impl Technique for CallistoShadows {
     fn reset_history(&mut self, gpu: &Gpu) {
         self.restir.reset(gpu);
         self.restir_direct.reset(gpu);
+        self.reflections.reset(gpu);
         let Some(r) = &self.res else {
             return;
         };
@@ -449,6 +519,11 @@ impl Technique for CallistoShadows {
                     [1, 1, 1],
                 );
             }
+        }
+        if self.reflections_active() {
+            let cache = self.restir.surface_cache().map(|(bg, _)| bg);
+            self.reflections
+                .record(ctx, enc, timer, cache, (&r.specular_bind_group, 0), false);
         }
         let image = [ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1];
         pipelines::technique_pass(

@@ -28,14 +28,15 @@ pub struct CallistoParamsGpu {
     pub pixels: u32,
     pub tail_samples: u32,
     pub direct_restir: u32,
-    pub pad: [u32; 2],
+    pub reflections: u32,
+    pub reflection_max_roughness: f32,
 }
 
 /// Rate choices, in the order of `rate_mode` on the GPU.
 pub const RATES: &[&str] = &["variable", "full", "half", "quarter"];
 
-/// Callisto's own parameters; [`PARAMS`] adds the caches' light sampling (`cache_direct`, for
-/// the cache ReSTIR GI's paths end in).
+/// Callisto's own parameters; [`PARAMS`] adds the reflections part's and the caches' light
+/// sampling (`cache_direct`, for the cache ReSTIR GI's paths end in).
 const OWN_PARAMS: [ParamSpec; 16] = [
     ParamSpec {
         name: "rate",
@@ -167,8 +168,15 @@ const OWN_PARAMS: [ParamSpec; 16] = [
     },
 ];
 
-pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<16, 3, 19>(
+const WITH_REFLECTIONS: [ParamSpec; 22] = crate::render::params::concat_params::<16, 6, 22>(
     OWN_PARAMS,
+    // Off by default: Callisto alone is direct light (`gi = false`), which its tests compare
+    // with the reference's direct light.
+    crate::parts::reflections::params_off_by_default(),
+);
+
+pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<22, 3, 25>(
+    WITH_REFLECTIONS,
     crate::parts::world_regir::PARAMS,
 );
 
@@ -194,6 +202,10 @@ pub struct CallistoSettings {
     pub direct_restir: bool,
     /// How the cache ReSTIR GI's paths end in lights its points (`cache_direct`).
     pub cache_light: crate::parts::world_regir::WorldRegirSettings,
+    /// `reflections = "traced"`.
+    pub reflections: bool,
+    /// The reflections part's settings.
+    pub reflection: crate::parts::reflections::ReflectionSettings,
 }
 
 impl CallistoSettings {
@@ -216,6 +228,8 @@ impl CallistoSettings {
             gi_terminate: crate::parts::restir_gi::GiTerminate::from_index(p.u32("gi_terminate")),
             direct_restir: p.u32("direct") == 1,
             cache_light: crate::parts::world_regir::WorldRegirSettings::from_params(p),
+            reflections: crate::parts::reflections::ReflectionSettings::from_params(p).0,
+            reflection: crate::parts::reflections::ReflectionSettings::from_params(p).1,
         }
     }
 }

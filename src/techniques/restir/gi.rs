@@ -251,6 +251,20 @@ impl RestirLighting {
         }
     }
 
+    /// The surface cache the GI paths end in (`lumen-cards`, `lumen-world`), when it runs: its
+    /// lookup bind group and whether that holds the world cache's bindings too (a layout of
+    /// `SurfaceCache::lookup_layout(gpu, world)` reads it). Another part may read it (the
+    /// reflections part's hits in a family whose GI ends there).
+    pub fn gi_surface_cache(&self) -> Option<(&wgpu::BindGroup, bool)> {
+        if !(self.settings.gi && self.settings.gi_terminate.cache()) {
+            return None;
+        }
+        match &self.gi.cache.as_ref()?.cache {
+            GiCache::Cards(c) => Some((c.lookup()?, c.has_world())),
+            GiCache::Surfels(_) => None,
+        }
+    }
+
     /// The lookup counts of the world ReGIR clipmap that lights the cache the GI paths end in
     /// (None without such a cache; tests).
     pub fn gi_cache_regir_coverage(

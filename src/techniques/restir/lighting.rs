@@ -258,7 +258,7 @@ impl RestirLighting {
             directional_candidates: directional,
             sky_candidates: sky,
             single_pool: !s.light_classes as u32,
-            pad: 0,
+            gi_cosine: s.gi_cosine as u32,
         }
     }
 }

@@ -29,14 +29,15 @@ pub struct RestirParamsGpu {
     pub directional_candidates: u32,
     pub sky_candidates: u32,
     pub single_pool: u32,
-    pub pad: u32,
+    /// 1: GI sample directions cosine-sampled (`gi_sampling = "cosine"`); 0: by the BSDF.
+    pub gi_cosine: u32,
 }
 
 /// ReSTIR's parameters: docs, ranges and defaults in one place (the talk's defaults: 8 initial
 /// candidates, max history 8, a few spatial neighbours).
 /// ReSTIR's own parameters; [`PARAMS`] adds the caches' light sampling (`cache_direct`, for the
 /// cache a GI sample path ends in).
-const OWN_PARAMS: [ParamSpec; 21] = [
+const OWN_PARAMS: [ParamSpec; 22] = [
     ParamSpec {
         name: "candidates",
         what: "initial RIS candidates per pixel per frame from the local lights (emissive triangles, point, spot), by power or from the ReGIR cell",
@@ -150,6 +151,14 @@ const OWN_PARAMS: [ParamSpec; 21] = [
         default: 0.0,
     },
     ParamSpec {
+        name: "gi_sampling",
+        what: "how a GI sample path's first direction is drawn at the pixel: by the BSDF (its diffuse and GGX lobes mixed by the specular weight, as the reference samples: glossy surfaces sample what they reflect; a mirror's sample is its own pixel's, never reused) or cosine-weighted over the hemisphere (diffuse only)",
+        higher: "cosine: the glossy lobe is found by chance (fireflies and speckle on metal)",
+        lower: "bsdf: the glossy lobe is sampled where it reflects",
+        kind: ParamKind::Choice(&["bsdf", "cosine"]),
+        default: 0.0,
+    },
+    ParamSpec {
         name: "gi_terminate",
         what: "where a GI sample path ends: path (traced to gi_bounces), or at its first hit (hit gi_bounces with a cache) in a radiance cache that holds the further bounces, built and updated in the same frame: lumen-cards (Lumen's surface cache; the seed's connection), lumen-world (Lumen's world radiance cache seen from the hit: one BSDF ray to the probes' TMin, the surface cache where it hits, the world probes past it) or surfels (the surfels' irradiance where surfels cover the hit, the path traced on where none do)",
         higher: "a cache: multi-bounce light at the price of one ray per path, biased by the cache (coarse texels or surfels, diffuse only, lag; lumen-cards: no light where no card covers a hit)",
@@ -207,7 +216,7 @@ const OWN_PARAMS: [ParamSpec; 21] = [
     },
 ];
 
-pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<21, 3, 24>(
+pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<22, 3, 25>(
     OWN_PARAMS,
     crate::parts::world_regir::PARAMS,
 );
@@ -286,6 +295,8 @@ pub struct RestirSettings {
     pub accumulate: bool,
     pub gi: bool,
     pub gi_bounces: u32,
+    /// GI sample directions cosine-sampled instead of by the BSDF (`gi_sampling = "cosine"`).
+    pub gi_cosine: bool,
     pub gi_terminate: GiTerminate,
     pub cache_atlas_size: u32,
     pub cache_update: f32,
@@ -317,6 +328,7 @@ impl RestirSettings {
             accumulate: p.bool("accumulate"),
             gi: p.bool("gi"),
             gi_bounces: p.u32("gi_bounces"),
+            gi_cosine: p.u32("gi_sampling") == 1,
             gi_terminate: GiTerminate::from_index(p.u32("gi_terminate")),
             cache_atlas_size: p.u32("cache_atlas_size"),
             cache_update: p.f32("cache_update"),

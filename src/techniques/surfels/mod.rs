@@ -703,13 +703,7 @@ impl Technique for Surfels {
             },
         ));
         v.push(pass("apply", true, "gather the cell's surfels (distance, normal, depth), cell average where weight < 1; accumulate".into()));
-        let why_not = if !s.reflections {
-            "reflections = none: specular surfaces get direct specular only"
-        } else {
-            "no surface with a specular layer (metal or specular factor) in the scene"
-        };
-        let specular = f.min_specular_roughness.is_some();
-        v.extend(self.reflections.passes(s.reflections && specular, why_not));
+        v.extend(self.reflections.family_passes(s.reflections, f));
         v
     }
 
