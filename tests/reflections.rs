@@ -416,24 +416,55 @@ fn reflections_are_stable_deterministic_and_skipped_without_specular() {
                 "callisto-shadows" => toml::toml! { reflections = "traced" },
                 _ => toml::Table::new(),
             };
-            common::render_technique(
+            common::render_after_warmup(
                 technique,
                 params,
                 builtin::hard_cases(1e6),
                 [32, 32],
+                0,
                 4,
                 1,
-                0,
             )
         };
-        let (a, rays) = run();
-        let (b, _) = run();
+        let (a, rays, _) = run();
+        let (b, _, _) = run();
         assert_eq!(a.non_finite_count(), 0, "{technique}");
         assert_eq!(a.rgb, b.rgb, "{technique}: same seed, same image");
         assert!(
             rays.kind("reflection") > 0,
             "{technique}: hard cases have glossy metal"
         );
+    }
+
+    // The part's debug views in the surfels' and Callisto's lists show its rays and light on
+    // the metal box (Lumen's, which need `debug_views`, are Lumen's planes 12 to 15).
+    for technique in ["surfels", "callisto-shadows"] {
+        let (_, _, e) = common::render_after_warmup(
+            technique,
+            toml::toml! { reflections = "traced" },
+            metal_boxes(0.3),
+            [32, 32],
+            0,
+            2,
+            1,
+        );
+        let data = e.read_debug().unwrap().unwrap();
+        for name in [
+            "reflections: rays traced per pixel",
+            "reflections: specular radiance (luminance)",
+        ] {
+            let view = e
+                .technique
+                .debug_views()
+                .into_iter()
+                .find(|v| v.name == name)
+                .expect("the part's debug views are listed");
+            let values = gilab::render::debug_channel(&data, 32 * 32, view.channel);
+            assert!(
+                values.iter().any(|&v| v > 0.0),
+                "{technique}: view '{name}' is empty"
+            );
+        }
     }
 
     let mut e = engine("lumen", toml::Table::new(), builtin::cornell(), [16, 16], 1);

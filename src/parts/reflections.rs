@@ -20,7 +20,7 @@
 
 use crate::gpu::{timing::PassTimer, Gpu};
 use crate::render::params::{ParamKind, ParamSpec, Params};
-use crate::render::{pipelines, PassInfo, RenderContext};
+use crate::render::{pipelines, DebugView, PassInfo, RenderContext};
 use anyhow::Result;
 use glam::Vec3;
 
@@ -103,6 +103,26 @@ pub const PARAMS: [ParamSpec; 6] = [
         default: 1.0,
     },
 ];
+
+/// The part's debug views, on plane `plane` of the family's debug buffer (its channels
+/// 4·plane to 4·plane + 3), filled by [`Reflections::copy_debug`].
+pub fn debug_views(plane: usize) -> [DebugView; 4] {
+    let view = |name, k: usize, is_id| DebugView {
+        name,
+        channel: 4 * plane + k,
+        is_id,
+    };
+    [
+        view("reflections: rays traced per pixel", 0, false),
+        view(
+            "reflections: hit kind (1 world, 2 sky, 3 mirror, 4 rough: reuses irradiance)",
+            1,
+            true,
+        ),
+        view("reflections: specular radiance (luminance)", 2, false),
+        view("reflections: history length (frames)", 3, false),
+    ]
+}
 
 /// [`PARAMS`] with `reflections = "none"` as the default: for a family whose default is
 /// direct light only (Callisto's shadows), where traced reflections are an opt-in.
@@ -402,6 +422,22 @@ impl Reflections {
     /// copies into its own debug buffer.
     pub fn debug_buffer(&self) -> Option<&wgpu::Buffer> {
         self.buffers.as_ref().map(|b| &b.debug)
+    }
+
+    /// Copies the part's debug plane (written when `record` ran with `debug`) into plane
+    /// `plane` of a family's debug buffer (vec4 planes of the image's size), where
+    /// [`debug_views`] shows it.
+    pub fn copy_debug(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        extent: [u32; 2],
+        family_debug: &wgpu::Buffer,
+        plane: u32,
+    ) {
+        if let Some(d) = self.debug_buffer() {
+            let bytes = extent[0] as u64 * extent[1] as u64 * 16;
+            enc.copy_buffer_to_buffer(d, 0, family_debug, plane as u64 * bytes, bytes);
+        }
     }
 
     /// The passes as a family's pass list shows them: they run when the family's

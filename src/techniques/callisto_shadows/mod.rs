@@ -275,7 +275,8 @@ impl CallistoShadows {
         let stats = buf("callisto stats", (1 + tile_count) * 4);
         let current = buf("callisto current", 3 * px * 16);
         let history = buf("callisto history", 2 * px * 32);
-        let debug = buf("callisto debug", 2 * px * 16);
+        // Two planes of Callisto's views, a third for the reflections part's.
+        let debug = buf("callisto debug", 3 * px * 16);
         let pixel_direct = buf("callisto pixel direct", px * 16);
         let pixel_specular = buf("callisto pixel specular", 2 * px * 16);
         let uniform = wgpu::util::DeviceExt::create_buffer_init(
@@ -523,7 +524,8 @@ impl Technique for CallistoShadows {
         if self.reflections_active() {
             let cache = self.restir.surface_cache().map(|(bg, _)| bg);
             self.reflections
-                .record(ctx, enc, timer, cache, (&r.specular_bind_group, 0), false);
+                .record(ctx, enc, timer, cache, (&r.specular_bind_group, 0), true);
+            self.reflections.copy_debug(enc, ctx.extent, &r.debug, 2);
         }
         let image = [ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1];
         pipelines::technique_pass(
@@ -543,13 +545,15 @@ impl Technique for CallistoShadows {
             channel,
             is_id: false,
         };
-        vec![
+        let mut v = vec![
             view("rate per quad (1 quarter, 2 half, 3 full)", 0),
             view("shadow rays per pixel", 1),
             view("lights per tile", 2),
             view("shadow-mask frames since disocclusion", 3),
             view("lights left out of the tile's full list", 4),
-        ]
+        ];
+        v.extend(crate::parts::reflections::debug_views(2));
+        v
     }
 
     fn debug_buffer(&self) -> Option<&wgpu::Buffer> {

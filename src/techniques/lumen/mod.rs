@@ -1731,10 +1731,10 @@ impl Technique for Lumen {
                 (&r.specular_bind_group, 1),
                 debug,
             );
-            if let (true, Some(d)) = (debug, self.reflections.debug_buffer()) {
+            if debug {
                 // The part's debug plane becomes Lumen's fourth (views 12 to 15).
-                let plane = ctx.extent[0] as u64 * ctx.extent[1] as u64 * 16;
-                enc.copy_buffer_to_buffer(d, 0, r.buffer(17), 3 * plane, plane);
+                self.reflections
+                    .copy_debug(enc, ctx.extent, r.buffer(17), 3);
             }
         }
         pipelines::technique_pass(
@@ -1754,7 +1754,7 @@ impl Technique for Lumen {
             channel,
             is_id,
         };
-        vec![
+        let mut v = vec![
             view("surface cache albedo", 0, false),
             view("surface cache direct", 1, false),
             view("surface cache indirect", 2, false),
@@ -1779,15 +1779,9 @@ impl Technique for Lumen {
                 11,
                 false,
             ),
-            view("reflections: rays traced per pixel", 12, false),
-            view(
-                "reflections: hit kind (1 world, 2 sky, 3 mirror, 4 rough: reuses irradiance)",
-                13,
-                true,
-            ),
-            view("reflections: specular radiance (luminance)", 14, false),
-            view("reflections: history length (frames)", 15, false),
-        ]
+        ];
+        v.extend(crate::parts::reflections::debug_views(3));
+        v
     }
 
     fn debug_buffer(&self) -> Option<&wgpu::Buffer> {

@@ -443,7 +443,8 @@ impl Surfels {
         let ray_owner = buf("surfel ray owner", ray_capacity as u64 * 4);
         let ray_results = buf("surfel ray results", ray_capacity as u64 * RAY_RESULT_BYTES);
         let pixel_direct = buf("surfel pixel direct", pixels * 16);
-        let debug = buf("surfel debug", 2 * pixels * 16);
+        // Two planes of the surfels' views, a third for the reflections part's.
+        let debug = buf("surfel debug", 3 * pixels * 16);
         let pixel_specular = buf("surfel pixel specular", 2 * pixels * 16);
         let frame_estimates = buf("surfel frame estimates", max * 16);
         let args = pipelines::indirect_args_buffer(gpu, "surfel trace args", 1);
@@ -901,8 +902,9 @@ impl Technique for Surfels {
                 timer,
                 Some(&r.lookup_bind_group),
                 (&r.specular_bind_group, 0),
-                false,
+                true,
             );
+            self.reflections.copy_debug(enc, ctx.extent, &r.debug, 2);
         }
         pass(enc, timer, "apply", image);
     }
@@ -913,14 +915,16 @@ impl Technique for Surfels {
             channel,
             is_id,
         };
-        vec![
+        let mut v = vec![
             view("surfel (colour per id)", 0, true),
             view("coverage", 1, false),
             view("rays per surfel", 2, false),
             view("MSME relative variance", 3, false),
             view("grid cell / cascade", 4, true),
             view("surfel age (frames)", 5, false),
-        ]
+        ];
+        v.extend(crate::parts::reflections::debug_views(2));
+        v
     }
 
     fn debug_buffer(&self) -> Option<&wgpu::Buffer> {
