@@ -484,7 +484,12 @@ fn debug_views_show_surfels() {
     );
     frames(&mut e, 16);
     let names: Vec<&str> = e.technique.debug_views().iter().map(|v| v.name).collect();
-    assert_eq!(names.len(), 6, "{names:?}");
+    // Six of the surfels' own, then the reflections part's four (plane 2).
+    assert_eq!(names.len(), 10, "{names:?}");
+    assert!(
+        names[6..].iter().all(|n| n.starts_with("reflections: ")),
+        "{names:?}"
+    );
     let data = e.read_debug().unwrap().unwrap();
     let px = 64 * 64;
     let ch = |c| gilab::render::debug_channel(&data, px, c);
