@@ -220,6 +220,10 @@ fn gpu_struct_members_match_rust_fields() {
             sky_candidates,
             single_pool,
             gi_cosine,
+            path_light_candidates,
+            specular_bounces,
+            specular_max_roughness,
+            pad,
         ]
     );
 }

@@ -240,6 +240,37 @@ fn callisto_reflects_the_room_in_glossy_metal() {
         n.energy
     );
     assert!((t.energy - 1.0).abs() < 0.05, "energy {}", t.energy);
+    // Callisto's lighting reuse (`reflection_lighting = "screen"`): hits seen on screen last
+    // frame take that pixel's output, so they trace no shadow ray, and carry the GI the family
+    // computed there.
+    let mut p = gi();
+    p.insert("reflection_lighting".into(), "screen".into());
+    let (screen, screen_rays) = run("traced", p);
+    let sc = score(&screen, &truth);
+    let rel_screen = rel(&screen);
+    let per_px =
+        |r: &RayCounts, kind: &str| r.kind(kind) as f64 / (SIZE[0] * SIZE[1] * FRAMES) as f64;
+    eprintln!(
+        "callisto-shadows, metal box 0.3, reflection_lighting = screen: energy {:.4}, relMSE {rel_screen:.3e}, blocks mean {:.3}; shadow rays/px/frame {:.4} against hit lighting's {:.4}",
+        sc.energy,
+        sc.mean_block,
+        per_px(&screen_rays, "shadow"),
+        per_px(&rays, "shadow"),
+    );
+    assert!(
+        screen_rays.kind("shadow") < rays.kind("shadow"),
+        "screen reuse traces fewer shadow rays"
+    );
+    assert!(
+        (sc.energy - t.energy).abs() < 0.03,
+        "energy screen {} hit {}",
+        sc.energy,
+        t.energy
+    );
+    assert!(
+        rel_screen < 1.2 * rel_traced,
+        "relMSE screen {rel_screen} hit {rel_traced}"
+    );
     assert!(
         dt.energy > dn.energy + 0.01,
         "without GI: traced {} none {}",
@@ -476,4 +507,53 @@ fn reflections_are_stable_deterministic_and_skipped_without_specular() {
     assert!(!trace.runs, "{trace:?}");
     e.render_frame().unwrap();
     assert_eq!(e.ray_counts().unwrap().kind("reflection"), 0);
+}
+
+/// Multi-bounce specular paths (`specular_bounces`, the seed's funhouse mirrors): on the mirror
+/// hall, ReSTIR GI paths that end in Lumen's surface cache at their first hit show the cache's
+/// diffuse light where a mirror or glossy sphere is seen in the mirror wall or the metal floor.
+/// Going through up to three specular hits first brings the image's energy closer to the
+/// reference's, and the mirror-and-floor half of the image (lower rows) most.
+#[test]
+fn specular_paths_go_through_mirrors() {
+    let scene = || builtin::mirror_hall(0.35);
+    let truth = common::shared_reference(scene(), SIZE, 512, 11, 0, 0);
+    let frames = 24;
+    let run = |bounces: i64| {
+        let p: toml::Table = toml::toml! {
+            gi_terminate = "lumen-cards"
+            specular_bounces = bounces
+        };
+        let (img, rays) = render("restir", scene(), p, frames);
+        assert_eq!(img.non_finite_count(), 0);
+        let px = (SIZE[0] * SIZE[1] * frames) as f64;
+        (img, rays.total() as f64 / px)
+    };
+    // Mean luminance of the image's lower half (rgb rows top to bottom).
+    let lower_half = |img: &Image| {
+        let half = img.rgb.len() / 6 * 3;
+        let lower = &img.rgb[half..];
+        let s: f64 = lower
+            .chunks_exact(3)
+            .map(|p| common::luminance([p[0] as f64, p[1] as f64, p[2] as f64]))
+            .sum();
+        s / (lower.len() / 3) as f64
+    };
+    let e_truth = common::luminance(truth.mean());
+    let half_truth = lower_half(&truth);
+    let mut results = Vec::new();
+    for bounces in [0i64, 3] {
+        let (img, rays) = run(bounces);
+        let energy = common::luminance(img.mean()) / e_truth;
+        let half = lower_half(&img) / half_truth;
+        eprintln!(
+            "restir into lumen-cards, mirror hall, {frames} frames, specular_bounces = {bounces}: energy {energy:.4}, lower half {half:.4}, {rays:.2} rays/px/frame"
+        );
+        results.push((energy, half, rays));
+    }
+    let ((e0, h0, r0), (e3, h3, r3)) = (results[0], results[1]);
+    assert!(e3 > e0 + 0.02, "energy {e0} -> {e3}");
+    assert!(h3 > h0 + 0.04, "lower half {h0} -> {h3}");
+    assert!(e3 < 1.03, "energy {e3} above the reference");
+    assert!(r3 > r0, "specular bounces trace rays: {r0} -> {r3}");
 }

@@ -146,11 +146,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             }
             if params.gi == 1u {
                 // Indirect light: this frame's sky sample plus the resampled GI sample, visibility re-checked.
-                // (w = 1: a mirror's sample, which the reflections part replaces where it traces.)
+                // (w: the sample's specular share, 1 for a mirror's, which the reflections part
+                // replaces where it traces.)
                 let gs = gi_sky[idx];
-                if !(traced && gs.w > 0.5) {
-                    l += gs.xyz;
-                }
+                l += gs.xyz * select(1.0, 1.0 - gs.w, traced);
                 let ri = reservoir_index(parity(), idx);
                 let g = gi_reservoirs[ri];
                 if g.big_w > 0.0 {

@@ -13,11 +13,12 @@
 #import gilab::scene::light_pool
 #import gilab::bvh::{trace_closest, NO_HIT}
 #import gilab::surface::hit_surface
-#import gilab::brdf::{bsdf_eval, bsdf_sample}
+#import gilab::brdf::{Surface, bsdf_eval, bsdf_sample}
 #import gilab::lights::{LightSample, no_light_sample, sample_light, light_shadow_ray, triangle_emission, triangle_light_pdf}
 #import gilab::ray::INFINITE_DISTANCE
 #import gilab::sky::{sky_radiance, sample_sky, sky_pdf, sky_nee}
 #import gilab::sampling::power_heuristic
+#import gilab::math::luminance
 #import gilab::surface_point::HitSurface
 #ifdef GI_TERMINATE_CACHE
 #import gilab::math::INV_PI
@@ -63,30 +64,86 @@ struct NextEvent {
     shadow_rays: u32,
 }
 
+// How a path samples light and where it may go past its end. The reference and the surfels'
+// rays use `plain_path()`; ReSTIR GI's sample paths take theirs from its parameters.
+struct PathOptions {
+    // Light-pool candidates per NEE (RIS, the seed's initial sampling loop at every hit); 1 is
+    // one light by the pool's own pdf.
+    light_candidates: u32,
+    // Hits on specular surfaces (roughness below `specular_max_roughness`) a path may go
+    // through past the hit it would end at (`max_depth`, or a cache): the seed's multi-bounce
+    // specular paths (funhouse mirrors).
+    specular_bounces: u32,
+    specular_max_roughness: f32,
+}
+
+fn plain_path() -> PathOptions {
+    return PathOptions(1u, 0u, 0.0);
+}
+
+// Whether a hit continues a specular chain: GGX alpha = roughness^2.
+fn specular_vertex(m: Surface, o: PathOptions) -> bool {
+    return m.alpha < o.specular_max_roughness * o.specular_max_roughness;
+}
+
 // Next-event estimation at a path vertex (a pure mirror evaluates to 0 and traces no shadow
-// ray): the sky with probability p_sky, else one light of the pool; ls.pdf includes that
-// choice. With `mis` the sample is weighted against BSDF sampling (power heuristic), which the
-// path's continuation does; without it (a path that ends here) it counts in full.
-fn next_event(surf: HitSurface, wo: vec3<f32>, rng: ptr<function, Rng>, p_sky: f32, mis: bool) -> NextEvent {
+// ray): the sky with probability p_sky, else the light pool; ls.pdf includes that choice. With
+// `mis` the sample is weighted against BSDF sampling (power heuristic), which the path's
+// continuation does; without it (a path that ends here) it counts in full.
+//
+// From the pool, one light by the pool's pdf (`candidates` <= 1), or `candidates` of them
+// resampled by their unshadowed contribution (RIS, ReSTIR DI's initial sampling without the
+// reuse: the seed's light loop at every hit of a specular path), then one shadow ray either
+// way. The MIS weight uses the chosen light's source pdf, as the BSDF side does for an emitter
+// it hits: RIS estimates that weighted integrand without bias for any target that covers it,
+// so the two weights still sum to one.
+fn next_event(surf: HitSurface, wo: vec3<f32>, rng: ptr<function, Rng>, p_sky: f32, mis: bool, candidates: u32) -> NextEvent {
     var out = NextEvent(vec3<f32>(0.0), 0u);
     let u_sel = rand(rng);
     let u_light = rand_pair(rng);
     var ls = no_light_sample();
+    // Contribution weight of `ls`: 1 / pdf for one sample, RIS's w_sum / (M target) otherwise.
+    var big_w = 0.0;
     if u_sel < p_sky {
         let ss = sample_sky(u_light);
         let le_sky = sky_radiance(ss.dir);
         ls = LightSample(ss.dir, INFINITE_DISTANCE, le_sky, p_sky * ss.pdf, p_sky * ss.pdf, 1.0, false, ss.pdf > 0.0 && any(le_sky > vec3<f32>(0.0)), vec3<f32>(0.0));
-    } else if light_pool.count > 0u {
+        big_w = 1.0 / max(ls.pdf, 1e-30);
+    } else if light_pool.count > 0u && candidates <= 1u {
         ls = sample_light(surf.position, (u_sel - p_sky) / (1.0 - p_sky), u_light);
         ls.pdf *= 1.0 - p_sky;
+        big_w = 1.0 / max(ls.pdf, 1e-30);
+    } else if light_pool.count > 0u {
+        var w_sum = 0.0;
+        var chosen_target = 0.0;
+        for (var i = 0u; i < candidates; i++) {
+            var c = sample_light(surf.position, rand(rng), rand_pair(rng));
+            c.pdf *= 1.0 - p_sky;
+            if !c.valid || c.pdf <= 0.0 || dot(c.wi, surf.geo_normal) <= 0.0 {
+                continue;
+            }
+            let e = bsdf_eval(surf.material, surf.normal, wo, c.wi);
+            let t = luminance(e.f * c.radiance) * max(dot(surf.normal, c.wi), 0.0);
+            if t <= 0.0 {
+                continue;
+            }
+            w_sum += t / c.pdf;
+            if rand(rng) * w_sum < t / c.pdf {
+                ls = c;
+                chosen_target = t;
+            }
+        }
+        if chosen_target > 0.0 {
+            big_w = w_sum / (f32(candidates) * chosen_target);
+        }
     }
-    if ls.valid && ls.pdf > 0.0 && dot(ls.wi, surf.geo_normal) > 0.0 {
+    if ls.valid && ls.pdf > 0.0 && big_w > 0.0 && dot(ls.wi, surf.geo_normal) > 0.0 {
         let e = bsdf_eval(surf.material, surf.normal, wo, ls.wi);
         if any(e.f > vec3<f32>(0.0)) {
             out.shadow_rays = 1u;
             if unoccluded(light_shadow_ray(surf.position, surf.geo_normal, ls)) {
                 let w = select(power_heuristic(ls.pdf, e.pdf), 1.0, ls.is_delta || !mis);
-                out.radiance = e.f * dot(surf.normal, ls.wi) * ls.radiance * (w / ls.pdf);
+                out.radiance = e.f * dot(surf.normal, ls.wi) * ls.radiance * (w * big_w);
             }
         }
     }
@@ -114,7 +171,7 @@ fn add_contribution(out: ptr<function, PathResult>, c: vec3<f32>, depth: u32) {
 // WORLD_CACHE_GROUP, beside the surface cache at SURFACE_CACHE_GROUP). With
 // `skip_first_emission` the emission of the first hit is left out (ReSTIR GI: direct light
 // from emitters is ReSTIR DI's job).
-fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, max_depth: u32, skip_first_emission: bool) -> PathResult {
+fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, max_depth: u32, skip_first_emission: bool, options: PathOptions) -> PathResult {
     var out = PathResult(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0), 0u, 0u, 0u, vec4<f32>(0.0), vec3<f32>(0.0));
     var origin = origin_in;
     var dir = dir_in;
@@ -122,6 +179,19 @@ fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, 
     var prev_pdf = 0.0;
     var prev_delta = true;
     var max_bounces = select(SAFETY_MAX_BOUNCES, max_depth, max_depth > 0u);
+    var specular_left = options.specular_bounces;
+    // The hit a path ends at: the one that reads a cache, or (traced paths) the last one,
+    // which only adds its emission.
+    var end_offset = 0u;
+#ifdef GI_TERMINATE_CACHE
+    end_offset = 1u;
+#endif
+#ifdef GI_TERMINATE_WORLD
+    end_offset = 1u;
+#endif
+#ifdef GI_TERMINATE_SURFELS
+    end_offset = 1u;
+#endif
     // Probability that NEE samples the sky (0: light pool only, as without an environment map).
     var p_sky = 0.0;
     if sky_nee() {
@@ -155,17 +225,23 @@ fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, 
             }
             add_contribution(&out, throughput * le * w, depth);
         }
+        let wo = -dir;
+        let m = surf.material;
+        // A specular hit where the path would end goes on one more hit (the reflection of a
+        // reflection is not in any diffuse cache), `specular_bounces` times at most.
+        if specular_left > 0u && depth + end_offset >= max_bounces && max_bounces < SAFETY_MAX_BOUNCES && specular_vertex(m, options) {
+            specular_left -= 1u;
+            max_bounces += 1u;
+        }
         if depth == max_bounces {
             break;
         }
-        let wo = -dir;
-        let m = surf.material;
 #ifdef GI_TERMINATE_CACHE
         // The path ends in the surface cache at this hit (src/parts/surface_cache.rs): direct
         // light by NEE at full weight (no BSDF-sampled continuation to share it with), every
         // further bounce from the cache's indirect irradiance, reflected by its albedo.
         if depth + 1u >= max_bounces {
-            let direct = next_event(surf, wo, rng, p_sky, false);
+            let direct = next_event(surf, wo, rng, p_sky, false, options.light_candidates);
             out.shadow_rays += direct.shadow_rays;
             out.radiance += throughput * direct.radiance;
             let c = cache_at_hit(hit.tri, surf.position, surf.geo_normal, hit.t);
@@ -184,7 +260,7 @@ fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, 
         // that they are traced; where none is traced yet the ray goes on to its end (surface
         // cache, or sky). Emitters the ray meets add nothing: NEE counted them.
         if depth + 1u >= max_bounces {
-            let direct = next_event(surf, wo, rng, 0.0, false);
+            let direct = next_event(surf, wo, rng, 0.0, false, options.light_candidates);
             out.shadow_rays += direct.shadow_rays;
             out.radiance += throughput * direct.radiance;
             let bs = bsdf_sample(m, surf.normal, wo, rand(rng), rand_pair(rng));
@@ -230,7 +306,7 @@ fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, 
         if depth + 1u >= max_bounces {
             let g = gather(surf.position, surf.normal, grid_center_for(frame.camera_pos.xyz), false);
             if gather_covers(g) {
-                let direct = next_event(surf, wo, rng, 0.0, false);
+                let direct = next_event(surf, wo, rng, 0.0, false, options.light_candidates);
                 out.shadow_rays += direct.shadow_rays;
                 out.radiance += throughput * direct.radiance;
                 let albedo = diffuse_color(m, max(dot(surf.normal, wo), 0.0)) + specular_albedo_average(m);
@@ -240,7 +316,7 @@ fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, 
             max_bounces = SAFETY_MAX_BOUNCES;
         }
 #endif
-        let direct = next_event(surf, wo, rng, p_sky, true);
+        let direct = next_event(surf, wo, rng, p_sky, true, options.light_candidates);
         out.shadow_rays += direct.shadow_rays;
         // NEE at this vertex belongs to paths one vertex longer: max_depth > depth.
         add_contribution(&out, throughput * direct.radiance, depth + 1u);

@@ -2,7 +2,7 @@
 #import gilab::rng::{rng_init, rand_pair, STREAM_CAMERA}
 #import gilab::frame::{frame, camera_ray_dir, FLAG_NO_PRIMARY_EMISSION}
 #import gilab::counters::{flush_counts, no_counts, RAY_CAMERA, RAY_SHADOW, RAY_INDIRECT, COUNT_INVALID_SAMPLES}
-#import gilab::path::trace_path
+#import gilab::path::{trace_path, plain_path}
 #import gilab::accumulate::{accumulate_sample, accum_mean, welford_add}
 #import gilab::math::is_finite_vec
 
@@ -51,7 +51,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let jitter = rand_pair(&rng);
         let dir = camera_ray_dir(vec2<f32>(gid.xy) + jitter);
         let skip = (frame.flags & FLAG_NO_PRIMARY_EMISSION) != 0u;
-        let path = trace_path(frame.camera_pos.xyz, dir, &rng, settings.max_depth, skip);
+        let path = trace_path(frame.camera_pos.xyz, dir, &rng, settings.max_depth, skip, plain_path());
         counts[RAY_CAMERA] = path.first_rays;
         counts[RAY_SHADOW] = path.shadow_rays;
         counts[RAY_INDIRECT] = path.indirect_rays;

@@ -8,8 +8,8 @@
 #import gilab::math::{PI, to_world, luminance}
 #import gilab::ray::spawn_ray_origin
 #import gilab::sampling::sample_cosine_hemisphere
-#import gilab::brdf::{bsdf_eval, bsdf_sample, BsdfSample}
-#import gilab::path::trace_path
+#import gilab::brdf::{bsdf_eval, bsdf_sample, specular_eval, BsdfSample}
+#import gilab::path::{trace_path, PathOptions}
 #import gilab::primary::{reproject, current_surface, previous_surface, surface_material}
 #import gilab::restir::{params, gi_reservoirs, gi_sky, GiReservoir, reservoir_index, parity, empty_gi_reservoir, gi_contribution, gi_target, gi_update, gi_jacobian_ok, similar, TEMPORAL_SEGMENT}
 
@@ -45,13 +45,13 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 let wi = bs.wi;
                 // A mirror's path keeps its first hit's emission: NEE at the pixel cannot reach
                 // an emitter through a delta lobe.
-                let path = trace_path(spawn_ray_origin(s.pos.xyz, s.geo_specular.xyz, wi), wi, &rng, params.gi_bounces, !bs.is_delta);
+                let path = trace_path(spawn_ray_origin(s.pos.xyz, s.geo_specular.xyz, wi), wi, &rng, params.gi_bounces, !bs.is_delta, PathOptions(params.path_light_candidates, params.specular_bounces, params.specular_max_roughness));
                 counts[RAY_INDIRECT] += path.first_rays + path.indirect_rays;
                 counts[RAY_SHADOW] += path.shadow_rays;
                 if bs.is_delta {
                     // A delta lobe has no density another pixel's reconnection could use: the
-                    // sample lights its own pixel only, through the per-pixel term (w = 1 marks
-                    // it for a family that traces mirrors itself).
+                    // sample lights its own pixel only, through the per-pixel term (w = 1: all
+                    // of it is the specular layer's, for a family that traces mirrors itself).
                     sky = bs.weight * path.radiance;
                     sky_w = 1.0;
                 } else if path.first_hit.w > 0.5 {
@@ -64,7 +64,13 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 } else if params.sky_candidates == 0u {
                     // Sky without a DI sky class: direct light from the environment,
                     // estimated by this sample alone (with the class, it is ReSTIR DI's).
+                    // w: the specular layer's share of the BSDF in that direction, which a
+                    // family that traces its glossy pixels' reflections leaves out.
                     sky = bs.weight * path.radiance;
+                    let full = luminance(bsdf_eval(m, n, wo, wi).f);
+                    if full > 0.0 {
+                        sky_w = clamp(luminance(specular_eval(m, n, wo, wi).f) / full, 0.0, 1.0);
+                    }
                 }
             }
             r.target_pdf = gi_target(s, r);

@@ -55,6 +55,13 @@ struct RestirParams {
     single_pool: u32,
     // 1: GI sample directions cosine-sampled; 0: by the BSDF (`gi_sampling`).
     gi_cosine: u32,
+    // Light candidates resampled at each hit of a GI sample path (RIS; 1 = by the pool's pdf).
+    path_light_candidates: u32,
+    // Specular hits a GI sample path goes through past the hit it would end at.
+    specular_bounces: u32,
+    // Roughness below which a hit counts as specular for `specular_bounces`.
+    specular_max_roughness: f32,
+    pad: u32,
 }
 
 const VISIBILITY_PER_CLASS: u32 = 1u;
@@ -274,7 +281,8 @@ struct GiReservoir {
 
 // Three segments like `reservoirs`.
 @group(2) @binding(2) var<storage, read_write> gi_reservoirs: array<GiReservoir>;
-// Per pixel: sky radiance reached by this frame's GI sample ray (not reused: it has no point).
+// Per pixel: sky radiance reached by this frame's GI sample ray (not reused: it has no point),
+// or a mirror's whole sample; w: the specular layer's share of it (1 for a mirror's).
 @group(2) @binding(3) var<storage, read_write> gi_sky: array<vec4<f32>>;
 
 fn empty_gi_reservoir() -> GiReservoir {

@@ -15,7 +15,7 @@
 #import gilab::surface::hit_surface
 #import gilab::brdf::{bsdf_sample, diffuse_color, specular_albedo_average}
 #import gilab::ray::{spawn_ray_origin, INFINITE_DISTANCE}
-#import gilab::path::trace_path
+#import gilab::path::{trace_path, plain_path}
 #import gilab::cache_light::cache_direct_light
 #import gilab::surfels::{params, surfels, states, ray_offsets, ray_owner, ray_results, has_flag, gather, gather_covers, gathered_irradiance, grid_center_for, guide_value, hemi_oct_encode, hemi_oct_decode, hemi_oct_jacobian, texel_of, FLAG_GUIDING, FLAG_SKY, GUIDE_RES, GUIDE_TEXELS, GUIDE_POPULATED, GUIDE_MIX, DEPTH_RES}
 #import gilab::sky::sky_radiance
@@ -98,7 +98,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 } else {
                     let b = bsdf_sample(h.material, h.normal, wo, rand(&rng), rand_pair(&rng));
                     if b.valid && dot(b.wi, h.geo_normal) > 0.0 {
-                        let path = trace_path(spawn_ray_origin(h.position, h.geo_normal, b.wi), b.wi, &rng, 0u, true);
+                        let path = trace_path(spawn_ray_origin(h.position, h.geo_normal, b.wi), b.wi, &rng, 0u, true, plain_path());
                         counts[RAY_INDIRECT] += path.first_rays + path.indirect_rays;
                         counts[RAY_SHADOW] += path.shadow_rays;
                         l += b.weight * path.radiance;

@@ -64,10 +64,10 @@ pub const PARAMS: [ParamSpec; 6] = [
     },
     ParamSpec {
         name: "reflection_lighting",
-        what: "how a reflection ray's hit is lit: hit lighting (one NEE sample and shadow ray at the hit plus, where the family has a surface cache, its indirect light: the seed's Hit Lighting) or the surface cache alone (its Surface Cache mode; families without a cache use hit lighting)",
-        higher: "cache: no shadow ray, the cache's resolution and lag show in reflections",
+        what: "how a reflection ray's hit is lit: hit lighting (one NEE sample and shadow ray at the hit plus, where the family has a surface cache, its indirect light: the seed's Hit Lighting), the surface cache alone (Lumen's Surface Cache mode; families without a cache use hit lighting), or screen (Callisto's lighting reuse: a hit seen on screen last frame, rougher than reflection_max_roughness and not emissive, takes that pixel's output, with all the light the family computed there; other hits get hit lighting)",
+        higher: "cache: no shadow ray, the cache's resolution and lag show in reflections; screen: no shadow ray where the hit is on screen, the family's full lighting there, one frame late and seen from the camera rather than the reflecting point",
         lower: "hit: exact direct light at the hit, one more ray",
-        kind: ParamKind::Choice(&["hit", "cache"]),
+        kind: ParamKind::Choice(&["hit", "cache", "screen"]),
         default: 0.0,
     },
     ParamSpec {
@@ -140,6 +140,8 @@ pub struct ReflectionSettings {
     pub downsample: u32,
     /// Light at a hit: NEE plus the cache's indirect light (true), or the cache alone.
     pub hit_lighting: bool,
+    /// Hits seen on screen last frame take that pixel's output (`reflection_lighting = "screen"`).
+    pub screen_reuse: bool,
     pub reuse: u32,
     pub reuse_radius: f32,
     pub temporal: bool,
@@ -154,7 +156,8 @@ impl ReflectionSettings {
         let s = ReflectionSettings {
             max_roughness: p.f32("reflection_max_roughness"),
             downsample: p.u32("reflection_downsample"),
-            hit_lighting: p.u32("reflection_lighting") == 0,
+            hit_lighting: p.u32("reflection_lighting") != 1,
+            screen_reuse: p.u32("reflection_lighting") == 2,
             reuse: p.u32("reflection_reuse"),
             temporal: p.bool("reflection_denoise"),
             filter: p.bool("reflection_denoise"),
@@ -170,6 +173,7 @@ impl Default for ReflectionSettings {
             max_roughness: 0.4,
             downsample: 1,
             hit_lighting: true,
+            screen_reuse: false,
             reuse: 4,
             reuse_radius: 3.0,
             temporal: true,
@@ -198,6 +202,7 @@ const FLAG_HIT_LIGHTING: u32 = 1;
 const FLAG_TEMPORAL: u32 = 2;
 const FLAG_FILTER: u32 = 4;
 const FLAG_DEBUG: u32 = 8;
+const FLAG_SCREEN_REUSE: u32 = 16;
 
 struct Buffers {
     params: wgpu::Buffer,
@@ -371,6 +376,7 @@ impl Reflections {
             (s.temporal, FLAG_TEMPORAL),
             (s.filter, FLAG_FILTER),
             (debug, FLAG_DEBUG),
+            (s.screen_reuse, FLAG_SCREEN_REUSE),
         ] {
             if on {
                 flags |= flag;

@@ -31,6 +31,8 @@ const FLAG_HIT_LIGHTING: u32 = 1u;
 const FLAG_TEMPORAL: u32 = 2u;
 const FLAG_FILTER: u32 = 4u;
 const FLAG_DEBUG: u32 = 8u;
+// Hits seen on screen last frame take that pixel's output (`reflection_lighting = "screen"`).
+const FLAG_SCREEN_REUSE: u32 = 16u;
 
 // Hit kinds (debug view, and which samples may be reused).
 const KIND_NONE: f32 = 0.0;

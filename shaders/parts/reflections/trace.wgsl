@@ -9,11 +9,18 @@
 // surfels' irradiance there; with neither, its direct light only: one bounce. A cached hit
 // reflects its indirect light by its diffuse albedo plus its specular layer's average albedo
 // (the specular share approximated as diffuse, as Lumen's card capture does).
+// With `reflection_lighting = "screen"` (Callisto's lighting reuse, shared/seeds/002: "always
+// raytrace, ... reuse lighting from previous frame, if available") a hit that last frame's
+// camera saw at a pixel takes that pixel's output instead: whatever light the family computed
+// there (its GI included), no shadow ray. Only hits rougher than the tracing bound (their
+// light depends little on where it is seen from) and not emissive (the output holds the
+// emission, which the pixel's own NEE already counts).
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts, RAY_SHADOW, RAY_REFLECTION}
 #import gilab::math::INV_PI
 #import gilab::rng::{rng_init, rand, rand_pair, STREAM_REFLECTION}
-#import gilab::primary::{current_surface, surface_material}
+#import gilab::primary::{current_surface, surface_material, reproject, previous_surface}
+#import gilab::accumulate::accum_mean
 #import gilab::brdf::{diffuse_color, specular_sample, spec_fresnel, specular_albedo_average}
 #import gilab::math::luminance
 #import gilab::bvh::{trace_closest, NO_HIT}
@@ -22,7 +29,7 @@
 #import gilab::lights::triangle_emission
 #import gilab::sky::sky_radiance
 #import gilab::nee::direct_light
-#import gilab::reflections::{rparams, ray_samples, has_flag, FLAG_HIT_LIGHTING, KIND_NONE, KIND_WORLD, KIND_SKY, KIND_MIRROR, KIND_ROUGH}
+#import gilab::reflections::{rparams, ray_samples, has_flag, FLAG_HIT_LIGHTING, FLAG_SCREEN_REUSE, KIND_NONE, KIND_WORLD, KIND_SKY, KIND_MIRROR, KIND_ROUGH}
 #ifdef REFLECTION_CACHE
 #import gilab::surface_cache::{cache_at_hit, cache_radiance}
 #endif
@@ -32,6 +39,23 @@
 
 // Far enough to read as "at infinity" in the temporal pass's reprojection.
 const SKY_DISTANCE: f32 = 1e6;
+
+// Last frame's output where its camera saw the point `p` (geometric normal `geo_n`, facing the
+// reflection ray): w = 1 when the pixel it reprojects to held the same surface (within 3% of
+// its distance, normals agreeing) and had a sample; w = 0 otherwise.
+fn screen_lighting(p: vec3<f32>, geo_n: vec3<f32>) -> vec4<f32> {
+    let prev = reproject(p);
+    if prev < 0 {
+        return vec4<f32>(0.0);
+    }
+    let ps = previous_surface(u32(prev));
+    let out = accum_mean[u32(prev)];
+    let same = ps.pos.w > 0.5 && distance(ps.pos.xyz, p) < 0.03 * ps.wo_dist.w && dot(ps.geo_specular.xyz, geo_n) > 0.9;
+    if !same || out.w <= 0.0 {
+        return vec4<f32>(0.0);
+    }
+    return vec4<f32>(out.xyz, 1.0);
+}
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
@@ -80,6 +104,15 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                             radiance += triangle_emission(hit.tri, hit.bary, -dir);
                         }
                         var lit_by_cache = false;
+                        var lit_by_screen = false;
+                        if has_flag(FLAG_SCREEN_REUSE) && sqrt(surf.material.alpha) > rparams.max_roughness && !any(triangle_emission(hit.tri, hit.bary, -dir) > vec3<f32>(0.0)) {
+                            let sl = screen_lighting(surf.position, surf.geo_normal);
+                            if sl.w > 0.0 {
+                                radiance += sl.xyz;
+                                lit_by_screen = true;
+                            }
+                        }
+                        if !lit_by_screen {
 #ifdef REFLECTION_CACHE
                         let c = cache_at_hit(hit.tri, surf.position, surf.geo_normal, hit.t);
                         if c.weight > 1e-4 {
@@ -102,6 +135,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                             let d = direct_light(surf.position, surf.geo_normal, surf.normal, surf.material, -dir, rand(&rng), rand_pair(&rng));
                             radiance += d.radiance;
                             counts[RAY_SHADOW] += d.shadow_rays;
+                        }
                         }
                     }
                 }

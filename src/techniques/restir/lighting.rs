@@ -259,6 +259,10 @@ impl RestirLighting {
             sky_candidates: sky,
             single_pool: !s.light_classes as u32,
             gi_cosine: s.gi_cosine as u32,
+            path_light_candidates: s.path_light_candidates.max(1),
+            specular_bounces: s.specular_bounces,
+            specular_max_roughness: s.specular_max_roughness,
+            pad: 0,
         }
     }
 }

@@ -31,13 +31,17 @@ pub struct RestirParamsGpu {
     pub single_pool: u32,
     /// 1: GI sample directions cosine-sampled (`gi_sampling = "cosine"`); 0: by the BSDF.
     pub gi_cosine: u32,
+    pub path_light_candidates: u32,
+    pub specular_bounces: u32,
+    pub specular_max_roughness: f32,
+    pub pad: u32,
 }
 
 /// ReSTIR's parameters: docs, ranges and defaults in one place (the talk's defaults: 8 initial
 /// candidates, max history 8, a few spatial neighbours).
 /// ReSTIR's own parameters; [`PARAMS`] adds the caches' light sampling (`cache_direct`, for the
 /// cache a GI sample path ends in).
-const OWN_PARAMS: [ParamSpec; 22] = [
+const OWN_PARAMS: [ParamSpec; 25] = [
     ParamSpec {
         name: "candidates",
         what: "initial RIS candidates per pixel per frame from the local lights (emissive triangles, point, spot), by power or from the ReGIR cell",
@@ -167,6 +171,30 @@ const OWN_PARAMS: [ParamSpec; 22] = [
         default: 0.0,
     },
     ParamSpec {
+        name: "path_light_candidates",
+        what: "light candidates resampled (RIS by unshadowed contribution, ReSTIR DI's initial sampling without reuse) for the one shadow ray at each hit of a GI sample path, the seed's light loop along specular paths; 1 = one light by the pool's pdf, as the reference samples",
+        higher: "lights that matter at a hit are found (many lights, glossy hits), more shading work, no extra rays",
+        lower: "1: one light by power, noisier where many lights or a glossy lobe pick few of them",
+        kind: ParamKind::Int { min: 1, max: 64 },
+        default: 8.0,
+    },
+    ParamSpec {
+        name: "specular_bounces",
+        what: "specular hits (roughness below specular_max_roughness) a GI sample path goes through past the hit where it would end (a cache, or gi_bounces): the seed's multi-bounce specular paths (funhouse mirrors: three bounces), each lit by path_light_candidates; unused by paths traced to the end (gi_bounces = 0, path)",
+        higher: "reflections of reflections instead of a diffuse cache's guess at a mirror or glossy hit, one more ray and shadow ray per specular hit",
+        lower: "0: the path ends at its first hit whatever it hit (a mirror seen in a mirror shows the cache's diffuse light)",
+        kind: ParamKind::Int { min: 0, max: 8 },
+        default: 3.0,
+    },
+    ParamSpec {
+        name: "specular_max_roughness",
+        what: "roughness below which a hit counts as specular for specular_bounces",
+        higher: "glossier-than-this surfaces are traced through too (more rays)",
+        lower: "only near-mirrors are traced through",
+        kind: ParamKind::Float { min: 0.0, max: 1.0 },
+        default: 0.3,
+    },
+    ParamSpec {
         name: "cache_atlas_size",
         what: "texels per side of the surface cache's atlas when gi_terminate = lumen-cards (Lumen's atlas_size)",
         higher: "finer cache lighting, more texels to update per frame",
@@ -216,7 +244,7 @@ const OWN_PARAMS: [ParamSpec; 22] = [
     },
 ];
 
-pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<22, 3, 25>(
+pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<25, 3, 28>(
     OWN_PARAMS,
     crate::parts::world_regir::PARAMS,
 );
@@ -298,6 +326,11 @@ pub struct RestirSettings {
     /// GI sample directions cosine-sampled instead of by the BSDF (`gi_sampling = "cosine"`).
     pub gi_cosine: bool,
     pub gi_terminate: GiTerminate,
+    /// Light candidates resampled at each hit of a GI sample path.
+    pub path_light_candidates: u32,
+    /// Specular hits a GI sample path goes through past its end, and what counts as specular.
+    pub specular_bounces: u32,
+    pub specular_max_roughness: f32,
     pub cache_atlas_size: u32,
     pub cache_update: f32,
     pub cache_ray_budget: u32,
@@ -330,6 +363,9 @@ impl RestirSettings {
             gi_bounces: p.u32("gi_bounces"),
             gi_cosine: p.u32("gi_sampling") == 1,
             gi_terminate: GiTerminate::from_index(p.u32("gi_terminate")),
+            path_light_candidates: p.u32("path_light_candidates"),
+            specular_bounces: p.u32("specular_bounces"),
+            specular_max_roughness: p.f32("specular_max_roughness"),
             cache_atlas_size: p.u32("cache_atlas_size"),
             cache_update: p.f32("cache_update"),
             cache_ray_budget: p.u32("cache_ray_budget"),
