@@ -422,7 +422,7 @@ fn parameter_changes_rebuild_no_pipeline() {
         if name == "restir" {
             // The cache parts' files are listed for hot reload but compiled only with
             // `gi_terminate = "lumen-cards"` or `"surfels"`.
-            expected -= gilab::techniques::lumen::SURFACE_CACHE_FILES.len();
+            expected -= gilab::parts::surface_cache::SURFACE_CACHE_FILES.len();
             expected -= gilab::techniques::surfels::SURFEL_CACHE_FILES.len();
         }
         assert_eq!(

@@ -237,7 +237,7 @@ fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, 
             break;
         }
 #ifdef GI_TERMINATE_CACHE
-        // The path ends in the surface cache at this hit (src/parts/surface_cache.rs): direct
+        // The path ends in the surface cache at this hit (src/parts/surface_cache/): direct
         // light by NEE at full weight (no BSDF-sampled continuation to share it with), every
         // further bounce from the cache's indirect irradiance, reflected by its albedo.
         if depth + 1u >= max_bounces {

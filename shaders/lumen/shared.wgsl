@@ -1,7 +1,8 @@
 // Lumen-style GI (shared/seeds/000, SIGGRAPH 2022): the global signed distance field (camera
 // centred clipmaps of sparse 8^3 bricks plus a quarter-resolution coarse volume), tracing
-// through it or through the BVH (`tracing`), and the surface cache (cards in an atlas) sampled
-// at a hit. Bind group 2; layout must match src/techniques/lumen/mod.rs.
+// through it or through the BVH (`tracing`), and the surface cache (cards in an atlas; the part in
+// src/parts/surface_cache/) sampled at a hit. Bind group 2; layout must match
+// src/techniques/lumen/mod.rs.
 #define_import_path gilab::lumen
 
 #import gilab::math::{PI, INV_PI}
@@ -53,20 +54,12 @@ struct LumenParams {
     levels_built: u32,
     bricks_per_axis: u32,
     pool_bricks: u32,
-    atlas_size: u32,
-    card_count: u32,
     flags: u32,
     rays_per_pixel: u32,
     gather_downsample: u32,
     gather_width: u32,
     gather_height: u32,
     dirty_box_count: u32,
-    direct_tile_first: u32,
-    direct_tile_count: u32,
-    direct_tiles_total: u32,
-    probe_tile_first: u32,
-    probe_tile_count: u32,
-    probe_tiles_total: u32,
     sign_rays: u32,
     query_count: u32,
     slice_depth: f32,
@@ -75,20 +68,11 @@ struct LumenParams {
     pad_b: u32,
 }
 
-// A surface-cache probe on a 4x4 texel tile: a hemisphere of rays from one texel.
-struct Probe {
-    // xyz: position, w: 1 if valid.
-    pos: vec4<f32>,
-    // xyz: normal, w: mean hit distance.
-    normal_dist: vec4<f32>,
-    // rgb: irradiance, w: frame it was traced.
-    irradiance: vec4<f32>,
-}
-
 @group(2) @binding(0) var<uniform> params: LumenParams;
-// Bindings 1-3 (cards, object_cards, tri_object), 12-13 (atlas lighting) and 19-22 (atlas
-// textures) are the surface cache's: declared in shaders/parts/surface_cache.wgsl, at group 2
-// here (SURFACE_CACHE_GROUP's default).
+// Bindings 1-3 (cards, object_cards, tri_object), 12-15 (atlas lighting, cache probes, tiles),
+// 19-22 (atlas textures) and 23 (its uniform) are the surface cache part's (src/parts/
+// surface_cache/): its lookup in shaders/parts/surface_cache/shared.wgsl, at group 2 here
+// (SURFACE_CACHE_GROUP's default), its passes' in shaders/parts/surface_cache/lighting.wgsl.
 // Per level and brick slot (toroidal): pool index or EMPTY.
 @group(2) @binding(4) var<storage, read_write> brick_table: array<u32>;
 // Per level and brick slot: the brick coordinate it holds (w: 1 once built).
@@ -105,9 +89,6 @@ struct Probe {
 @group(2) @binding(10) var<storage, read_write> fill_list: array<u32>;
 // Scene edits: world boxes (min, max) whose bricks are rebuilt.
 @group(2) @binding(11) var<storage, read> dirty_boxes: array<vec4<f32>>;
-@group(2) @binding(14) var<storage, read_write> probes: array<Probe>;
-// Direct-light 8x8 tiles then probe 4x4 tiles: (tile x | tile y << 16, card).
-@group(2) @binding(15) var<storage, read> tile_list: array<vec2<u32>>;
 // Final gather per downsampled pixel: rgb irradiance, w: 1 valid.
 @group(2) @binding(16) var<storage, read_write> gather_out: array<vec4<f32>>;
 @group(2) @binding(17) var<storage, read_write> debug_out: array<vec4<f32>>;
@@ -422,7 +403,7 @@ fn trace_scene_on(p: vec3<f32>, n_geo: vec3<f32>, d: vec3<f32>, t_max: f32, trav
 
 // ---------------------------------------------------------------------------------------------
 // The surface cache at traced hits (its sampling, the seed's "Card Sampling", is the part's:
-// shaders/parts/surface_cache.wgsl).
+// shaders/parts/surface_cache/shared.wgsl).
 
 // Radiance a traced ray brings back: the cache's reflected light at a hit (nothing from the back
 // of a surface or where no card covers it), the sky on a miss.

@@ -58,7 +58,7 @@ impl Default for ShaderVariant {
     }
 }
 
-/// The bind group of the surface cache's lookup bindings (shaders/parts/surface_cache.wgsl) when
+/// The bind group of the surface cache's lookup bindings (shaders/parts/surface_cache/shared.wgsl) when
 /// a pipeline sets nothing else: Lumen's own group.
 pub const DEFAULT_SURFACE_CACHE_GROUP: u32 = 2;
 /// The bind group of the surfels' bindings (shaders/surfels/shared.wgsl) when a pipeline sets

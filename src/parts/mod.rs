@@ -13,7 +13,8 @@
 //!   (`gi = true`).
 //! - [`surface_cache::SurfaceCache`]: Lumen's surface cache (cards, lit every frame with
 //!   multi-bounce feedback) and its lookup (`gilab::surface_cache`, at the bind group a pass
-//!   names with `SURFACE_CACHE_GROUP`). Used by ReSTIR GI (`gi_terminate = "lumen-cards"`).
+//!   names with `SURFACE_CACHE_GROUP`). Held by `lumen` (its resources in Lumen's group 2) and,
+//!   on its own, by ReSTIR GI (`gi_terminate = "lumen-cards"`).
 //! - [`surfel_cache::SurfelCache`]: the surfels (spawned from the primary surfaces, their rays
 //!   integrated every frame) and their irradiance lookup (`gilab::surfels::gather`, at the bind
 //!   group a pass names with `SURFELS_GROUP`). Used by ReSTIR GI (`gi_terminate = "surfels"`).

@@ -12,7 +12,7 @@
 //! through [`crate::parts::SurfaceCache`] built with the world cache).
 
 use crate::gpu::{timing::PassTimer, Gpu};
-use crate::render::{pipelines, RenderContext};
+use crate::render::{pipelines, PassInfo, RenderContext};
 use anyhow::Result;
 use glam::Vec3;
 
@@ -237,6 +237,37 @@ impl WorldCache {
         ctx.gpu
             .queue
             .write_buffer(&self.params, 0, bytemuck::bytes_of(&self.gpu_params));
+    }
+
+    /// The cache's passes (they run when `on` and `reader` reads the cache), its rays traced
+    /// through `tracing` ("BVH" or "SDF").
+    pub fn pass_info(
+        s: &WorldCacheSettings,
+        on: bool,
+        tracing: &str,
+        reader: &str,
+    ) -> Vec<PassInfo> {
+        let why = |why: String| {
+            if on {
+                why
+            } else {
+                "world_cache = false".into()
+            }
+        };
+        let levels = s.levels;
+        let per_axis = s.probes;
+        vec![
+            PassInfo {
+                name: PASSES[0].0,
+                runs: on,
+                why: why(format!("{levels} clipmap levels of {per_axis}^3 probes around the camera; lists the ones {reader} read, never-traced first, then the stalest")),
+            },
+            PassInfo {
+                name: PASSES[1].0,
+                runs: on && s.probes_per_frame > 0,
+                why: why(format!("{} listed probes per frame, 256 {tracing} rays each (16x16 cells), lit from the surface cache, mean of the last {} updates", s.probes_per_frame, s.history)),
+            },
+        ]
     }
 
     /// Writes this frame's uniforms, then records `world select` and `world update` (when

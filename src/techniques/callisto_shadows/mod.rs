@@ -138,10 +138,10 @@ const CALLISTO_AND_RESTIR_FILES: [&str; 11] = [
 ];
 
 /// With the cache parts' (compiled only with `gi_terminate = "lumen-cards"` or `"surfels"`).
-const SHADER_FILES: [&str; 55] = crate::render::concat_files(
-    crate::render::concat_files::<15, 25, 40>(
+const SHADER_FILES: [&str; 36] = crate::render::concat_files(
+    crate::render::concat_files::<15, 6, 21>(
         OWN_SHADER_FILES,
-        crate::techniques::lumen::SURFACE_CACHE_FILES,
+        crate::parts::surface_cache::SURFACE_CACHE_FILES,
     ),
     crate::techniques::surfels::SURFEL_CACHE_FILES,
 );

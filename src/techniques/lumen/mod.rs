@@ -9,9 +9,10 @@
 //!    `sdf_allocate` gives a pool brick to each slot near a triangle, `sdf_fill` computes each
 //!    voxel's distance (BVH point query) and sign (back-face ray counts), one timed dispatch per
 //!    level, and `sdf_coarse` rebuilds the coarse volume of updated levels.
-//! 2. `capture`: this frame's cards (closest first, 512^2 texels per frame) are rasterised with
-//!    their orthographic cameras into the atlas: albedo, normal, emission, depth.
-//! 3. Surface cache lighting: `cache direct` (one light sample and shadow ray per texel of this
+//! 2. The surface cache, a part Lumen holds (`crate::parts::surface_cache`, like the world
+//!    cache): `capture`: this frame's cards (closest first, 512^2 texels per frame) are
+//!    rasterised with their orthographic cameras into the atlas: albedo, normal, emission, depth.
+//! 3. Surface cache lighting (the same part): `cache direct` (one light sample and shadow ray per texel of this
 //!    frame's 8x8 tiles), `cache probes` (a 16-ray hemisphere probe per 4x4 tile, hits read the
 //!    cache itself: multi-bounce through feedback) and `cache indirect` (texels interpolate
 //!    their four probes with plane and hit-distance weights, blended over at most 4 frames).
@@ -31,48 +32,46 @@
 //! 6. `apply`: emission + NEE + albedo x irradiance / pi + specular, debug views, accumulation.
 //!
 //! Rays trace the SDF or the BVH (`tracing`) through one function, so both read the same cache.
-//! Files: `params.rs` (the table), `cards.rs` (objects, card placement, atlas pages), `sdf.rs`
-//! (clipmap placement and update plans), `screen_probes.rs` (the final gather's buffers and
-//! passes), this file (GPU resources and passes).
+//! Files: `params.rs` (the table), `sdf.rs` (clipmap placement and update plans),
+//! `screen_probes.rs` (the final gather's buffers and passes), this file (GPU resources and
+//! passes). The caches are parts: the surface cache (`src/parts/surface_cache/`: cards, atlas,
+//! captures and cache lighting) and the world radiance cache (`src/parts/world_cache.rs`); Lumen
+//! binds the surface cache's resources into its group 2, where its tracing and final gather read
+//! them, and its passes trace through Lumen's scene representation (that group).
 
-pub mod cards;
 mod params;
 pub mod screen_probes;
 pub mod sdf;
 
-pub use params::{LumenParamsGpu, LumenSettings, PARAMS};
+pub use params::{LumenParamsGpu, LumenSettings, FLAG_BVH, FLAG_LIGHTS, FLAG_SKY, PARAMS};
 pub use screen_probes::ProbeStats;
 use screen_probes::{ProbePipelines, ScreenProbes};
 
 use crate::gpu::{readback, timing::PassTimer, Gpu};
 use crate::parts::reflections::HitCache;
+use crate::parts::surface_cache::{Refresh, SurfaceCache};
 use crate::parts::world_cache::{WorldCache, WorldCachePipelines};
-use crate::parts::{Reflections, RestirDirect, WorldRegir};
+use crate::parts::{Reflections, RestirDirect};
 use crate::render::params::Params;
 use crate::render::primary::FrameInputs;
 use crate::render::{pipelines, DebugView, PassInfo, RenderContext, Technique};
 use crate::scene::features::SceneFeatures;
 use anyhow::Result;
-use cards::{CardSet, GpuCard};
 use glam::Vec3;
 use params::*;
 use sdf::{Clipmaps, MAX_LEVELS};
 use wgpu::util::DeviceExt;
 
-const COMPUTE: [(&str, &str); 9] = [
+const COMPUTE: [(&str, &str); 6] = [
     ("sdf release", "lumen/sdf_release.wgsl"),
     ("sdf allocate", "lumen/sdf_allocate.wgsl"),
     ("sdf coarse", "lumen/sdf_coarse.wgsl"),
-    ("cache direct", "lumen/cache_direct.wgsl"),
-    ("cache probes", "lumen/cache_probe.wgsl"),
-    ("cache indirect", "lumen/cache_indirect.wgsl"),
     ("gather", "lumen/gather.wgsl"),
     ("apply", "lumen/apply.wgsl"),
     ("query", "lumen/query.wgsl"),
 ];
 const SDF_ARGS: &str = "lumen/sdf_args.wgsl";
 const SDF_FILL: &str = "lumen/sdf_fill.wgsl";
-const CAPTURE: &str = "lumen/capture.wgsl";
 const FILL_PASS_NAMES: [&str; MAX_LEVELS] = [
     "sdf fill L0",
     "sdf fill L1",
@@ -81,20 +80,9 @@ const FILL_PASS_NAMES: [&str; MAX_LEVELS] = [
     "sdf fill L4",
     "sdf fill L5",
 ];
-/// Texels captured per frame (the seed's fixed 512^2 budget).
-pub const CAPTURE_TEXELS_PER_FRAME: u32 = 512 * 512;
-/// Budgets are quoted for the seed's 4096^2 atlas.
-const BUDGET_ATLAS: f64 = 4096.0;
 /// Queries one call can answer.
 pub const QUERY_CAPACITY: usize = 1 << 16;
 const BRICK_BYTES: u64 = 512 * 4;
-const ALBEDO_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
-const NORMAL_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba16Float;
-const EMISSIVE_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba16Float;
-const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Float;
-const CAPTURE_DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
-const ATLAS_FORMATS: [wgpu::TextureFormat; 4] =
-    [ALBEDO_FORMAT, NORMAL_FORMAT, EMISSIVE_FORMAT, DEPTH_FORMAT];
 
 /// What a query asks (shaders/lumen/query.wgsl).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -128,8 +116,6 @@ struct Layouts {
     args: wgpu::BindGroupLayout,
     /// Group 3 of `sdf_fill`: the level it fills.
     fill_level: wgpu::BindGroupLayout,
-    /// Group 1 of the capture raster pipelines: the cards.
-    capture: wgpu::BindGroupLayout,
     /// Group 1 of the query pipeline (it needs no frame): the query buffer.
     queries: wgpu::BindGroupLayout,
     /// Group 3 of the direct-light part's pass: `pixel_direct` (binding 18), which apply reads.
@@ -145,8 +131,6 @@ struct Pipelines {
     compute: Vec<wgpu::ComputePipeline>,
     sdf_args: wgpu::ComputePipeline,
     sdf_fill: wgpu::ComputePipeline,
-    capture: wgpu::RenderPipeline,
-    capture_clear: wgpu::RenderPipeline,
     query: wgpu::ComputePipeline,
     apply: wgpu::ComputePipeline,
     probes: ProbePipelines,
@@ -163,18 +147,14 @@ impl Pipelines {
     }
 }
 
-/// Bindings of group 2 that hold card data (replaced when the scene's triangles change).
-const CARD_BINDINGS: [usize; 4] = [1, 2, 3, 15];
-
 struct Resources {
     params_buffer: wgpu::Buffer,
-    /// Group 2's buffers in binding order (0..=18).
-    buffers: Vec<wgpu::Buffer>,
-    atlas_views: Vec<wgpu::TextureView>,
+    /// Lumen's own buffers of group 2 by binding (0, 4..=11, 16..=18); the surface cache's
+    /// fill the others.
+    buffers: Vec<(u32, wgpu::Buffer)>,
     bind_group: wgpu::BindGroup,
     args_bind_group: wgpu::BindGroup,
     fill_bind_groups: Vec<wgpu::BindGroup>,
-    capture_bind_group: wgpu::BindGroup,
     query_bind_group: wgpu::BindGroup,
     queries: wgpu::Buffer,
     /// `pixel_direct` for the direct-light part's pass to write.
@@ -182,8 +162,6 @@ struct Resources {
     /// `pixel_direct` for the reflections part's filter to write (planes 1 and 2).
     specular_bind_group: wgpu::BindGroup,
     args: wgpu::Buffer,
-    index_buffer: wgpu::Buffer,
-    capture_depth_view: wgpu::TextureView,
     gpu_params: LumenParamsGpu,
     /// The world radiance cache (a part: `crate::parts::world_cache`), read by the screen
     /// probes and, through the surface-cache part, by ReSTIR GI's `lumen-world` paths.
@@ -192,32 +170,31 @@ struct Resources {
 }
 
 impl Resources {
-    fn buffer(&self, binding: usize) -> &wgpu::Buffer {
-        &self.buffers[binding]
+    fn buffer(&self, binding: u32) -> &wgpu::Buffer {
+        &self
+            .buffers
+            .iter()
+            .find(|(b, _)| *b == binding)
+            .expect("one of Lumen's bindings")
+            .1
     }
 }
 
-/// Group 2 over `buffers` (bindings 0..=18) and the atlas textures (19..=22).
+/// Group 2 over Lumen's `buffers` and the surface cache's entries.
 fn lumen_bind_group(
     gpu: &Gpu,
     layout: &wgpu::BindGroupLayout,
-    buffers: &[wgpu::Buffer],
-    views: &[wgpu::TextureView],
+    buffers: &[(u32, wgpu::Buffer)],
+    cache: &SurfaceCache,
 ) -> wgpu::BindGroup {
     let mut entries: Vec<wgpu::BindGroupEntry> = buffers
         .iter()
-        .enumerate()
-        .map(|(i, b)| wgpu::BindGroupEntry {
-            binding: i as u32,
-            resource: b.as_entire_binding(),
+        .map(|(b, buffer)| wgpu::BindGroupEntry {
+            binding: *b,
+            resource: buffer.as_entire_binding(),
         })
         .collect();
-    for (i, v) in views.iter().enumerate() {
-        entries.push(wgpu::BindGroupEntry {
-            binding: 19 + i as u32,
-            resource: wgpu::BindingResource::TextureView(v),
-        });
-    }
+    entries.extend(cache.entries().expect("the surface cache's resources"));
     gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
         label: Some("lumen"),
         layout,
@@ -236,54 +213,13 @@ fn init_buffer(gpu: &Gpu, label: &str, contents: &[u8], usage: wgpu::BufferUsage
         })
 }
 
-/// The card buffers of bindings CARD_BINDINGS, the capture index buffer, and the tile counts.
-fn card_buffers(gpu: &Gpu, c: &CardSet) -> ([wgpu::Buffer; 4], wgpu::Buffer, u32, u32) {
-    let storage = wgpu::BufferUsages::STORAGE;
-    let direct = c.tiles(8);
-    let probes = c.tiles(4);
-    let (nd, np) = (direct.len() as u32, probes.len() as u32);
-    let mut tiles = direct;
-    tiles.extend(probes);
-    (
-        [
-            init_buffer(gpu, "lumen cards", bytemuck::cast_slice(&c.cards), storage),
-            init_buffer(
-                gpu,
-                "lumen object cards",
-                bytemuck::cast_slice(&c.object_cards),
-                storage,
-            ),
-            init_buffer(
-                gpu,
-                "lumen triangle objects",
-                bytemuck::cast_slice(&c.tri_object),
-                storage,
-            ),
-            init_buffer(gpu, "lumen tiles", bytemuck::cast_slice(&tiles), storage),
-        ],
-        init_buffer(
-            gpu,
-            "lumen capture indices",
-            bytemuck::cast_slice(&c.indices),
-            wgpu::BufferUsages::INDEX,
-        ),
-        nd,
-        np,
-    )
-}
-
-/// Every entry file Lumen compiles without its direct-light part: what the surface-cache part
-/// (`crate::parts::SurfaceCache`, this technique in cache-only mode) builds.
-pub const SURFACE_CACHE_FILES: [&str; 25] = [
+/// Lumen's own entry files.
+const OWN_SHADER_FILES: [&str; 21] = [
     "lumen/sdf_release.wgsl",
     "lumen/sdf_allocate.wgsl",
     "lumen/sdf_args.wgsl",
     "lumen/sdf_fill.wgsl",
     "lumen/sdf_coarse.wgsl",
-    "lumen/capture.wgsl",
-    "lumen/cache_direct.wgsl",
-    "lumen/cache_probe.wgsl",
-    "lumen/cache_indirect.wgsl",
     "lumen/gather.wgsl",
     "lumen/apply.wgsl",
     "lumen/query.wgsl",
@@ -302,11 +238,14 @@ pub const SURFACE_CACHE_FILES: [&str; 25] = [
     "lumen/integrate.wgsl",
 ];
 
-/// Lumen's entry files and its parts' (direct light, reflections).
+/// Lumen's entry files and its parts' (surface cache, direct light, reflections, world ReGIR).
 const SHADER_FILES: [&str; 35] = crate::render::concat_files(
     crate::render::concat_files::<30, 4, 34>(
         crate::render::concat_files::<25, 5, 30>(
-            SURFACE_CACHE_FILES,
+            crate::render::concat_files::<21, 4, 25>(
+                OWN_SHADER_FILES,
+                crate::parts::surface_cache::SHADER_FILES,
+            ),
             crate::parts::restir_direct::SHADER_FILES,
         ),
         crate::parts::reflections::SHADER_FILES,
@@ -320,18 +259,13 @@ pub struct Lumen {
     layouts: Option<Layouts>,
     pipelines: Option<Pipelines>,
     res: Option<Resources>,
-    cards: Option<CardSet>,
+    /// The surface cache (a part: `crate::parts::surface_cache`): cards, atlas, captures and
+    /// cache lighting, its resources bound into Lumen's group 2.
+    cache: SurfaceCache,
     clipmaps: Option<Clipmaps>,
-    /// Cards still to capture, nearest first when taken.
-    capture_queue: Vec<u32>,
-    direct_tiles: u32,
-    probe_tiles: u32,
-    direct_cursor: u32,
-    probe_cursor: u32,
-    /// The scene the resources were built for: its triangles (scene edits rebuild only the
-    /// bricks they touch) and materials (a change recaptures the cards).
+    /// The scene the distance field was built for: its triangles (scene edits rebuild only the
+    /// bricks they touch).
     scene_tris: Vec<[Vec3; 3]>,
-    scene_materials: Vec<u8>,
     features: SceneFeatures,
     sky: bool,
     extent: [u32; 2],
@@ -341,57 +275,28 @@ pub struct Lumen {
     restir_direct: RestirDirect,
     /// The reflections part (built the first time a glossy scene needs it).
     reflections: Reflections,
-    /// Surface-cache part (`Lumen::surface_cache`): the cache's passes only, no final gather.
-    cache_only: bool,
-    /// The world ReGIR clipmap the cache texels take their lights from (`cache_direct = "regir"`;
-    /// built the first time it is asked for).
-    world_regir: WorldRegir,
-    /// Whether the "cache direct" pipeline was composed with the clipmap's lookup.
-    cache_direct_regir: bool,
 }
 
 impl Default for Lumen {
     fn default() -> Self {
         let params = Params::new("lumen", PARAMS);
+        let settings = LumenSettings::from_params(&params);
         Lumen {
-            settings: LumenSettings::from_params(&params),
+            cache: SurfaceCache::held(settings.surface_cache_settings()),
+            settings,
             params,
             layouts: None,
             pipelines: None,
             res: None,
-            cards: None,
             clipmaps: None,
-            capture_queue: Vec::new(),
-            direct_tiles: 0,
-            probe_tiles: 0,
-            direct_cursor: 0,
-            probe_cursor: 0,
             scene_tris: Vec::new(),
             built_with: None,
             restir_direct: RestirDirect::default(),
             reflections: Reflections::default(),
-            scene_materials: Vec::new(),
             features: SceneFeatures::default(),
             sky: false,
             extent: [0, 0],
-            cache_only: false,
-            world_regir: WorldRegir::default(),
-            cache_direct_regir: false,
         }
-    }
-}
-
-/// A non-filtered 2D float texture read by compute passes (the atlas textures).
-pub fn texture_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility: wgpu::ShaderStages::COMPUTE,
-        ty: wgpu::BindingType::Texture {
-            sample_type: wgpu::TextureSampleType::Float { filterable: false },
-            view_dimension: wgpu::TextureViewDimension::D2,
-            multisampled: false,
-        },
-        count: None,
     }
 }
 
@@ -419,18 +324,13 @@ fn changed_triangles(old: &[[Vec3; 3]], new: &[[Vec3; 3]]) -> Vec<(Vec3, Vec3)> 
 impl Lumen {
     fn layouts(&mut self, gpu: &Gpu) -> &Layouts {
         self.layouts.get_or_insert_with(|| {
+            // Lumen's own bindings: its uniform, the distance field (4-11), the gather, debug
+            // and per-pixel direct light (16-18); the surface cache's fill the others.
             let mut entries = vec![pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE)];
-            for b in 1..=18 {
-                entries.push(pipelines::storage_entry(
-                    b,
-                    (1..=3).contains(&b) || b == 11 || b == 15,
-                ));
+            for b in (4..=11).chain(16..=18) {
+                entries.push(pipelines::storage_entry(b, b == 11));
             }
-            for b in 19..=22 {
-                entries.push(texture_entry(b));
-            }
-            let mut capture = pipelines::storage_entry(0, true);
-            capture.visibility = wgpu::ShaderStages::VERTEX_FRAGMENT;
+            entries.extend(SurfaceCache::layout_entries());
             Layouts {
                 lumen: pipelines::layout(gpu, "lumen", &entries),
                 args: pipelines::layout(
@@ -443,7 +343,6 @@ impl Lumen {
                     "lumen fill level",
                     &[pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE)],
                 ),
-                capture: pipelines::layout(gpu, "lumen capture", &[capture]),
                 queries: pipelines::layout(
                     gpu,
                     "lumen queries",
@@ -475,73 +374,7 @@ impl Lumen {
         flags
     }
 
-    fn capture_pipeline(
-        gpu: &Gpu,
-        module: &wgpu::ShaderModule,
-        layout: &wgpu::PipelineLayout,
-        clear: bool,
-    ) -> Result<wgpu::RenderPipeline> {
-        let attributes = wgpu::vertex_attr_array![0 => Float32x3];
-        let targets: Vec<Option<wgpu::ColorTargetState>> = ATLAS_FORMATS
-            .iter()
-            .map(|f| {
-                Some(wgpu::ColorTargetState {
-                    format: *f,
-                    blend: None,
-                    write_mask: wgpu::ColorWrites::ALL,
-                })
-            })
-            .collect();
-        let buffers = [Some(wgpu::VertexBufferLayout {
-            array_stride: std::mem::size_of::<crate::scene::gpu_scene::RasterVertex>() as u64,
-            step_mode: wgpu::VertexStepMode::Vertex,
-            attributes: &attributes,
-        })];
-        gpu.scoped("lumen capture pipeline", || {
-            gpu.device
-                .create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                    label: Some(if clear {
-                        "lumen capture clear"
-                    } else {
-                        "lumen capture"
-                    }),
-                    layout: Some(layout),
-                    vertex: wgpu::VertexState {
-                        module,
-                        entry_point: Some(if clear { "vs_clear" } else { "vs_main" }),
-                        compilation_options: Default::default(),
-                        buffers: if clear { &[] } else { &buffers },
-                    },
-                    primitive: wgpu::PrimitiveState {
-                        cull_mode: None,
-                        front_face: wgpu::FrontFace::Ccw,
-                        ..Default::default()
-                    },
-                    depth_stencil: Some(wgpu::DepthStencilState {
-                        format: CAPTURE_DEPTH_FORMAT,
-                        depth_write_enabled: Some(true),
-                        depth_compare: Some(if clear {
-                            wgpu::CompareFunction::Always
-                        } else {
-                            wgpu::CompareFunction::Less
-                        }),
-                        stencil: Default::default(),
-                        bias: Default::default(),
-                    }),
-                    multisample: Default::default(),
-                    fragment: Some(wgpu::FragmentState {
-                        module,
-                        entry_point: Some(if clear { "fs_clear" } else { "fs_main" }),
-                        compilation_options: Default::default(),
-                        targets: &targets,
-                    }),
-                    multiview_mask: None,
-                    cache: None,
-                })
-        })
-    }
-
-    /// (Re)builds cards, the distance field's buffers, the atlas and everything sized by the
+    /// (Re)builds the surface cache, the distance field's buffers and everything sized by the
     /// parameters or the image; the cache and the distance field start empty.
     fn build_resources(&mut self, ctx: &RenderContext) -> Result<()> {
         self.settings.check()?;
@@ -555,14 +388,14 @@ impl Lumen {
             Vec3::from(self.features.bounds_min),
             Vec3::from(self.features.bounds_max),
         );
-        let card_set = cards::build(data, s.atlas_size)?;
+        self.cache.settings = s.surface_cache_settings();
+        self.cache.build_resources(ctx)?;
         let layouts = {
             let l = self.layouts(gpu);
             [
                 l.lumen.clone(),
                 l.args.clone(),
                 l.fill_level.clone(),
-                l.capture.clone(),
                 l.queries.clone(),
                 l.probes.clone(),
                 l.direct.clone(),
@@ -570,14 +403,6 @@ impl Lumen {
             ]
         };
         let max_binding = gpu.device.limits().max_storage_buffer_binding_size;
-        let atlas_texels = s.atlas_size as u64 * s.atlas_size as u64;
-        anyhow::ensure!(
-            atlas_texels * 16 <= max_binding,
-            "lumen: atlas_size = {} needs {} MiB per lighting buffer, over this device's {} MiB binding limit",
-            s.atlas_size,
-            (atlas_texels * 16) >> 20,
-            max_binding >> 20
-        );
         let clip = Clipmaps::new(s.clipmap_resolution, s.clipmap_levels, bounds);
         let nb = clip.bricks_per_axis() as u64;
         let slots = s.clipmap_levels as u64 * nb * nb * nb;
@@ -591,21 +416,15 @@ impl Lumen {
             s.gather_downsample
         };
         let gather = [ctx.extent[0].div_ceil(ds), ctx.extent[1].div_ceil(ds)];
-        let ([cards_buffer, object_cards, tri_object, tiles], index_buffer, nd, np) =
-            card_buffers(gpu, &card_set);
         let buf = |label: &str, size: u64| pipelines::storage_buffer(gpu, label, size.max(16));
         let gpu_params = LumenParamsGpu {
             resolution: s.clipmap_resolution,
             bricks_per_axis: clip.bricks_per_axis(),
             pool_bricks,
-            atlas_size: s.atlas_size,
-            card_count: card_set.cards.len() as u32,
             rays_per_pixel: s.rays_per_pixel,
             gather_downsample: ds,
             gather_width: gather[0],
             gather_height: gather[1],
-            direct_tiles_total: nd,
-            probe_tiles_total: np,
             sign_rays: s.sign_rays,
             ..Default::default()
         };
@@ -616,59 +435,28 @@ impl Lumen {
             wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
         );
         let buffers = vec![
-            params_buffer.clone(),
-            cards_buffer,
-            object_cards,
-            tri_object,
-            buf("lumen brick table", slots * 4),
-            buf("lumen brick coords", slots * 16),
-            buf("lumen brick pool", pool_bricks as u64 * BRICK_BYTES),
-            buf("lumen coarse sdf", coarse_cells * 4),
-            buf("lumen free bricks", pool_bricks as u64 * 4),
-            buf("lumen sdf state", 64),
-            buf("lumen fill list", slots * 4),
-            buf("lumen dirty boxes", (2 * sdf::MAX_DIRTY_BOXES as u64) * 16),
-            buf("lumen atlas direct", atlas_texels * 16),
-            buf("lumen atlas indirect", atlas_texels * 16),
-            buf("lumen probes", atlas_texels / 16 * 48),
-            tiles,
-            buf("lumen gather", 2 * gather[0] as u64 * gather[1] as u64 * 16),
-            buf("lumen debug", 4 * pixels * 16),
+            (0, params_buffer.clone()),
+            (4, buf("lumen brick table", slots * 4)),
+            (5, buf("lumen brick coords", slots * 16)),
+            (6, buf("lumen brick pool", pool_bricks as u64 * BRICK_BYTES)),
+            (7, buf("lumen coarse sdf", coarse_cells * 4)),
+            (8, buf("lumen free bricks", pool_bricks as u64 * 4)),
+            (9, buf("lumen sdf state", 64)),
+            (10, buf("lumen fill list", slots * 4)),
+            (
+                11,
+                buf("lumen dirty boxes", (2 * sdf::MAX_DIRTY_BOXES as u64) * 16),
+            ),
+            (
+                16,
+                buf("lumen gather", 2 * gather[0] as u64 * gather[1] as u64 * 16),
+            ),
+            (17, buf("lumen debug", 4 * pixels * 16)),
             // Direct light, then the reflections part's two planes.
-            buf("lumen pixel direct", 3 * pixels * 16),
+            (18, buf("lumen pixel direct", 3 * pixels * 16)),
         ];
         let queries = buf("lumen queries", QUERY_CAPACITY as u64 * 32);
-        let size = wgpu::Extent3d {
-            width: s.atlas_size,
-            height: s.atlas_size,
-            depth_or_array_layers: 1,
-        };
-        let make = |label: &str, format| {
-            gpu.device.create_texture(&wgpu::TextureDescriptor {
-                label: Some(label),
-                size,
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
-                format,
-                usage: wgpu::TextureUsages::RENDER_ATTACHMENT
-                    | wgpu::TextureUsages::TEXTURE_BINDING,
-                view_formats: &[],
-            })
-        };
-        let atlas_views: Vec<wgpu::TextureView> = [
-            "lumen albedo",
-            "lumen normal",
-            "lumen emissive",
-            "lumen depth",
-        ]
-        .iter()
-        .zip(ATLAS_FORMATS)
-        .map(|(l, f)| make(l, f).create_view(&Default::default()))
-        .collect();
-        let capture_depth_view =
-            make("lumen capture depth", CAPTURE_DEPTH_FORMAT).create_view(&Default::default());
-        let bind_group = lumen_bind_group(gpu, &layouts[0], &buffers, &atlas_views);
+        let bind_group = lumen_bind_group(gpu, &layouts[0], &buffers, &self.cache);
         let args = pipelines::indirect_args_buffer(gpu, "lumen fill args", MAX_LEVELS as u64);
         let args_bind_group =
             pipelines::buffers_bind_group(gpu, "lumen sdf args", &layouts[1], &[&args]);
@@ -683,36 +471,31 @@ impl Lumen {
                 pipelines::buffers_bind_group(gpu, "lumen fill level", &layouts[2], &[&b])
             })
             .collect();
-        let capture_bind_group =
-            pipelines::buffers_bind_group(gpu, "lumen capture", &layouts[3], &[&buffers[1]]);
+        let pixel_direct = &buffers.last().expect("pixel direct").1;
         let query_bind_group =
-            pipelines::buffers_bind_group(gpu, "lumen queries", &layouts[4], &[&queries]);
+            pipelines::buffers_bind_group(gpu, "lumen queries", &layouts[3], &[&queries]);
         let direct_bind_group =
-            pipelines::buffers_bind_group(gpu, "lumen pixel direct", &layouts[6], &[&buffers[18]]);
+            pipelines::buffers_bind_group(gpu, "lumen pixel direct", &layouts[5], &[pixel_direct]);
         let specular_bind_group = pipelines::buffers_bind_group(
             gpu,
             "lumen pixel specular",
-            &layouts[7],
-            &[&buffers[18]],
+            &layouts[6],
+            &[pixel_direct],
         );
         let world = WorldCache::new(gpu, s.world_cache_settings())?;
         let res = Resources {
             params_buffer,
             buffers,
-            atlas_views,
             bind_group,
             args_bind_group,
             fill_bind_groups,
-            capture_bind_group,
             query_bind_group,
             queries,
             direct_bind_group,
             specular_bind_group,
             args,
-            index_buffer,
-            capture_depth_view,
             gpu_params,
-            probes: ScreenProbes::new(ctx, &layouts[5], &s, &world)?,
+            probes: ScreenProbes::new(ctx, &layouts[4], &s, &world)?,
             world,
         };
         // Every brick free, every slot unbuilt.
@@ -729,24 +512,17 @@ impl Lumen {
         gpu.queue
             .write_buffer(res.buffer(4), 0, bytemuck::cast_slice(&empty_table));
         gpu.submit("lumen: distance field brick pool reset", enc.finish());
-        self.direct_tiles = nd;
-        self.probe_tiles = np;
-        self.direct_cursor = 0;
-        self.probe_cursor = 0;
-        self.capture_queue = (0..card_set.cards.len() as u32).collect();
-        self.cards = Some(card_set);
         self.clipmaps = Some(clip);
         self.scene_tris = data.tris.clone();
-        self.scene_materials = bytemuck::cast_slice(&data.materials).to_vec();
         self.res = Some(res);
         self.built_with = Some(s);
         Ok(())
     }
 
     /// A rebuild for the same image size keeps what still holds: unchanged triangles keep
-    /// everything; a material edit recaptures the cards; moved, added or removed triangles
-    /// rebuild the cards (and the cache lighting) and only the distance-field bricks they touch.
-    /// Returns false when the resources must be built anew.
+    /// everything; a material edit recaptures the cards (the surface cache's part); moved, added
+    /// or removed triangles rebuild the cards (and the cache lighting) and only the
+    /// distance-field bricks they touch. Returns false when the resources must be built anew.
     fn refresh_for_scene(&mut self, ctx: &RenderContext) -> Result<bool> {
         let gpu = ctx.gpu;
         let data = &ctx.scene.data;
@@ -755,96 +531,34 @@ impl Lumen {
         }
         self.features = data.features.clone();
         self.sky = ctx.scene.sky.max_element() > 0.0 && self.features.sky_visible;
-        let materials: Vec<u8> = bytemuck::cast_slice(&data.materials).to_vec();
+        self.cache.settings = self.settings.surface_cache_settings();
+        match self.cache.refresh_for_scene(ctx)? {
+            Refresh::Build => return Ok(false),
+            Refresh::Kept => {}
+            Refresh::NewCards => {
+                let layout = self.layouts(gpu).lumen.clone();
+                let Some(r) = self.res.as_mut() else {
+                    return Ok(false);
+                };
+                r.bind_group = lumen_bind_group(gpu, &layout, &r.buffers, &self.cache);
+            }
+        }
         if data.tris != self.scene_tris {
             let changed = changed_triangles(&self.scene_tris, &data.tris);
-            let card_set = cards::build(data, self.settings.atlas_size)?;
-            let layout = self.layouts(gpu).lumen.clone();
-            let capture_layout = self.layouts(gpu).capture.clone();
-            let (new, index_buffer, nd, np) = card_buffers(gpu, &card_set);
-            let Some(r) = self.res.as_mut() else {
-                return Ok(false);
-            };
-            for (b, buffer) in CARD_BINDINGS.iter().zip(new) {
-                r.buffers[*b] = buffer;
-            }
-            r.index_buffer = index_buffer;
-            r.bind_group = lumen_bind_group(gpu, &layout, &r.buffers, &r.atlas_views);
-            r.capture_bind_group = pipelines::buffers_bind_group(
-                gpu,
-                "lumen capture",
-                &capture_layout,
-                &[&r.buffers[1]],
-            );
-            r.gpu_params.card_count = card_set.cards.len() as u32;
-            r.gpu_params.direct_tiles_total = nd;
-            r.gpu_params.probe_tiles_total = np;
-            self.direct_tiles = nd;
-            self.probe_tiles = np;
-            self.capture_queue = (0..card_set.cards.len() as u32).collect();
-            self.cards = Some(card_set);
             if let Some(c) = self.clipmaps.as_mut() {
                 c.dirty.extend(changed);
             }
             self.scene_tris = data.tris.clone();
-            self.scene_materials = materials;
             self.reset_history(gpu);
-        } else if materials != self.scene_materials {
-            self.scene_materials = materials;
-            self.capture_queue =
-                (0..self.cards.as_ref().map_or(0, |c| c.cards.len() as u32)).collect();
         }
         Ok(true)
     }
 }
 
 impl Lumen {
-    /// Lumen in cache-only mode, the surface-cache part (`crate::parts::SurfaceCache`): its
-    /// distance field, card captures and cache lighting run each frame; no final gather.
-    pub fn surface_cache() -> Lumen {
-        Lumen {
-            cache_only: true,
-            ..Lumen::default()
-        }
-    }
-
-    /// A bind group of the cache's lookup bindings (`crate::parts::surface_cache`) under
-    /// `layout`, over the current buffers, and the world cache's lookup bindings when `world`;
-    /// `None` before `build`.
-    pub fn surface_cache_bind_group(
-        &self,
-        gpu: &Gpu,
-        layout: &wgpu::BindGroupLayout,
-        world: bool,
-    ) -> Option<wgpu::BindGroup> {
-        use crate::parts::surface_cache::{LOOKUP_BINDINGS, LOOKUP_TEXTURES};
-        let r = self.res.as_ref()?;
-        let mut entries: Vec<wgpu::BindGroupEntry> = LOOKUP_BINDINGS
-            .iter()
-            .map(|&b| wgpu::BindGroupEntry {
-                binding: b,
-                resource: r.buffer(b as usize).as_entire_binding(),
-            })
-            .collect();
-        for (&b, view) in LOOKUP_TEXTURES.iter().zip(&r.atlas_views) {
-            entries.push(wgpu::BindGroupEntry {
-                binding: b,
-                resource: wgpu::BindingResource::TextureView(view),
-            });
-        }
-        if world {
-            entries.extend(r.world.entries());
-        }
-        Some(gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("surface cache lookup"),
-            layout,
-            entries: &entries,
-        }))
-    }
-
     /// The cards and objects of the current scene.
-    pub fn card_set(&self) -> Option<&CardSet> {
-        self.cards.as_ref()
+    pub fn card_set(&self) -> Option<&crate::parts::surface_cache::cards::CardSet> {
+        self.cache.card_set()
     }
 
     /// Screen-probe counters since the last reset (probes, screen-trace hits, world-traced
@@ -928,12 +642,6 @@ impl Lumen {
         Ok(out.chunks(2).map(|c| [c[0], c[1]]).collect())
     }
 
-    /// Texels per frame of a budget quoted for the seed's 4096^2 atlas.
-    fn scaled_budget(&self, texels: u32) -> f64 {
-        let a = self.settings.atlas_size as f64 / BUDGET_ATLAS;
-        texels as f64 * a * a
-    }
-
     /// Rays per pixel per frame besides the gather: the shared camera ray and the direct
     /// light's (NEE's shadow ray, or ReSTIR DI's with the part).
     fn fixed_rays_per_pixel(&self) -> f64 {
@@ -956,18 +664,15 @@ impl Lumen {
     /// (metal, or a dielectric specular factor above 0), glossy or not: rough lobes need the
     /// albedo plane even where no ray is traced.
     fn reflections_active(&self) -> bool {
-        self.settings.reflections
-            && !self.cache_only
-            && self.features.min_specular_roughness.is_some()
+        self.settings.reflections && self.features.min_specular_roughness.is_some()
     }
 
     /// Builds the reflections part when it is needed and not built (its trace pass reads this
     /// cache: Lumen's group 2 at the part's cache group), and passes it the settings.
     fn prepare_reflections(&mut self, ctx: &RenderContext, rebuild: bool) -> Result<()> {
         self.reflections.settings = self.settings.reflection.clone();
-        let needed = self.settings.reflections
-            && !self.cache_only
-            && ctx.scene.data.features.min_specular_roughness.is_some();
+        let needed =
+            self.settings.reflections && ctx.scene.data.features.min_specular_roughness.is_some();
         if (needed && !self.reflections.is_built()) || (rebuild && self.reflections.is_built()) {
             // The cache's lookup bindings alone: with all of Lumen's group the trace pass would
             // bind more storage buffers than a stage may.
@@ -983,7 +688,7 @@ impl Lumen {
 
     /// Lookups the world ReGIR clipmap served, for tests and reports.
     pub fn cache_regir_coverage(&self, gpu: &Gpu) -> Result<crate::parts::world_regir::Coverage> {
-        self.world_regir.coverage(gpu)
+        self.cache.cache_regir_coverage(gpu)
     }
 
     /// Pixels take their direct light from the ReSTIR DI part (`direct = "restir"`, lights).
@@ -1066,88 +771,6 @@ impl Lumen {
             [cells.div_ceil(64), 1, 1],
         );
     }
-
-    /// Takes this frame's captures off the queue: nearest the camera first, up to the budget.
-    fn next_captures(&mut self, camera: Vec3) -> Vec<u32> {
-        let Some(c) = &self.cards else {
-            return Vec::new();
-        };
-        let cards = &c.cards;
-        self.capture_queue.sort_by(|a, b| {
-            let da = cards[*a as usize].centre().distance_squared(camera);
-            let db = cards[*b as usize].centre().distance_squared(camera);
-            db.total_cmp(&da)
-        });
-        let mut out = Vec::new();
-        let mut texels = 0;
-        while let Some(&next) = self.capture_queue.last() {
-            let t = cards[next as usize].texels();
-            if !out.is_empty() && texels + t > CAPTURE_TEXELS_PER_FRAME {
-                break;
-            }
-            texels += t;
-            out.push(next);
-            self.capture_queue.pop();
-        }
-        out
-    }
-
-    fn record_capture(
-        &self,
-        ctx: &RenderContext,
-        enc: &mut wgpu::CommandEncoder,
-        timer: &mut PassTimer,
-        list: &[u32],
-    ) {
-        let (Some(p), Some(r), Some(c)) = (&self.pipelines, &self.res, &self.cards) else {
-            return;
-        };
-        let attachments: Vec<Option<wgpu::RenderPassColorAttachment>> = r
-            .atlas_views
-            .iter()
-            .map(|v| {
-                Some(wgpu::RenderPassColorAttachment {
-                    view: v,
-                    depth_slice: None,
-                    resolve_target: None,
-                    ops: wgpu::Operations {
-                        load: wgpu::LoadOp::Load,
-                        store: wgpu::StoreOp::Store,
-                    },
-                })
-            })
-            .collect();
-        let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-            label: Some("lumen capture"),
-            color_attachments: &attachments,
-            depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                view: &r.capture_depth_view,
-                depth_ops: Some(wgpu::Operations {
-                    load: wgpu::LoadOp::Load,
-                    store: wgpu::StoreOp::Store,
-                }),
-                stencil_ops: None,
-            }),
-            timestamp_writes: timer.render_pass("capture"),
-            occlusion_query_set: None,
-            multiview_mask: None,
-        });
-        pass.set_bind_group(0, &ctx.scene.bind_group, &[]);
-        pass.set_bind_group(1, &r.capture_bind_group, &[]);
-        pass.set_vertex_buffer(0, ctx.scene.vertex_buffer.slice(..));
-        pass.set_index_buffer(r.index_buffer.slice(..), wgpu::IndexFormat::Uint32);
-        for &ci in list {
-            let card: &GpuCard = &c.cards[ci as usize];
-            let [x, y, w, h] = card.rect;
-            pass.set_viewport(x as f32, y as f32, w as f32, h as f32, 0.0, 1.0);
-            pass.set_scissor_rect(x, y, w, h);
-            pass.set_pipeline(&p.capture_clear);
-            pass.draw(0..3, ci..ci + 1);
-            pass.set_pipeline(&p.capture);
-            let [first, count, _, _] = card.draw;
-            pass.draw_indexed(first..first + count, 0, ci..ci + 1);
-        }
-    }
 }
 
 impl Lumen {
@@ -1155,27 +778,7 @@ impl Lumen {
     fn world_passes(&self, reader: &str) -> Vec<PassInfo> {
         let s = &self.settings;
         let tracing = if s.bvh { "BVH" } else { "SDF" };
-        let why = |why: String| {
-            if s.world_cache {
-                why
-            } else {
-                "world_cache = false".into()
-            }
-        };
-        let levels = s.world_cache_levels;
-        let per_axis = s.world_cache_probes;
-        vec![
-            PassInfo {
-                name: "world select",
-                runs: s.world_cache,
-                why: why(format!("{levels} clipmap levels of {per_axis}^3 probes around the camera; lists the ones {reader} read, never-traced first, then the stalest")),
-            },
-            PassInfo {
-                name: "world update",
-                runs: s.world_cache && s.world_probes_per_frame > 0,
-                why: why(format!("{} listed probes per frame, 256 {tracing} rays each (16x16 cells), lit from the surface cache, mean of the last {} updates", s.world_probes_per_frame, s.world_cache_history)),
-            },
-        ]
+        WorldCache::pass_info(&s.world_cache_settings(), s.world_cache, tracing, reader)
     }
 
     /// What the screen-probe final gather runs this frame, and why (the UI's pass list).
@@ -1294,47 +897,13 @@ impl Technique for Lumen {
         .take(s.clipmap_levels as usize)
         {
             let voxel = clip.map_or(0.0, |c| c.voxel(l as u32));
-            v.push(if self.cache_only && s.bvh {
-                pass(name, false, "the surface cache traces through the BVH: no distance field".into())
-            } else if (l as u32) < built {
+            v.push(if (l as u32) < built {
                 pass(name, true, format!("{}^3 voxels of {voxel:.4}, rebuilt only where the camera scrolled or the scene changed", s.clipmap_resolution))
             } else {
                 pass(name, false, format!("level {} already holds the whole scene", built.saturating_sub(1)))
             });
         }
-        let cards = self.cards.as_ref();
-        v.push(pass(
-            "capture",
-            true,
-            format!(
-                "{} cards of {} objects in {} pages; up to {} texels per frame, nearest first",
-                cards.map_or(0, |c| c.cards.len()),
-                cards.map_or(0, |c| c.object_count()),
-                cards.map_or(0, |c| c.pages_used),
-                CAPTURE_TEXELS_PER_FRAME
-            ),
-        ));
-        let regir = s.cache_light.regir && f.many_lights;
-        v.push(WorldRegir::pass_info(&s.cache_light, f));
-        v.push(pass(
-            "cache direct",
-            lights,
-            if lights {
-                format!(
-                    "{:.0} texels per frame, one light {} and one {} shadow ray each",
-                    self.scaled_budget(s.direct_texels_per_frame),
-                    if regir {
-                        "from the world ReGIR clipmap"
-                    } else {
-                        "by power"
-                    },
-                    if s.bvh { "BVH" } else { "SDF" }
-                )
-            } else {
-                "no lights in the pool".into()
-            },
-        ));
-        v.push(pass("cache indirect", true, format!("{:.0} texels per frame: 16-ray probes on 4x4 tiles reading the cache (one more bounce per update), 4-frame blend", self.scaled_budget(s.indirect_texels_per_frame))));
+        v.extend(self.cache.cache_passes(f, s.bvh));
         v.push(pass(
             "sky",
             self.sky,
@@ -1346,12 +915,6 @@ impl Technique for Lumen {
                 "enclosed: no ray from the camera's side reaches the sky".into()
             },
         ));
-        if self.cache_only {
-            if s.world_cache {
-                v.extend(self.world_passes("ReSTIR GI's paths"));
-            }
-            return v;
-        }
         let tracing = if s.bvh { "BVH" } else { "SDF" };
         if s.screen_probes {
             v.extend(self.probe_passes(f));
@@ -1385,13 +948,12 @@ impl Technique for Lumen {
 
     fn build(&mut self, ctx: &RenderContext) -> Result<()> {
         let gpu = ctx.gpu;
-        let (lumen, args, fill_level, capture_layout, query_layout, probe_layout) = {
+        let (lumen, args, fill_level, query_layout, probe_layout) = {
             let l = self.layouts(gpu);
             (
                 l.lumen.clone(),
                 l.args.clone(),
                 l.fill_level.clone(),
-                l.capture.clone(),
                 l.queries.clone(),
                 l.probes.clone(),
             )
@@ -1409,15 +971,6 @@ impl Technique for Lumen {
                     ctx.shaders,
                     entry,
                     &[&ctx.scene.layout, ctx.frame_layout, &lumen, &probe_layout],
-                )?);
-                continue;
-            }
-            if name == "cache direct" {
-                compute.push(WorldRegir::lighting_pipeline(
-                    ctx,
-                    entry,
-                    &lumen,
-                    self.settings.cache_light.regir,
                 )?);
                 continue;
             }
@@ -1440,40 +993,28 @@ impl Technique for Lumen {
         let query = pipelines::compute_pipeline(
             gpu,
             ctx.shaders,
-            COMPUTE[8].1,
+            COMPUTE[5].1,
             &[&ctx.scene.layout, &query_layout, &lumen],
         )?;
         compute.push(query.clone());
-        let module = pipelines::shader_module(gpu, ctx.shaders, CAPTURE)?;
-        let raster_layout = gpu
-            .device
-            .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                label: Some("lumen capture"),
-                bind_group_layouts: &[Some(&ctx.scene.layout), Some(&capture_layout)],
-                immediate_size: 0,
-            });
-        let capture = Self::capture_pipeline(gpu, &module, &raster_layout, false)?;
-        let capture_clear = Self::capture_pipeline(gpu, &module, &raster_layout, true)?;
         let apply = compute[COMPUTE
             .iter()
             .position(|(n, _)| *n == "apply")
             .expect("apply")]
         .clone();
-        // The direct-light part is rebuilt too (shader change); if that fails, its old
-        // pipelines and Lumen's stay.
+        // The parts are rebuilt too (shader change); if one fails, its old pipelines and
+        // Lumen's stay.
+        self.cache.settings = self.settings.surface_cache_settings();
+        self.cache.build_pipelines(ctx, &lumen)?;
         if self.restir_direct.is_built() || self.settings.direct_restir {
             self.restir_direct.build(ctx)?;
             self.restir_direct.build_resources(ctx);
         }
         self.prepare_reflections(ctx, true)?;
-        self.world_regir.prepare(ctx, &self.settings.cache_light)?;
-        self.cache_direct_regir = self.settings.cache_light.regir;
         self.pipelines = Some(Pipelines {
             compute,
             sdf_args,
             sdf_fill,
-            capture,
-            capture_clear,
             query,
             apply,
             probes,
@@ -1498,24 +1039,9 @@ impl Technique for Lumen {
             self.restir_direct.build_resources(ctx);
         }
         self.prepare_reflections(ctx, false)?;
-        self.world_regir.prepare(ctx, &self.settings.cache_light)?;
-        if self.cache_direct_regir != self.settings.cache_light.regir {
-            let layout = self.layouts(ctx.gpu).lumen.clone();
-            let pipeline = WorldRegir::lighting_pipeline(
-                ctx,
-                "lumen/cache_direct.wgsl",
-                &layout,
-                self.settings.cache_light.regir,
-            )?;
-            if let Some(p) = self.pipelines.as_mut() {
-                let i = COMPUTE
-                    .iter()
-                    .position(|(n, _)| *n == "cache direct")
-                    .expect("cache direct");
-                p.compute[i] = pipeline;
-            }
-            self.cache_direct_regir = self.settings.cache_light.regir;
-        }
+        self.cache.settings = self.settings.surface_cache_settings();
+        let layout = self.layouts(ctx.gpu).lumen.clone();
+        self.cache.apply_settings(ctx, &layout)?;
         let sized = |s: &LumenSettings| {
             (
                 s.clipmap_levels,
@@ -1572,10 +1098,11 @@ impl Technique for Lumen {
         r.probes.reset(gpu);
         r.world.reset(gpu);
         let mut enc = gpu.device.create_command_encoder(&Default::default());
-        for b in [12usize, 13, 14, 16, 17] {
+        for b in [16, 17] {
             enc.clear_buffer(r.buffer(b), 0, None);
         }
         gpu.submit("lumen: history reset", enc.finish());
+        self.cache.reset(gpu);
         self.restir_direct.reset(gpu);
         self.reflections.reset(gpu);
     }
@@ -1593,24 +1120,16 @@ impl Technique for Lumen {
         if self.pipelines.is_none() || self.res.is_none() {
             return;
         }
+        // The texel budgets travel with the parameters.
+        self.cache.settings = self.settings.surface_cache_settings();
         let camera = ctx.camera.position;
         let plan = match self.clipmaps.as_mut() {
             Some(c) => c.plan(camera),
             None => return,
         };
-        let captures = self.next_captures(camera);
-        let direct =
-            (self.scaled_budget(self.settings.direct_texels_per_frame) / 64.0).ceil() as u32;
-        let probes =
-            (self.scaled_budget(self.settings.indirect_texels_per_frame) / 16.0).ceil() as u32;
-        let direct = direct.clamp(1, self.direct_tiles.max(1));
-        let probes = probes.clamp(1, self.probe_tiles.max(1));
         let flags = self.flags();
         let f = &self.features;
         let centre = (Vec3::from(f.bounds_min) + Vec3::from(f.bounds_max)) * 0.5;
-        let (direct_first, probe_first) = (self.direct_cursor, self.probe_cursor);
-        self.direct_cursor = (self.direct_cursor + direct) % self.direct_tiles.max(1);
-        self.probe_cursor = (self.probe_cursor + probes) % self.probe_tiles.max(1);
         let Some(r) = self.res.as_mut() else {
             return;
         };
@@ -1619,10 +1138,6 @@ impl Technique for Lumen {
         p.levels_built = plan.built;
         p.flags = flags;
         p.dirty_box_count = (plan.dirty.len() / 2) as u32;
-        p.direct_tile_first = direct_first;
-        p.direct_tile_count = direct;
-        p.probe_tile_first = probe_first;
-        p.probe_tile_count = probes;
         p.slice_depth = (centre - camera).dot(ctx.camera.forward()).max(1e-3);
         p.query_count = 0;
         ctx.gpu
@@ -1633,19 +1148,14 @@ impl Technique for Lumen {
                 .queue
                 .write_buffer(r.buffer(11), 0, bytemuck::cast_slice(&plan.dirty));
         }
-        // The surface-cache part traced through the BVH reads no distance field.
-        let sdf_unused = self.cache_only && self.settings.bvh;
-        if plan.any_update && !sdf_unused {
+        if plan.any_update {
             self.record_sdf(ctx, enc, timer, &plan);
-        }
-        if !captures.is_empty() {
-            self.record_capture(ctx, enc, timer, &captures);
         }
         let direct_restir = self.direct_restir() && self.restir_direct.is_built();
         let reflections = self.reflections_active() && self.reflections.is_built();
         let lookup = if reflections {
-            let layout = crate::parts::SurfaceCache::lookup_layout(ctx.gpu, false);
-            self.surface_cache_bind_group(ctx.gpu, &layout, false)
+            let layout = SurfaceCache::lookup_layout(ctx.gpu, false);
+            self.cache.lookup_bind_group(ctx.gpu, &layout, None)
         } else {
             None
         };
@@ -1654,55 +1164,13 @@ impl Technique for Lumen {
         };
         let bg = &r.bind_group;
         let gp = &r.gpu_params;
-        if self.features.light_count() > 0 && self.direct_tiles > 0 {
-            let regir = self.world_regir.record_for_pass(
-                ctx,
-                enc,
-                timer,
-                self.cache_direct_regir,
-                self.features.many_lights,
-            );
-            let groups: Vec<&wgpu::BindGroup> = [Some(bg), regir].into_iter().flatten().collect();
-            pipelines::technique_pass(
-                ctx,
-                enc,
-                timer,
-                "cache direct",
-                p.get("cache direct"),
-                &groups,
-                [direct, 1, 1],
-            );
-        }
-        if self.probe_tiles > 0 {
-            pipelines::technique_pass(
-                ctx,
-                enc,
-                timer,
-                "cache probes",
-                p.get("cache probes"),
-                &[bg],
-                [probes.div_ceil(64), 1, 1],
-            );
-            pipelines::technique_pass(
-                ctx,
-                enc,
-                timer,
-                "cache indirect",
-                p.get("cache indirect"),
-                &[bg],
-                [probes.div_ceil(4), 1, 1],
-            );
-        }
+        self.cache.record_passes(ctx, enc, timer, bg);
         // The world cache: its uniforms every frame (readers need them), its passes when on and
-        // read (by the screen probes, or in cache-only mode by the part's reader).
+        // read by the screen probes.
         let world = self.settings.world_cache_settings();
-        let world_read = self.cache_only || self.settings.screen_probes;
-        let update = self.settings.world_cache && world_read;
+        let update = self.settings.world_cache && self.settings.screen_probes;
         r.world
             .record(ctx, enc, timer, bg, &p.world, &world, update);
-        if self.cache_only {
-            return;
-        }
         if self.settings.screen_probes {
             r.probes
                 .record(ctx, enc, timer, bg, &self.settings, &p.probes);

@@ -274,6 +274,16 @@ pub struct LumenSettings {
 }
 
 impl LumenSettings {
+    /// The surface cache part's settings (`crate::parts::surface_cache`).
+    pub fn surface_cache_settings(&self) -> crate::parts::surface_cache::SurfaceCacheSettings {
+        crate::parts::surface_cache::SurfaceCacheSettings {
+            atlas_size: self.atlas_size,
+            direct_texels_per_frame: self.direct_texels_per_frame,
+            indirect_texels_per_frame: self.indirect_texels_per_frame,
+            cache_light: self.cache_light,
+        }
+    }
+
     /// The world radiance cache part's settings (`crate::parts::world_cache`).
     pub fn world_cache_settings(&self) -> crate::parts::world_cache::WorldCacheSettings {
         crate::parts::world_cache::WorldCacheSettings {
@@ -328,10 +338,11 @@ impl LumenSettings {
             self.clipmap_resolution
         );
         anyhow::ensure!(
-            self.atlas_size.is_multiple_of(super::cards::PAGE),
+            self.atlas_size
+                .is_multiple_of(crate::parts::surface_cache::cards::PAGE),
             "lumen: atlas_size = {} is not a multiple of the {}-texel page",
             self.atlas_size,
-            super::cards::PAGE
+            crate::parts::surface_cache::cards::PAGE
         );
         anyhow::ensure!(
             self.probe_spacing.is_power_of_two(),
@@ -360,20 +371,12 @@ pub struct LumenParamsGpu {
     pub levels_built: u32,
     pub bricks_per_axis: u32,
     pub pool_bricks: u32,
-    pub atlas_size: u32,
-    pub card_count: u32,
     pub flags: u32,
     pub rays_per_pixel: u32,
     pub gather_downsample: u32,
     pub gather_width: u32,
     pub gather_height: u32,
     pub dirty_box_count: u32,
-    pub direct_tile_first: u32,
-    pub direct_tile_count: u32,
-    pub direct_tiles_total: u32,
-    pub probe_tile_first: u32,
-    pub probe_tile_count: u32,
-    pub probe_tiles_total: u32,
     pub sign_rays: u32,
     pub query_count: u32,
     pub slice_depth: f32,

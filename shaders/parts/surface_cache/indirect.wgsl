@@ -3,7 +3,7 @@
 // weighted by its plane (texels behind a probe get nothing from it), by its mean hit distance
 // (a probe whose rays stop short of the texel is likely on the other side of something) and by
 // normal agreement; the result is blended into the indirect atlas over at most 4 frames.
-#import gilab::lumen::{params, tile_list, probes}
+#import gilab::surface_cache_lighting::{cache_tiles, probes}
 #import gilab::surface_cache::{cards, atlas_indirect, atlas_index, cache_texel}
 
 const MAX_FRAMES: f32 = 4.0;
@@ -11,10 +11,10 @@ const MAX_FRAMES: f32 = 4.0;
 @compute @workgroup_size(64, 1, 1)
 fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) li: u32) {
     let k = wg.x * 4u + li / 16u;
-    if k >= params.probe_tile_count || params.probe_tiles_total == 0u {
+    if k >= cache_tiles.params.probe_tile_count || cache_tiles.params.probe_tiles_total == 0u {
         return;
     }
-    let entry = tile_list[params.direct_tiles_total + (params.probe_tile_first + k) % params.probe_tiles_total];
+    let entry = cache_tiles.tiles[cache_tiles.params.direct_tiles_total + (cache_tiles.params.probe_tile_first + k) % cache_tiles.params.probe_tiles_total];
     let tile = vec2<u32>(entry.x & 0xffffu, entry.x >> 16u);
     let texel = tile * 4u + vec2<u32>((li % 16u) % 4u, (li % 16u) / 4u);
     let t = cache_texel(entry.y, texel);
@@ -29,7 +29,7 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) l
     let frac = f - floor(f);
     var sum = vec3<f32>(0.0);
     var weight = 0.0;
-    let tiles_x = params.atlas_size / 4u;
+    let tiles_x = cache_tiles.params.atlas_size / 4u;
     for (var j = 0u; j < 4u; j++) {
         let o = vec2<i32>(i32(j & 1u), i32(j >> 1u));
         let pt = clamp(i0 + o, tile_lo, tile_hi);

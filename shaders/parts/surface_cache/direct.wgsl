@@ -7,7 +7,8 @@
 #import gilab::counters::{flush_counts, no_counts, RAY_CACHE}
 #import gilab::rng::{rng_init, STREAM_LUMEN_DIRECT}
 #import gilab::cache_light::cache_light_sample
-#import gilab::lumen::{params, tile_list, light_visible, has_flag, FLAG_LIGHTS}
+#import gilab::lumen::{light_visible, has_flag, FLAG_LIGHTS}
+#import gilab::surface_cache_lighting::{cache_tiles}
 #import gilab::surface_cache::{atlas_direct, atlas_index, cache_texel}
 
 const DIRECT_HISTORY: f32 = 32.0;
@@ -15,8 +16,8 @@ const DIRECT_HISTORY: f32 = 32.0;
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
     var counts = no_counts();
-    if wg.x < params.direct_tile_count && params.direct_tiles_total > 0u {
-        let entry = tile_list[(params.direct_tile_first + wg.x) % params.direct_tiles_total];
+    if wg.x < cache_tiles.params.direct_tile_count && cache_tiles.params.direct_tiles_total > 0u {
+        let entry = cache_tiles.tiles[(cache_tiles.params.direct_tile_first + wg.x) % cache_tiles.params.direct_tiles_total];
         let texel = vec2<u32>(entry.x & 0xffffu, entry.x >> 16u) * 8u + lid.xy;
         let t = cache_texel(entry.y, texel);
         if t.valid {

@@ -22,7 +22,7 @@ pub const MAX_CARDS_PER_OBJECT: usize = 16;
 /// Share of the atlas the first layout attempt aims to fill.
 const TARGET_FILL: f32 = 0.4;
 
-/// `Card` of shaders/parts/card.wgsl.
+/// `Card` of shaders/parts/surface_cache/card.wgsl.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct GpuCard {

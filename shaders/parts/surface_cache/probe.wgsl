@@ -8,7 +8,8 @@
 #import gilab::sampling::sample_cosine_hemisphere
 #import gilab::counters::{flush_counts, no_counts, RAY_CACHE}
 #import gilab::rng::{rng_init, rand, rand_pair, STREAM_LUMEN_PROBE}
-#import gilab::lumen::{params, tile_list, probes, Probe, trace_scene, hit_radiance}
+#import gilab::lumen::{trace_scene, hit_radiance}
+#import gilab::surface_cache_lighting::{cache_tiles, probes, Probe}
 #import gilab::surface_cache::{cache_texel}
 #import gilab::sky::sky_radiance
 
@@ -17,8 +18,8 @@ const PROBE_RAYS: u32 = 16u;
 @compute @workgroup_size(64, 1, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
     var counts = no_counts();
-    if gid.x < params.probe_tile_count && params.probe_tiles_total > 0u {
-        let entry = tile_list[params.direct_tiles_total + (params.probe_tile_first + gid.x) % params.probe_tiles_total];
+    if gid.x < cache_tiles.params.probe_tile_count && cache_tiles.params.probe_tiles_total > 0u {
+        let entry = cache_tiles.tiles[cache_tiles.params.direct_tiles_total + (cache_tiles.params.probe_tile_first + gid.x) % cache_tiles.params.probe_tiles_total];
         let tile = vec2<u32>(entry.x & 0xffffu, entry.x >> 16u);
         var rng = rng_init(tile, frame.frame_index, STREAM_LUMEN_PROBE, frame.seed);
         let start = u32(rand(&rng) * 16.0);
@@ -29,7 +30,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             texel = tile * 4u + vec2<u32>(i % 4u, i / 4u);
             found = cache_texel(entry.y, texel).valid;
         }
-        let probe_index = tile.y * (params.atlas_size / 4u) + tile.x;
+        let probe_index = tile.y * (cache_tiles.params.atlas_size / 4u) + tile.x;
         if !found {
             probes[probe_index].pos = vec4<f32>(0.0);
         } else {

@@ -1,4 +1,4 @@
-// The surface cache (src/parts/surface_cache.rs): Lumen's cards and atlas, and their lookup at a
+// The surface cache (src/parts/surface_cache/): Lumen's cards and atlas, and their lookup at a
 // point, as a part that any pass may import. Its bindings sit at bind group SURFACE_CACHE_GROUP,
 // a shader def: Lumen's own passes use the default, 2 (their group, with these binding numbers);
 // a pass of another technique sets the group it binds the part's lookup bind group at (ReSTIR

@@ -1,7 +1,7 @@
 // Lumen surface cache cards (shared/seeds/000, "Cards"): an axis-aligned box per card; the card
 // looks at its box from one of six sides with an orthographic camera. Pure functions, no
 // bindings, so the capture raster shader and the compute passes project identically.
-// Layout must match `GpuCard` in src/techniques/lumen/cards.rs (the surface-cache part, src/parts/surface_cache.rs).
+// Layout must match `GpuCard` in src/parts/surface_cache/cards.rs (the surface-cache part).
 #define_import_path gilab::card
 
 struct Card {
