@@ -325,6 +325,11 @@ pub fn reference_key_for_camera(p: &LoadedPreset, camera: &crate::scene::Camera)
     if !p.preset.scene.instancing {
         canonical["instancing"] = false.into();
     }
+    // The pose (a reference is of one frame's pose; still scenes keep their keys).
+    let s = &p.preset.scene;
+    if s.time.is_some() || s.animation.is_some() {
+        canonical["pose"] = serde_json::json!([s.time, s.animation]);
+    }
     let mut h = fnv::FnvHasher::default();
     h.write(canonical.to_string().as_bytes());
     format!("{:016x}", h.finish())

@@ -3,6 +3,7 @@
 
 mod common;
 
+use common::base64 as base64_decode;
 use gilab::compare::{metrics, Image};
 use gilab::gpu::shaders::{ShaderLibrary, ShaderVariant};
 use gilab::preset::{LoadedPreset, Overrides};
@@ -510,41 +511,6 @@ fn malformed_gltf_gives_clear_errors() {
         gltf_load::load(&dir.join("missing.gltf")).unwrap_err()
     );
     assert!(missing.contains("missing.gltf"), "{missing}");
-}
-
-/// Minimal base64 for the test fixture above (standard alphabet, padded).
-mod base64_decode {
-    const A: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-    pub fn decode(s: &str) -> Vec<u8> {
-        let val = |c: u8| A.iter().position(|&a| a == c).unwrap() as u32;
-        let clean: Vec<u8> = s.bytes().filter(|&c| c != b'=').collect();
-        let mut out = Vec::new();
-        for chunk in clean.chunks(4) {
-            let mut n = 0u32;
-            for (i, &c) in chunk.iter().enumerate() {
-                n |= val(c) << (18 - 6 * i);
-            }
-            let bytes = [(n >> 16) as u8, (n >> 8) as u8, n as u8];
-            out.extend_from_slice(&bytes[..chunk.len() - 1]);
-        }
-        out
-    }
-    pub fn encode(b: &[u8]) -> String {
-        let mut out = String::new();
-        for chunk in b.chunks(3) {
-            let n = (chunk[0] as u32) << 16
-                | (*chunk.get(1).unwrap_or(&0) as u32) << 8
-                | *chunk.get(2).unwrap_or(&0) as u32;
-            for i in 0..4 {
-                if i <= chunk.len() {
-                    out.push(A[((n >> (18 - 6 * i)) & 63) as usize] as char);
-                } else {
-                    out.push('=');
-                }
-            }
-        }
-        out
-    }
 }
 
 #[test]
@@ -1491,83 +1457,11 @@ fn gltf_animation_poses_nodes() {
     use gilab::scene::animation::PoseRequest;
     use glam::{Quat, Vec4};
     let dir = std::env::temp_dir().join(format!("gilab-anim-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let text = std::fs::read_to_string("scenes/box-room/box-room.gltf").unwrap();
-    let base: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let (animated, data) = common::animated_box_room(&dir);
+    let base: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string("scenes/box-room/box-room.gltf").unwrap())
+            .unwrap();
     let quat_y = |deg: f32| Quat::from_rotation_y(deg.to_radians());
-    let (r0, r1) = (quat_y(45.0), quat_y(135.0));
-    // Keyframe data, one accessor each: (floats, components, type).
-    let f = |v: &[f32]| v.to_vec();
-    let data: Vec<(Vec<f32>, usize, &str)> = vec![
-        (f(&[0.0, 2.0]), 1, "SCALAR"),
-        (f(&[0.0, 3.0, 0.0, 2.0, 3.0, 0.0]), 3, "VEC3"),
-        ([r0.to_array(), r1.to_array()].concat(), 4, "VEC4"),
-        // CUBICSPLINE: in-tangent, value, out-tangent per key.
-        (
-            f(&[
-                0.0, 0.0, 0.0, -1.5, 1.5, 1.0, 1.0, 0.0, 0.0, //
-                -1.0, 0.0, 0.0, 0.5, 1.5, 1.0, 0.0, 0.0, 0.0,
-            ]),
-            3,
-            "VEC3",
-        ),
-        (f(&[0.0, 0.25, 1.0]), 1, "SCALAR"),
-        (f(&[1.5, 1.5, 1.5, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5]), 3, "VEC3"),
-    ];
-    let mut doc = base.clone();
-    let mut bytes = Vec::new();
-    let buffer = doc["buffers"].as_array().unwrap().len();
-    let first_accessor = doc["accessors"].as_array().unwrap().len();
-    for (floats, comps, ty) in &data {
-        let offset = bytes.len();
-        bytes.extend(floats.iter().flat_map(|x| x.to_le_bytes()));
-        let view = doc["bufferViews"].as_array().unwrap().len();
-        doc["bufferViews"]
-            .as_array_mut()
-            .unwrap()
-            .push(serde_json::json!({
-                "buffer": buffer, "byteOffset": offset, "byteLength": floats.len() * 4
-            }));
-        let mut acc = serde_json::json!({
-            "bufferView": view, "componentType": 5126, "count": floats.len() / comps, "type": ty
-        });
-        if *ty == "SCALAR" {
-            acc["min"] = serde_json::json!([floats[0]]);
-            acc["max"] = serde_json::json!([floats[floats.len() - 1]]);
-        }
-        doc["accessors"].as_array_mut().unwrap().push(acc);
-    }
-    doc["buffers"]
-        .as_array_mut()
-        .unwrap()
-        .push(serde_json::json!({
-            "byteLength": bytes.len(),
-            "uri": format!("data:application/octet-stream;base64,{}", base64_decode::encode(&bytes))
-        }));
-    let a = |i: usize| first_accessor + i;
-    // Nodes: 2 panel, 3 cube, 4 lamp.
-    doc["animations"] = serde_json::json!([
-        {
-            "name": "slide",
-            "samplers": [
-                {"input": a(0), "output": a(1), "interpolation": "LINEAR"},
-                {"input": a(0), "output": a(2), "interpolation": "LINEAR"},
-                {"input": a(0), "output": a(3), "interpolation": "CUBICSPLINE"}
-            ],
-            "channels": [
-                {"sampler": 0, "target": {"node": 2, "path": "translation"}},
-                {"sampler": 1, "target": {"node": 3, "path": "rotation"}},
-                {"sampler": 2, "target": {"node": 4, "path": "translation"}}
-            ]
-        },
-        {
-            "name": "blink",
-            "samplers": [{"input": a(4), "output": a(5), "interpolation": "STEP"}],
-            "channels": [{"sampler": 0, "target": {"node": 3, "path": "scale"}}]
-        }
-    ]);
-    let animated = dir.join("animated.gltf");
-    std::fs::write(&animated, doc.to_string()).unwrap();
     let pose = |time: f32, clip: Option<&str>| {
         gltf_load::load_posed(
             &animated,
@@ -1665,4 +1559,70 @@ fn gltf_animation_poses_nodes() {
         err.contains("walk") && err.contains("slide, blink"),
         "{err}"
     );
+}
+
+/// Playback (issue 36): the box room's animations re-posed by the scene's `Motion` equal, bit
+/// for bit, the file loaded at that time (vertices, normals, lights, instance transforms). The
+/// animated meshes (panel light, cube) are instances of their own, so the BVH's top level alone
+/// is rebuilt over their new transforms (`Bvh::rebuild_top`, bottom levels kept), and that tree
+/// finds the same closest hits as a flat BVH of the posed triangles on 10,000 rays.
+#[test]
+fn playback_reposes_like_a_load_and_rebuilds_only_the_top_level() {
+    use gilab::scene::animation::PoseRequest;
+    let dir = std::env::temp_dir().join(format!("gilab-playback-{}", std::process::id()));
+    let (animated, _) = common::animated_box_room(&dir);
+    let rest = gltf_load::load(&animated).unwrap();
+    let motion = rest
+        .motion
+        .clone()
+        .expect("the panel, the cube and the lamp move");
+    assert_eq!(motion.moving_instances(), 2, "panel and cube");
+    let mut bvh = bvh::Bvh::build_instanced(&rest.triangle_positions(), &rest.instances);
+    assert!(bvh.top.is_some(), "two levels");
+    let bottom = bvh.nodes[bvh.top.as_ref().unwrap().nodes..].to_vec();
+    let mut playing = rest.clone();
+    for t in [0.25f32, 0.5] {
+        let moved = motion.apply(&mut playing, t).unwrap();
+        assert_eq!(moved.instances.len(), 2, "t = {t}");
+        assert!(moved.lights, "the lamp moves");
+        assert!(bvh.rebuild_top(&playing.instances, &moved.instances));
+    }
+    let posed = gltf_load::load_posed(
+        &animated,
+        false,
+        Some(&PoseRequest {
+            time: 0.5,
+            clip: None,
+        }),
+    )
+    .unwrap();
+    assert_eq!(playing.positions, posed.positions);
+    assert_eq!(playing.normals, posed.normals);
+    assert_eq!(playing.lights, posed.lights);
+    assert_eq!(playing.instances, posed.instances);
+    // Bottom levels untouched (the records after them hold the new transforms).
+    let top = bvh.top.as_ref().unwrap();
+    let words = |n: &[bvh::BvhNode]| bytemuck::cast_slice::<_, u32>(n).to_vec();
+    assert_eq!(
+        words(&bvh.nodes[top.nodes..top.records_at]),
+        words(&bottom[..top.records_at - top.nodes])
+    );
+    let tris = playing.triangle_positions();
+    let flat = bvh::Bvh::build(&tris);
+    let (lo, hi) = playing.bounds();
+    let mut hits = 0;
+    for (o, d) in random_rays(10_000, lo, hi, 7) {
+        let a = bvh.closest_hit(&tris, o, d, f32::MAX).map(|h| h.0);
+        let b = flat.closest_hit(&tris, o, d, f32::MAX).map(|h| h.0);
+        match (a, b) {
+            (None, None) => {}
+            (Some(a), Some(b)) => {
+                assert!((a - b).abs() <= 1e-5 * b.max(1.0), "{a} vs {b}");
+                hits += 1;
+            }
+            _ => panic!("re-posed two-level {a:?} vs flat {b:?}"),
+        }
+    }
+    eprintln!("playback: {hits} of 10000 rays hit, the same t as the flat BVH of the pose");
+    assert!(hits > 2_000, "{hits}");
 }

@@ -202,6 +202,25 @@ pub struct SceneRef {
     /// The one animation (glTF clip name) that plays; unset: every one.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub animation: Option<String>,
+    /// Playback speed of the animations: scene seconds per second of frames, at 60 frames a
+    /// second of scene time (`render::engine::PLAYBACK_FPS`); 0 (default): the scene holds its
+    /// pose. Playback starts at `time`.
+    #[serde(
+        default,
+        skip_serializing_if = "is_zero_f32",
+        deserialize_with = "time_scale_f32"
+    )]
+    pub time_scale: f32,
+}
+
+fn time_scale_f32<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<f32, D::Error> {
+    let v = f64::deserialize(d)?;
+    if !v.is_finite() {
+        return Err(serde::de::Error::custom(format!(
+            "time_scale {v}: expected a finite number (scene seconds per second)"
+        )));
+    }
+    Ok(v as f32)
 }
 
 fn yes() -> bool {
@@ -569,8 +588,9 @@ impl LoadedPreset {
     fn load_scene_as_authored(&self) -> Result<Scene> {
         let src = &self.preset.scene.source;
         let Some(path) = self.scene_path() else {
-            self.refuse_pose_of_builtin()?;
-            return builtin::build(src, &self.preset.scene.params);
+            let mut scene = builtin::build(src, &self.preset.scene.params)?;
+            self.pose_builtin(&mut scene)?;
+            return Ok(scene);
         };
         let ext = path
             .extension()
@@ -579,9 +599,10 @@ impl LoadedPreset {
             .to_ascii_lowercase();
         if ext != "gltf" && ext != "glb" {
             if !path.exists() {
-                // Most likely a misspelt built-in name.
-                self.refuse_pose_of_builtin()?;
-                return builtin::build(src, &self.preset.scene.params);
+                // Most likely a misspelt built-in name (its error lists the built-ins).
+                let mut scene = builtin::build(src, &self.preset.scene.params)?;
+                self.pose_builtin(&mut scene)?;
+                return Ok(scene);
             }
             bail!(
                 "{}: unsupported scene format (expected .gltf or .glb)",
@@ -599,18 +620,48 @@ impl LoadedPreset {
             time: s.time.unwrap_or(0.0),
             clip: s.animation.clone(),
         });
-        gltf_load::load_posed(&path, s.environment.is_some(), pose.as_ref())
+        let mut scene = gltf_load::load_posed(&path, s.environment.is_some(), pose.as_ref())?;
+        if s.time_scale != 0.0 {
+            match scene.motion.as_mut().map(std::sync::Arc::make_mut) {
+                Some(m) => m.time_scale = s.time_scale,
+                None => bail!(
+                    "scene.time_scale = {} plays animations, but nothing in {} moves (no animated mesh or light)",
+                    s.time_scale,
+                    path.display()
+                ),
+            }
+        }
+        Ok(scene)
     }
 
-    /// `scene.time` and `scene.animation` pose a glTF file's animations: built-in scenes have
-    /// none, and a pose that would silently change nothing is refused.
-    fn refuse_pose_of_builtin(&self) -> Result<()> {
+    /// `scene.time`, `scene.animation` and `scene.time_scale` for a built-in scene: posed and
+    /// played where it moves (`moving`); refused where it has nothing to move, rather than
+    /// silently changing nothing.
+    fn pose_builtin(&self, scene: &mut Scene) -> Result<()> {
         let s = &self.preset.scene;
-        if s.time.is_some() || s.animation.is_some() {
+        if s.time.is_none() && s.animation.is_none() && s.time_scale == 0.0 {
+            return Ok(());
+        }
+        let Some(motion) = scene.motion.as_mut().map(std::sync::Arc::make_mut) else {
             bail!(
-                "scene.time and scene.animation pose a glTF file's animations; the built-in scene '{}' has none",
+                "scene.time, scene.animation and scene.time_scale pose and play animations; the built-in scene '{}' has none (the built-in 'moving' has)",
                 s.source
             );
+        };
+        if let Some(name) = &s.animation {
+            if !motion.clips.iter().any(|c| &c.name == name) {
+                let names: Vec<&str> = motion.clips.iter().map(|c| c.name.as_str()).collect();
+                bail!(
+                    "scene.animation = \"{name}\": the scene has no such animation (it has: {})",
+                    names.join(", ")
+                );
+            }
+            motion.clip = Some(name.clone());
+        }
+        motion.time_scale = s.time_scale;
+        let motion = motion.clone();
+        if let Some(t) = s.time {
+            motion.apply(scene, t)?;
         }
         Ok(())
     }

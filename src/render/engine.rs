@@ -110,7 +110,20 @@ pub struct Engine {
     pub total_wall_ms: f64,
     /// FrameUniforms flags (`render::FLAG_*`).
     pub flags: u32,
+    /// Scene time (seconds) of the pose the next frame renders; it advances by
+    /// `time_scale / PLAYBACK_FPS` before every frame after the first when the scene's
+    /// animations play (`[scene] time_scale`).
+    pub scene_time: f32,
+    /// Whether a frame has been submitted at `scene_time` already (the first frame renders the
+    /// pose the scene was loaded at).
+    posed_frame_done: bool,
+    /// CPU milliseconds the last re-posing took (motion, BVH top level, buffers, technique).
+    pub last_motion_ms: f64,
 }
+
+/// Frames per second of scene time during playback: frame k renders time t0 + k × time_scale /
+/// PLAYBACK_FPS, whatever the wall clock, so that headless runs are repeatable.
+pub const PLAYBACK_FPS: f32 = 60.0;
 
 impl Engine {
     pub fn new(
@@ -212,6 +225,7 @@ impl Engine {
                 readback::StagingRead::new(&gpu, "frame slot", TIMESTAMP_BYTES + COUNTER_BYTES)
             })
             .collect();
+        let scene_time = scene.posed_at.unwrap_or(0.0);
         let mut engine = Engine {
             gpu,
             shaders,
@@ -242,6 +256,9 @@ impl Engine {
             total_gpu_ms: 0.0,
             total_wall_ms: 0.0,
             flags: 0,
+            scene_time,
+            posed_frame_done: false,
+            last_motion_ms: 0.0,
         };
         let id = engine.technique.id();
         engine
@@ -419,6 +436,42 @@ impl Engine {
         Ok(())
     }
 
+    /// Animation playback: before every frame after the first, scene time advances by
+    /// `time_scale / PLAYBACK_FPS`, the scene is re-posed (`Motion::apply`), its BVH top level,
+    /// triangle records and light pool are rewritten in place (`GpuScene::repose`; a full
+    /// upload where that cannot be done), the technique is told (`on_geometry_moved`) and the
+    /// accumulated output restarts.
+    fn advance_motion(&mut self) -> Result<()> {
+        let Some(motion) = self.scene.motion.clone() else {
+            return Ok(());
+        };
+        if motion.time_scale == 0.0 {
+            return Ok(());
+        }
+        if !self.posed_frame_done {
+            self.posed_frame_done = true;
+            return Ok(());
+        }
+        let start = Instant::now();
+        self.scene_time += motion.time_scale / PLAYBACK_FPS;
+        let moved = motion.apply(Arc::make_mut(&mut self.scene), self.scene_time)?;
+        if moved.instances.is_empty() && !moved.lights {
+            return Ok(());
+        }
+        let reposed =
+            Arc::make_mut(&mut self.gpu_scene).repose(&self.gpu, &self.scene, &moved.instances);
+        if reposed {
+            self.technique.on_geometry_moved(&render_context!(self))?;
+            self.restart_accumulation();
+        } else {
+            log::debug!("re-posing in place not possible: the scene is uploaded again");
+            let gpu_scene = Arc::new(GpuScene::upload(&self.gpu, &self.scene));
+            self.change_scene(self.scene.clone(), gpu_scene)?;
+        }
+        self.last_motion_ms = start.elapsed().as_secs_f64() * 1e3;
+        Ok(())
+    }
+
     /// A scripted camera move while running: the next frame reprojects from the old camera
     /// (motion vectors), accumulation restarts, counters and reuse history continue.
     pub fn move_camera(&mut self, camera: Camera) {
@@ -562,6 +615,7 @@ impl Engine {
     /// `output_copy`: a buffer (COPY_DST, `pixels * 16` bytes) that receives this frame's
     /// accumulated output after the frame, for evaluation later (converge).
     pub fn submit_frame(&mut self, output_copy: Option<&wgpu::Buffer>) -> Result<()> {
+        self.advance_motion()?;
         if self.in_flight.len() >= FRAMES_IN_FLIGHT {
             self.complete_oldest(true)?;
         }

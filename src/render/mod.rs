@@ -179,6 +179,15 @@ pub trait Technique: std::any::Any {
     fn on_scene_change(&mut self, gpu: &Gpu) {
         self.reset_history(gpu);
     }
+    /// Geometry moved (animation playback, `[scene] time_scale`): the scene's buffers already
+    /// hold the new pose, in place (bind groups stay valid); the engine restarts the
+    /// accumulated output. Default: as a scripted change (`on_scene_change`). A technique whose
+    /// own structures depend on where triangles are (Lumen's cards and distance field)
+    /// updates them here.
+    fn on_geometry_moved(&mut self, ctx: &RenderContext) -> Result<()> {
+        self.on_scene_change(ctx.gpu);
+        Ok(())
+    }
     /// Samples per pixel one frame adds (the frame uniforms' `sample_offset` counts them).
     fn samples_per_frame(&self) -> u32 {
         1

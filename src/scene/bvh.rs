@@ -195,6 +195,35 @@ pub struct Bvh {
     pub instances: usize,
     /// Meshes with a bottom-level tree of their own (the rest of the scene not counted).
     pub instanced_meshes: usize,
+    /// What rebuilding the top level needs (two levels only): `Bvh::rebuild_top`.
+    pub top: Option<TopLevel>,
+}
+
+/// The top level of a two-level BVH, kept so that it can be rebuilt when instances move while
+/// the bottom levels stay (src/scene/instancing.rs).
+#[derive(Clone, Debug, Default)]
+pub struct TopLevel {
+    pub entries: Vec<TopEntry>,
+    /// Nodes of the top level (the first ones of `Bvh::nodes`).
+    pub nodes: usize,
+    /// Where the instance records start in `Bvh::nodes` (two nodes an entry).
+    pub records_at: usize,
+    /// The deepest bottom-level tree.
+    pub bottom_depth: usize,
+}
+
+/// One leaf of the top level: the rest of the scene (no instance) or one instance.
+#[derive(Clone, Copy, Debug)]
+pub struct TopEntry {
+    /// The bottom-level tree's root box (object space; world space for the rest).
+    pub object_min: Vec3,
+    pub object_max: Vec3,
+    /// The tree's nodes `root..end` in `Bvh::nodes`, its triangles from `tri_offset` on.
+    pub root: u32,
+    pub end: u32,
+    pub tri_offset: u32,
+    /// Index in `Scene::instances` (None: the rest of the scene).
+    pub instance: Option<usize>,
 }
 
 #[derive(Clone, Copy)]

@@ -40,6 +40,7 @@ use super::{
 use crate::scene::animation::{
     posed_locals, Clip, ClipInfo, Interpolation, Keyframes, PoseRequest, Property, Track, Trs,
 };
+use crate::scene::motion::{Motion, MovingLight, MovingMesh};
 use anyhow::{anyhow, bail, Context, Result};
 use glam::{Mat3, Mat4, Quat, Vec2, Vec3, Vec4};
 use std::collections::HashMap;
@@ -224,33 +225,69 @@ fn load_inner(path: &Path, environment: bool, pose: Option<&PoseRequest>) -> Res
                 .join(", ")
         );
     }
+    // What the animations move (src/scene/motion.rs): the nodes a playing clip drives, and
+    // everything under them.
+    let driven: std::collections::HashSet<usize> = clips
+        .iter()
+        .filter(|c| {
+            pose.and_then(|p| p.clip.as_ref())
+                .is_none_or(|n| &c.name == n)
+        })
+        .flat_map(|c| c.tracks.iter().map(|t| t.node))
+        .collect();
+    let mut motion = Motion {
+        clips: clips.clone(),
+        clip: pose.and_then(|p| p.clip.clone()),
+        parents: vec![None; doc.nodes().len()],
+        rest_local: doc.nodes().map(|n| local_matrix(&n)).collect(),
+        rest_trs: (0..doc.nodes().len()).map(|n| rest_trs(&doc, n)).collect(),
+        meshes: Vec::new(),
+        lights: Vec::new(),
+        time_scale: 0.0,
+    };
+    for node in doc.nodes() {
+        for child in node.children() {
+            motion.parents[child.index()] = Some(node.index());
+        }
+    }
     let mut cache: HashMap<usize, Vec<Primitive>> = HashMap::new();
-    let mut stack: Vec<(gltf::Node, Mat4)> =
-        gltf_scene.nodes().map(|n| (n, Mat4::IDENTITY)).collect();
+    let mut stack: Vec<(gltf::Node, Mat4, bool)> = gltf_scene
+        .nodes()
+        .map(|n| (n, Mat4::IDENTITY, false))
+        .collect();
     let mut visited = 0usize;
-    while let Some((node, parent)) = stack.pop() {
+    while let Some((node, parent, parent_moves)) = stack.pop() {
         visited += 1;
         if visited > 1_000_000 {
             bail!("node hierarchy too deep or cyclic");
         }
+        let moves = parent_moves || driven.contains(&node.index());
         let local = match posed.get(&node.index()) {
             Some(m) => *m,
             None => local_matrix(&node),
         };
         let world = parent * local;
         if let Some(mesh) = node.mesh() {
-            let transforms = match read_instances(&node, &doc, &buffers) {
-                Ok(Some(instances)) => instances.into_iter().map(|m| world * m).collect(),
-                Ok(None) => vec![world],
+            // (world transform, EXT_mesh_gpu_instancing's matrix relative to the node)
+            let transforms: Vec<(Mat4, Option<Mat4>)> = match read_instances(&node, &doc, &buffers)
+            {
+                Ok(Some(instances)) => instances
+                    .into_iter()
+                    .map(|m| (world * m, Some(m)))
+                    .collect(),
+                Ok(None) => vec![(world, None)],
                 Err(e) => {
                     log::warn!(
-                        "{file}: node {} ('{}'): {INSTANCING} skipped ({e:#}): the mesh is drawn once at the node",
-                        node.index(),
-                        node.name().unwrap_or("unnamed")
-                    );
-                    vec![world]
+                            "{file}: node {} ('{}'): {INSTANCING} skipped ({e:#}): the mesh is drawn once at the node",
+                            node.index(),
+                            node.name().unwrap_or("unnamed")
+                        );
+                    vec![(world, None)]
                 }
             };
+            // A mesh drawn more than once is traced as instances of one tree; one that moves
+            // is an instance of its own, so that only the BVH's top level moves with it.
+            let instanced = uses[mesh.index()] > 1 || moves;
             let fresh;
             let prims = match cache.get(&mesh.index()) {
                 Some(p) => p,
@@ -264,7 +301,7 @@ fn load_inner(path: &Path, environment: bool, pose: Option<&PoseRequest>) -> Res
                     }
                 }
             };
-            for m in &transforms {
+            for (m, ext) in &transforms {
                 if !m.is_finite() {
                     log::warn!(
                         "{file}: node {} ('{}'): an instance with a non-finite transform skipped",
@@ -274,11 +311,20 @@ fn load_inner(path: &Path, environment: bool, pose: Option<&PoseRequest>) -> Res
                     continue;
                 }
                 let first = scene.triangles.len() as u32;
+                let first_vertex = scene.positions.len();
                 for p in prims {
                     emit(&mut scene, p, *m);
                 }
-                // A mesh drawn more than once is traced as instances of one tree.
-                if uses[mesh.index()] > 1 {
+                if instanced {
+                    if moves {
+                        motion.meshes.push(MovingMesh {
+                            instance: scene.instances.len(),
+                            node: node.index(),
+                            local: *ext,
+                            primitives: prims.clone(),
+                            first_vertex,
+                        });
+                    }
                     scene.instances.push(MeshInstance {
                         mesh: mesh.index() as u32,
                         transform: *m,
@@ -289,6 +335,12 @@ fn load_inner(path: &Path, environment: bool, pose: Option<&PoseRequest>) -> Res
             }
         }
         if let Some(light) = node.light() {
+            if moves {
+                motion.lights.push(MovingLight {
+                    light: scene.lights.len(),
+                    node: node.index(),
+                });
+            }
             scene.lights.push(read_light(&light, world));
         }
         if let (Some(cam), None) = (node.camera(), scene.camera) {
@@ -307,7 +359,7 @@ fn load_inner(path: &Path, environment: bool, pose: Option<&PoseRequest>) -> Res
             }
         }
         for child in node.children() {
-            stack.push((child, world));
+            stack.push((child, world, moves));
         }
     }
     if scene.triangles.is_empty() {
@@ -324,6 +376,9 @@ fn load_inner(path: &Path, environment: bool, pose: Option<&PoseRequest>) -> Res
         log::warn!(
             "{file}: no light source (no emissive material, no KHR_lights_punctual): lit by a default uniform sky of radiance {DEFAULT_SKY}"
         );
+    }
+    if !motion.meshes.is_empty() || !motion.lights.is_empty() {
+        scene.motion = Some(std::sync::Arc::new(motion));
     }
     scene.validate()?;
     Ok(scene)
@@ -705,14 +760,15 @@ fn read_callisto_extras(m: &gltf::Material) -> Result<crate::scene::shading::Cal
 
 /// One triangle primitive in object space, its vertices unshared (three per triangle, in the
 /// file's winding), ready to be placed once per node or instance.
-struct Primitive {
-    material: u32,
-    positions: Vec<Vec3>,
-    normals: Vec<Vec3>,
-    uvs: Vec<Vec2>,
-    uvs1: Option<Vec<Vec2>>,
+#[derive(Clone)]
+pub(crate) struct Primitive {
+    pub(crate) material: u32,
+    pub(crate) positions: Vec<Vec3>,
+    pub(crate) normals: Vec<Vec3>,
+    pub(crate) uvs: Vec<Vec2>,
+    pub(crate) uvs1: Option<Vec<Vec2>>,
     /// Only for normal-mapped materials: the file's TANGENT or MikkTSpace's.
-    tangents: Option<Vec<Vec4>>,
+    pub(crate) tangents: Option<Vec<Vec4>>,
 }
 
 fn read_mesh(
@@ -844,7 +900,46 @@ fn read_mesh(
 }
 
 /// Appends a primitive placed by `m` (winding kept front-facing where `m` mirrors).
-fn emit(scene: &mut Scene, p: &Primitive, m: Mat4) {
+/// Writes primitive `p` under transform `m` over the vertices from `first_vertex` on, as `emit`
+/// wrote them (the same arithmetic, so the result equals a load at that pose), and returns the
+/// vertex after them. For a re-posed instance (src/scene/motion.rs): positions, normals, UVs
+/// and tangents; the triangles' indices and materials stay.
+pub(crate) fn emit_at(scene: &mut Scene, p: &Primitive, m: Mat4, first_vertex: usize) -> usize {
+    let m3 = Mat3::from_mat4(m);
+    let normal_matrix = m3.inverse().transpose();
+    let flip = m3.determinant() < 0.0;
+    let sign = if flip { -1.0 } else { 1.0 };
+    let order: [usize; 3] = if flip { [0, 2, 1] } else { [0, 1, 2] };
+    let tri_count = p.positions.len() / 3;
+    let end = first_vertex + 3 * tri_count;
+    if end > scene.positions.len() {
+        return first_vertex;
+    }
+    for k in 0..tri_count {
+        for (slot, &c) in order.iter().enumerate() {
+            let i = 3 * k + c;
+            let v = first_vertex + 3 * k + slot;
+            scene.positions[v] = m.transform_point3(p.positions[i]);
+            scene.normals[v] = (normal_matrix * p.normals[i]).normalize_or_zero();
+            scene.uvs[v] = p.uvs[i];
+            if let (Some(uv), Some(dst)) = (&p.uvs1, scene.uvs1.get_mut(v)) {
+                *dst = uv[i];
+            }
+            if let (Some(t), Some(dst)) = (&p.tangents, scene.tangents.get_mut(v)) {
+                let t = t[i];
+                let xyz = (m3 * t.truncate()).normalize_or_zero();
+                *dst = if xyz == Vec3::ZERO {
+                    Vec4::ZERO
+                } else {
+                    xyz.extend(t.w * sign)
+                };
+            }
+        }
+    }
+    end
+}
+
+pub(crate) fn emit(scene: &mut Scene, p: &Primitive, m: Mat4) {
     let m3 = Mat3::from_mat4(m);
     let normal_matrix = m3.inverse().transpose();
     let flip = m3.determinant() < 0.0;

@@ -339,6 +339,7 @@ pub struct RasterVertex {
 }
 
 /// CPU copies of everything uploaded, kept for tests, the CPU BVH and light statistics.
+#[derive(Clone)]
 pub struct SceneData {
     pub tris: Vec<[Vec3; 3]>,
     pub bvh: Bvh,
@@ -347,12 +348,12 @@ pub struct SceneData {
     pub materials: Vec<GpuMaterial>,
     /// The scene data buffer (binding 4): word 0 the texture table's start, the environment
     /// map from ENV_OFFSET, the table (`textures`, 4 words each), then the mip chains.
-    pub texels: Vec<u32>,
+    pub texels: std::sync::Arc<Vec<u32>>,
     /// Where each texture's mip chain lies in `texels`.
     pub textures: Vec<GpuTexture>,
     /// The environment map's words (`environment::gpu_bytes`; a header only without one), also
     /// inside `texels` from ENV_OFFSET on.
-    pub environment: Vec<u8>,
+    pub environment: std::sync::Arc<Vec<u8>>,
     pub lights: Vec<GpuLight>,
     pub vertices: Vec<RasterVertex>,
     pub features: SceneFeatures,
@@ -460,6 +461,44 @@ impl SceneData {
                 }
             })
             .collect();
+        let Geometry {
+            lights,
+            tri_geom,
+            tri_attr,
+            vertices,
+        } = Geometry::new(scene, &tris, &bvh);
+        SceneData {
+            timings: SceneTimings {
+                bvh_build_ms,
+                prepare_ms: start.elapsed().as_secs_f64() * 1e3,
+                ..SceneTimings::default()
+            },
+            tris,
+            bvh,
+            tri_geom,
+            tri_attr,
+            materials,
+            texels: std::sync::Arc::new(texels),
+            textures,
+            environment: std::sync::Arc::new(environment),
+            lights,
+            vertices,
+            features,
+        }
+    }
+}
+
+/// What moves with the geometry: the light pool (emissive triangles by BVH position, punctual
+/// lights), the triangle records in BVH order and the raster vertices.
+struct Geometry {
+    lights: Vec<GpuLight>,
+    tri_geom: Vec<GpuTriGeom>,
+    tri_attr: Vec<GpuTriAttr>,
+    vertices: Vec<RasterVertex>,
+}
+
+impl Geometry {
+    fn new(scene: &Scene, tris: &[[Vec3; 3]], bvh: &Bvh) -> Geometry {
         // Light power of a textured emitter: factor x the texture's mean (every triangle of
         // the material alike; unbiased as long as the mean is non-zero where texels are).
         let emission_scale: Vec<Vec3> = scene
@@ -601,23 +640,11 @@ impl SceneData {
                 position: v.to_array(),
             }));
         }
-        SceneData {
-            timings: SceneTimings {
-                bvh_build_ms,
-                prepare_ms: start.elapsed().as_secs_f64() * 1e3,
-                ..SceneTimings::default()
-            },
-            tris,
-            bvh,
+        Geometry {
+            lights,
             tri_geom,
             tri_attr,
-            materials,
-            texels,
-            textures,
-            environment,
-            lights,
             vertices,
-            features,
         }
     }
 }
@@ -636,6 +663,7 @@ fn set_class_cdf(lights: &mut [GpuLight], powers: &[f32]) {
     }
 }
 
+#[derive(Clone)]
 pub struct GpuScene {
     pub data: SceneData,
     pub sky: Vec3,
@@ -643,6 +671,32 @@ pub struct GpuScene {
     pub bind_group: wgpu::BindGroup,
     pub vertex_buffer: wgpu::Buffer,
     pub vertex_count: u32,
+    /// The buffers that move with the geometry: BVH nodes, triangle geometry and attributes,
+    /// light pool (bindings 0, 1, 2, 5), rewritten in place by `repose`.
+    moving: [wgpu::Buffer; 4],
+}
+
+/// The light pool buffer's contents: a header (lights, emissive triangles, punctual lights,
+/// local lights), then the lights (one empty record when there are none).
+fn light_pool_bytes(lights: &[GpuLight]) -> Vec<u8> {
+    let emissive = lights.iter().filter(|l| l.kind == LIGHT_TRIANGLE).count() as u32;
+    let local = lights
+        .iter()
+        .filter(|l| l.kind != LIGHT_DIRECTIONAL)
+        .count() as u32;
+    let header = [
+        lights.len() as u32,
+        emissive,
+        lights.len() as u32 - emissive,
+        local,
+    ];
+    let mut bytes: Vec<u8> = Vec::new();
+    bytes.extend_from_slice(bytemuck::cast_slice(&header));
+    bytes.extend_from_slice(bytemuck::cast_slice(lights));
+    if lights.is_empty() {
+        bytes.extend_from_slice(bytemuck::bytes_of(&GpuLight::default()));
+    }
+    bytes
 }
 
 impl GpuScene {
@@ -684,29 +738,8 @@ impl GpuScene {
         let geom = storage("tri geom", bytemuck::cast_slice(&data.tri_geom));
         let attr = storage("tri attr", bytemuck::cast_slice(&data.tri_attr));
         let mats = storage("materials", bytemuck::cast_slice(&data.materials));
-        let texels = storage("texels", bytemuck::cast_slice(&data.texels));
-        let mut light_bytes: Vec<u8> = Vec::new();
-        let emissive = data
-            .lights
-            .iter()
-            .filter(|l| l.kind == LIGHT_TRIANGLE)
-            .count() as u32;
-        let local = data
-            .lights
-            .iter()
-            .filter(|l| l.kind != LIGHT_DIRECTIONAL)
-            .count() as u32;
-        let header = [
-            data.lights.len() as u32,
-            emissive,
-            data.lights.len() as u32 - emissive,
-            local,
-        ];
-        light_bytes.extend_from_slice(bytemuck::cast_slice(&header));
-        light_bytes.extend_from_slice(bytemuck::cast_slice(&data.lights));
-        if data.lights.is_empty() {
-            light_bytes.extend_from_slice(bytemuck::bytes_of(&GpuLight::default()));
-        }
+        let texels = storage("texels", bytemuck::cast_slice(&data.texels[..]));
+        let light_bytes = light_pool_bytes(&data.lights);
         let lights = storage("light pool", &light_bytes);
         let layout = Self::bind_group_layout(gpu);
         let bind_group = crate::render::pipelines::buffers_bind_group(
@@ -724,7 +757,7 @@ impl GpuScene {
             .create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some("raster vertices"),
                 contents: &vbytes,
-                usage: wgpu::BufferUsages::VERTEX,
+                usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
             });
         let vertex_count = data.vertices.len() as u32;
         data.timings.upload_ms = upload_start.elapsed().as_secs_f64() * 1e3;
@@ -737,6 +770,51 @@ impl GpuScene {
             bind_group,
             vertex_buffer,
             vertex_count,
+            moving: [nodes, geom, attr, lights],
         }
+    }
+
+    /// The scene re-posed (`scene`: the same scene with instances moved and lights moved, as
+    /// `Motion::apply` leaves it; `moved`: the instances that moved): the BVH's top level is
+    /// rebuilt over the instances' transforms (bottom levels kept), the triangle records, raster
+    /// vertices and light pool are made again and written into the same buffers, so every bind
+    /// group stays valid. False, with nothing written, where that cannot be done (a moved
+    /// instance traced as ordinary geometry, or a light pool that changed size): the caller
+    /// uploads the scene again.
+    pub fn repose(&mut self, gpu: &crate::gpu::Gpu, scene: &Scene, moved: &[usize]) -> bool {
+        let start = std::time::Instant::now();
+        let tris = scene.triangle_positions();
+        if tris.len() != self.data.tris.len() {
+            return false;
+        }
+        // In place: `rebuild_top` changes nothing when it fails. A failure further on leaves
+        // a top level the caller's fresh upload replaces.
+        let top_start = std::time::Instant::now();
+        if !moved.is_empty() && !self.data.bvh.rebuild_top(&scene.instances, moved) {
+            return false;
+        }
+        let bvh_build_ms = top_start.elapsed().as_secs_f64() * 1e3;
+        let bvh = &self.data.bvh;
+        let g = Geometry::new(scene, &tris, bvh);
+        if g.lights.len() != self.data.lights.len() || g.tri_geom.len() != self.data.tri_geom.len()
+        {
+            return false;
+        }
+        let [nodes, geom, attr, lights] = &self.moving;
+        let q = &gpu.queue;
+        q.write_buffer(nodes, 0, bytemuck::cast_slice(&bvh.nodes));
+        q.write_buffer(geom, 0, bytemuck::cast_slice(&g.tri_geom));
+        q.write_buffer(attr, 0, bytemuck::cast_slice(&g.tri_attr));
+        q.write_buffer(lights, 0, &light_pool_bytes(&g.lights));
+        q.write_buffer(&self.vertex_buffer, 0, bytemuck::cast_slice(&g.vertices));
+        let d = &mut self.data;
+        d.tris = tris;
+        d.tri_geom = g.tri_geom;
+        d.tri_attr = g.tri_attr;
+        d.lights = g.lights;
+        d.vertices = g.vertices;
+        d.timings.bvh_build_ms = bvh_build_ms;
+        d.timings.prepare_ms = start.elapsed().as_secs_f64() * 1e3;
+        true
     }
 }

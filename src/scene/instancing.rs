@@ -15,7 +15,9 @@
 //! the scene's tree, each mesh's tree, then the instance records (two nodes each). Skip
 //! pointers of a bottom-level tree are absolute, so its root's skip is its end.
 
-use super::bvh::{Aabb, Bvh, BvhNode, InstanceRecord, INSTANCE_LEAF, MAX_TRIANGLES};
+use super::bvh::{
+    Aabb, Bvh, BvhNode, InstanceRecord, TopEntry, TopLevel, INSTANCE_LEAF, MAX_TRIANGLES,
+};
 use super::MeshInstance;
 use glam::{Mat4, Vec3};
 use rayon::prelude::*;
@@ -89,6 +91,8 @@ impl Bvh {
             /// Original index of the tree's local triangle k: `first + k` (instances) or
             /// `rest[k]` (the rest of the scene).
             first: Option<u32>,
+            /// Index in the scene's instance list (None: the rest).
+            instance: Option<usize>,
         }
         let mut entries = Vec::new();
         if !rest_bvh.nodes.is_empty() {
@@ -97,6 +101,7 @@ impl Bvh {
                 tree: 0,
                 world_to_object: Mat4::IDENTITY,
                 first: None,
+                instance: None,
             });
         }
         let first_mesh_tree = trees.len() - meshes.len();
@@ -109,6 +114,7 @@ impl Bvh {
                     tree,
                     world_to_object,
                     first: Some(instances[j].first_triangle),
+                    instance: Some(j),
                 });
             }
         }
@@ -129,6 +135,7 @@ impl Bvh {
         let records_at = nodes.len();
         let mut order = Vec::with_capacity(tris.len());
         let mut record_of_entry = vec![0u32; entries.len()];
+        let mut top_entries = Vec::with_capacity(entries.len());
         for (e, entry) in entries.iter().enumerate() {
             let tree = trees[entry.tree];
             let tri_offset = order.len() as u32;
@@ -138,6 +145,15 @@ impl Bvh {
             }
             let base = tree_base[entry.tree];
             let end = base + tree.nodes.len() as u32;
+            let object = node_box(&tree.nodes[0]);
+            top_entries.push(TopEntry {
+                object_min: object.min,
+                object_max: object.max,
+                root: base,
+                end,
+                tri_offset,
+                instance: entry.instance,
+            });
             let record = InstanceRecord::new(entry.world_to_object, base, end, tri_offset);
             record_of_entry[e] = (records_at + 2 * e) as u32;
             nodes.extend_from_slice(bytemuck::cast_slice::<InstanceRecord, BvhNode>(&[record]));
@@ -157,14 +173,91 @@ impl Bvh {
             );
             return Bvh::build(tris);
         }
-        let bottom_depth = mesh_bvhs.iter().chain([&rest_bvh]).map(|b| b.depth).max();
+        let bottom_depth = mesh_bvhs
+            .iter()
+            .chain([&rest_bvh])
+            .map(|b| b.depth)
+            .max()
+            .unwrap_or(0);
         Bvh {
             nodes,
             order,
-            depth: top.depth + 1 + bottom_depth.unwrap_or(0),
+            depth: top.depth + 1 + bottom_depth,
             instances: entries.len() - (!rest_bvh.nodes.is_empty()) as usize,
             instanced_meshes: meshes.len(),
+            top: Some(TopLevel {
+                entries: top_entries,
+                nodes: top.nodes.len(),
+                records_at,
+                bottom_depth,
+            }),
         }
+    }
+
+    /// Rebuilds the top level of a two-level BVH over the instances' current transforms
+    /// (`instances`: the scene's list, moved in place), leaving every bottom level and the
+    /// triangle order as they are: the world-space triangles of a moved instance keep their
+    /// place. False when that is not possible: a flat tree, or a moved instance (`moved`) that
+    /// is not traced through a tree of its own (it was traced as ordinary geometry); then the
+    /// caller builds the whole BVH again.
+    ///
+    /// Bottom-level boxes were padded at build time by 1e-5 of the mesh's size plus its
+    /// instances' distance from the origin (float rounding of the transforms); an instance that
+    /// moves 100 times farther from the origin than it started exceeds that padding.
+    pub fn rebuild_top(&mut self, instances: &[MeshInstance], moved: &[usize]) -> bool {
+        let Some(top) = &self.top else {
+            return false;
+        };
+        let traced = |j: usize| top.entries.iter().any(|e| e.instance == Some(j));
+        if !moved.iter().all(|&j| traced(j)) {
+            return false;
+        }
+        let mut boxes = Vec::with_capacity(top.entries.len());
+        for e in &top.entries {
+            let object = Aabb {
+                min: e.object_min,
+                max: e.object_max,
+            };
+            boxes.push(match e.instance {
+                Some(j) => match instances.get(j) {
+                    Some(i) if i.transform.determinant() != 0.0 => {
+                        transformed_box(&object, i.transform)
+                    }
+                    _ => return false,
+                },
+                None => object,
+            });
+        }
+        let new_top = Bvh::build_boxes(&boxes, false, 1);
+        // One entry a leaf: 2E - 1 nodes whatever the boxes, so the records stay in place.
+        if new_top.nodes.len() != top.nodes {
+            return false;
+        }
+        let (records_at, bottom_depth) = (top.records_at, top.bottom_depth);
+        for (e, entry) in top.entries.iter().enumerate() {
+            if let Some(j) = entry.instance {
+                let record = InstanceRecord::new(
+                    instances[j].transform.inverse(),
+                    entry.root,
+                    entry.end,
+                    entry.tri_offset,
+                );
+                let at = records_at + 2 * e;
+                self.nodes[at..at + 2]
+                    .copy_from_slice(bytemuck::cast_slice::<InstanceRecord, BvhNode>(&[record]));
+            }
+        }
+        let mut nodes = new_top.nodes;
+        for n in &mut nodes {
+            if n.tri_count() > 0 {
+                let entry = new_top.order[n.first_tri() as usize] as usize;
+                n.tris = (((records_at + 2 * entry) as u32) << 8) | INSTANCE_LEAF;
+            }
+        }
+        let count = nodes.len();
+        self.nodes[..count].copy_from_slice(&nodes);
+        self.depth = new_top.depth + 1 + bottom_depth;
+        true
     }
 }
 

@@ -11,6 +11,8 @@ pub mod gltf_load;
 pub mod gltf_validate;
 pub mod gpu_scene;
 pub mod instancing;
+pub mod motion;
+pub mod moving;
 pub mod shading;
 pub mod tangents;
 
@@ -308,10 +310,13 @@ pub struct Scene {
     /// level over the instances (`bvh::Bvh::build_instanced`). Their triangles are also in
     /// `triangles` (shading reads the flattened world-space records).
     pub instances: Vec<MeshInstance>,
-    /// The file's animations (glTF clips), and the pose the scene was loaded at (`[scene]
-    /// time`, None: the rest pose). Playback over time is not built yet: a scene is posed once.
+    /// The file's animations (glTF clips), and the pose the scene is at (`[scene] time`, or
+    /// playback's last `Motion::apply`; None: the rest pose).
     pub animations: Vec<animation::ClipInfo>,
     pub posed_at: Option<f32>,
+    /// What the animations move and how to re-pose it (`[scene] time_scale` plays it); None
+    /// when nothing moves.
+    pub motion: Option<std::sync::Arc<motion::Motion>>,
 }
 
 /// One placement of a mesh: scene triangles `first_triangle..first_triangle + triangle_count`

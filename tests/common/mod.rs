@@ -334,3 +334,128 @@ pub fn cornell_truth_128() -> Image {
 pub fn cornell_truth_64() -> Image {
     half(&cornell_truth_128())
 }
+
+/// Minimal base64 for test fixtures (standard alphabet, padded).
+pub mod base64 {
+    const A: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    pub fn decode(s: &str) -> Vec<u8> {
+        let val = |c: u8| A.iter().position(|&a| a == c).unwrap() as u32;
+        let clean: Vec<u8> = s.bytes().filter(|&c| c != b'=').collect();
+        let mut out = Vec::new();
+        for chunk in clean.chunks(4) {
+            let mut n = 0u32;
+            for (i, &c) in chunk.iter().enumerate() {
+                n |= val(c) << (18 - 6 * i);
+            }
+            let bytes = [(n >> 16) as u8, (n >> 8) as u8, n as u8];
+            out.extend_from_slice(&bytes[..chunk.len() - 1]);
+        }
+        out
+    }
+    pub fn encode(b: &[u8]) -> String {
+        let mut out = String::new();
+        for chunk in b.chunks(3) {
+            let n = (chunk[0] as u32) << 16
+                | (*chunk.get(1).unwrap_or(&0) as u32) << 8
+                | *chunk.get(2).unwrap_or(&0) as u32;
+            for i in 0..4 {
+                if i <= chunk.len() {
+                    out.push(A[((n >> (18 - 6 * i)) & 63) as usize] as char);
+                } else {
+                    out.push('=');
+                }
+            }
+        }
+        out
+    }
+}
+
+/// Keyframe data of `animated_box_room`, one accessor each: (floats, components, type).
+pub type KeyData = Vec<(Vec<f32>, usize, &'static str)>;
+
+/// The box room (scenes/box-room) with two animations added, written into `dir`: "slide"
+/// moves the panel light (node 2, LINEAR translation 0 -> 2 along x over 2 s), turns the cube
+/// (node 3, LINEAR rotation 45° -> 135° about y) and carries the lamp (node 4, CUBICSPLINE
+/// translation); "blink" scales the cube (STEP: 1.5, 0.5, 0.5 at 0, 0.25, 1 s). The file's path
+/// and the keyframe data.
+pub fn animated_box_room(dir: &std::path::Path) -> (std::path::PathBuf, KeyData) {
+    use glam::Quat;
+    std::fs::create_dir_all(dir).unwrap();
+    let text = std::fs::read_to_string("scenes/box-room/box-room.gltf").unwrap();
+    let base: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let quat_y = |deg: f32| Quat::from_rotation_y(deg.to_radians());
+    let (r0, r1) = (quat_y(45.0), quat_y(135.0));
+    // Keyframe data, one accessor each: (floats, components, type).
+    let f = |v: &[f32]| v.to_vec();
+    let data: KeyData = vec![
+        (f(&[0.0, 2.0]), 1, "SCALAR"),
+        (f(&[0.0, 3.0, 0.0, 2.0, 3.0, 0.0]), 3, "VEC3"),
+        ([r0.to_array(), r1.to_array()].concat(), 4, "VEC4"),
+        // CUBICSPLINE: in-tangent, value, out-tangent per key.
+        (
+            f(&[
+                0.0, 0.0, 0.0, -1.5, 1.5, 1.0, 1.0, 0.0, 0.0, //
+                -1.0, 0.0, 0.0, 0.5, 1.5, 1.0, 0.0, 0.0, 0.0,
+            ]),
+            3,
+            "VEC3",
+        ),
+        (f(&[0.0, 0.25, 1.0]), 1, "SCALAR"),
+        (f(&[1.5, 1.5, 1.5, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5]), 3, "VEC3"),
+    ];
+    let mut doc = base.clone();
+    let mut bytes = Vec::new();
+    let buffer = doc["buffers"].as_array().unwrap().len();
+    let first_accessor = doc["accessors"].as_array().unwrap().len();
+    for (floats, comps, ty) in &data {
+        let offset = bytes.len();
+        bytes.extend(floats.iter().flat_map(|x| x.to_le_bytes()));
+        let view = doc["bufferViews"].as_array().unwrap().len();
+        doc["bufferViews"]
+            .as_array_mut()
+            .unwrap()
+            .push(serde_json::json!({
+                "buffer": buffer, "byteOffset": offset, "byteLength": floats.len() * 4
+            }));
+        let mut acc = serde_json::json!({
+            "bufferView": view, "componentType": 5126, "count": floats.len() / comps, "type": ty
+        });
+        if *ty == "SCALAR" {
+            acc["min"] = serde_json::json!([floats[0]]);
+            acc["max"] = serde_json::json!([floats[floats.len() - 1]]);
+        }
+        doc["accessors"].as_array_mut().unwrap().push(acc);
+    }
+    doc["buffers"]
+        .as_array_mut()
+        .unwrap()
+        .push(serde_json::json!({
+            "byteLength": bytes.len(),
+            "uri": format!("data:application/octet-stream;base64,{}", base64::encode(&bytes))
+        }));
+    let a = |i: usize| first_accessor + i;
+    // Nodes: 2 panel, 3 cube, 4 lamp.
+    doc["animations"] = serde_json::json!([
+        {
+            "name": "slide",
+            "samplers": [
+                {"input": a(0), "output": a(1), "interpolation": "LINEAR"},
+                {"input": a(0), "output": a(2), "interpolation": "LINEAR"},
+                {"input": a(0), "output": a(3), "interpolation": "CUBICSPLINE"}
+            ],
+            "channels": [
+                {"sampler": 0, "target": {"node": 2, "path": "translation"}},
+                {"sampler": 1, "target": {"node": 3, "path": "rotation"}},
+                {"sampler": 2, "target": {"node": 4, "path": "translation"}}
+            ]
+        },
+        {
+            "name": "blink",
+            "samplers": [{"input": a(4), "output": a(5), "interpolation": "STEP"}],
+            "channels": [{"sampler": 0, "target": {"node": 3, "path": "scale"}}]
+        }
+    ]);
+    let animated = dir.join("animated.gltf");
+    std::fs::write(&animated, doc.to_string()).unwrap();
+    (animated, data)
+}

@@ -1111,6 +1111,17 @@ impl Technique for Lumen {
     /// its update budgets (a material edit recaptures the cards, see `build`).
     fn on_scene_change(&mut self, _gpu: &Gpu) {}
 
+    /// Playback moved geometry: the cards are made again from the moved triangles and the
+    /// distance field's bricks around changed triangles are rebuilt, as for a scripted geometry
+    /// edit (`refresh_for_scene`, which also restarts Lumen's history: the seed's per-object
+    /// reaction, cards in object space and relighting moved texels first, is not built yet).
+    fn on_geometry_moved(&mut self, ctx: &RenderContext) -> Result<()> {
+        if !self.refresh_for_scene(ctx)? {
+            self.build(ctx)?;
+        }
+        Ok(())
+    }
+
     fn render(
         &mut self,
         ctx: &RenderContext,
