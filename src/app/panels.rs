@@ -119,6 +119,40 @@ fn side_contents(app: &mut ViewerApp, ui: &mut egui::Ui) {
         }
     });
 
+    if let Some((scale, duration)) = s.playback() {
+        // The scene moves (issue 36): one clock for every pane.
+        ui.separator();
+        ui.heading("Animation");
+        let space =
+            !ui.ctx().egui_wants_keyboard_input() && ui.input(|i| i.key_pressed(egui::Key::Space));
+        ui.horizontal(|ui| {
+            let label = if s.playing {
+                "Pause (Space)"
+            } else {
+                "Play (Space)"
+            };
+            if ui.button(label).clicked() || space {
+                s.playing = !s.playing;
+            }
+            ui.label(format!("x{scale} (scene.time_scale)"));
+        });
+        let mut t = if duration > 0.0 {
+            s.scene_time.rem_euclid(duration)
+        } else {
+            s.scene_time
+        };
+        let slider =
+            ui.add(egui::Slider::new(&mut t, 0.0..=duration.max(1e-3)).text("scene time (s)"));
+        // Only the user's scrub (a slider also reports a change when it clamps the value).
+        if slider.changed() && (slider.dragged() || slider.has_focus()) {
+            s.playing = false;
+            s.set_scene_time(t);
+        }
+        if scale == 0.0 {
+            ui.label("time_scale is 0: the slider poses the scene; Play plays it at x0 (set scene.time_scale)");
+        }
+    }
+
     ui.separator();
     ui.heading("View");
     ui.horizontal_wrapped(|ui| {

@@ -219,6 +219,8 @@ pub struct ReferenceRun {
     pub target_spp: u32,
     pub source: ReferenceSource,
     cache_file: PathBuf,
+    /// The scene time the preset poses (its cached reference is of that pose only).
+    preset_time: f32,
 }
 
 impl ReferenceRun {
@@ -241,6 +243,11 @@ impl ReferenceRun {
         self.on_gpu.then_some(&self.gpu_image)
     }
 
+    /// Whether the scene stands at the preset's pose, which cached references are of.
+    fn at_presets_pose(&self) -> bool {
+        self.engine.scene.motion.is_none() || self.engine.scene_time == self.preset_time
+    }
+
     fn restart(&mut self, cache_dir: &Path, preset: &LoadedPreset) {
         let key = reference_key_for_camera(preset, &self.engine.camera);
         self.cache_file = cache_dir.join(format!("{key}.exr"));
@@ -248,6 +255,9 @@ impl ReferenceRun {
         self.image = None;
         self.on_gpu = false;
         self.source = ReferenceSource::Rendering;
+        if !self.at_presets_pose() {
+            return;
+        }
         if let Ok(img) = io::read_exr(&self.cache_file) {
             if [img.width, img.height] == self.engine.extent {
                 let px: Vec<[f32; 4]> = img
@@ -285,7 +295,7 @@ impl ReferenceRun {
         if self.engine.samples >= self.target_spp {
             self.source = ReferenceSource::Done;
             let img = self.engine.read_output()?;
-            if let Some(dir) = self.cache_file.parent() {
+            if let (Some(dir), true) = (self.cache_file.parent(), self.at_presets_pose()) {
                 // A cache that cannot be written only costs a re-render next time.
                 let _ = std::fs::create_dir_all(dir);
                 if let Err(e) = io::write_exr(&self.cache_file, &img) {
@@ -358,6 +368,11 @@ pub struct Session {
     /// The display and error passes on the GPU (shared by every pane and run).
     pub compare: GpuCompare,
     next_run: usize,
+    /// The scene clock every pane shares when the scene moves: scene seconds, advanced by
+    /// wall time × `time_scale` while `playing` (paused with Space, set by the time slider).
+    pub scene_time: f32,
+    pub playing: bool,
+    last_tick: Option<Instant>,
 }
 
 /// Most runs one frame may render before the UI gets the thread back.
@@ -389,9 +404,13 @@ impl Session {
             errors: BTreeMap::new(),
             log: Vec::new(),
             next_run: 0,
+            scene_time: 0.0,
+            playing: false,
+            last_tick: None,
         };
         s.runs = loaded.runs;
         s.apply_view_settings();
+        s.start_clock();
         Ok(s)
     }
 
@@ -442,6 +461,7 @@ impl Session {
             target_spp: setup.spp,
             source: ReferenceSource::Rendering,
             cache_file: PathBuf::new(),
+            preset_time: staged.scene.posed_at.unwrap_or(0.0),
         };
         reference.restart(cache_dir, &preset);
         Ok(Loaded {
@@ -481,6 +501,62 @@ impl Session {
         self.camera = loaded.camera;
         self.next_run = 0;
         self.apply_view_settings();
+        self.start_clock();
+    }
+
+    /// The scene's playback speed (`[scene] time_scale`; 0 without motion) and clip length.
+    pub fn playback(&self) -> Option<(f32, f32)> {
+        let m = self.scene.motion.as_ref()?;
+        Some((m.time_scale, m.duration()))
+    }
+
+    /// The shared clock at the preset's pose; every engine follows it rather than its frames.
+    fn start_clock(&mut self) {
+        self.scene_time = self.scene.posed_at.unwrap_or(0.0);
+        self.playing = self.playback().is_some_and(|(scale, _)| scale != 0.0);
+        self.last_tick = None;
+        let has_motion = self.scene.motion.is_some();
+        for r in &mut self.runs {
+            r.engine.external_clock = has_motion;
+        }
+        self.reference.engine.external_clock = has_motion;
+    }
+
+    /// Poses every pane and the reference at scene time `t` (the reference starts again).
+    pub fn set_scene_time(&mut self, t: f32) {
+        self.scene_time = t;
+        let mut failed = Vec::new();
+        for r in &mut self.runs {
+            if let Err(e) = r.engine.set_scene_time(t) {
+                failed.push(format!("{}: {e:#}", r.label()));
+            }
+        }
+        if self.reference.engine.scene_time != t {
+            match self.reference.engine.set_scene_time(t) {
+                Ok(()) => self.reference.invalidate(),
+                Err(e) => failed.push(format!("reference: {e:#}")),
+            }
+        }
+        for msg in failed {
+            self.note(msg);
+        }
+    }
+
+    /// Advances the shared clock by the wall time since the last call while playing.
+    fn tick(&mut self) {
+        let now = Instant::now();
+        let last = self.last_tick.replace(now);
+        let Some((scale, _)) = self.playback() else {
+            return;
+        };
+        if !self.playing || scale == 0.0 {
+            return;
+        }
+        // At most a tenth of a second a step, so a slow frame does not jump the scene.
+        let dt = last.map_or(0.0, |l| (now - l).as_secs_f32().min(0.1));
+        if dt > 0.0 {
+            self.set_scene_time(self.scene_time + dt * scale);
+        }
     }
 
     /// Replaces the session with a preset; on any error the session is unchanged and the
@@ -587,18 +663,21 @@ impl Session {
 
     /// A new run on the loaded scene at the current camera.
     fn new_run(&self, entry: TechniqueEntry) -> Result<Run> {
+        // The scene as the reference holds it: at the shared clock's pose.
         let staged = StagedScene {
-            scene: self.scene.clone(),
+            scene: self.reference.engine.scene.clone(),
             gpu_scene: self.reference.engine.gpu_scene.clone(),
         };
-        Run::new(
+        let mut run = Run::new(
             &self.gpu,
             &self.shaders,
             &staged,
             entry,
             self.camera,
             &self.preset,
-        )
+        )?;
+        run.engine.external_clock = self.scene.motion.is_some();
+        Ok(run)
     }
 
     /// Replaces a run's technique, in the same place, with default parameters.
@@ -669,8 +748,10 @@ impl Session {
     /// Returns the number of frames rendered.
     pub fn step(&mut self, budget_ms: f64) -> usize {
         if self.paused || self.runs.is_empty() {
+            self.last_tick = None;
             return 0;
         }
+        self.tick();
         let start = Instant::now();
         let mut order: Vec<Option<usize>> = self.visible_runs().into_iter().map(Some).collect();
         if !self.reference.done() {

@@ -119,6 +119,9 @@ pub struct Engine {
     posed_frame_done: bool,
     /// CPU milliseconds the last re-posing took (motion, BVH top level, buffers, technique).
     pub last_motion_ms: f64,
+    /// Scene time is set from outside (`set_scene_time`: the viewer's clock, shared by its
+    /// panes) instead of advancing with this engine's frames.
+    pub external_clock: bool,
 }
 
 /// Frames per second of scene time during playback: frame k renders time t0 + k × time_scale /
@@ -259,6 +262,7 @@ impl Engine {
             scene_time,
             posed_frame_done: false,
             last_motion_ms: 0.0,
+            external_clock: false,
         };
         let id = engine.technique.id();
         engine
@@ -442,6 +446,9 @@ impl Engine {
     /// upload where that cannot be done), the technique is told (`on_geometry_moved`) and the
     /// accumulated output restarts.
     fn advance_motion(&mut self) -> Result<()> {
+        if self.external_clock {
+            return Ok(());
+        }
         let Some(motion) = self.scene.motion.clone() else {
             return Ok(());
         };
@@ -452,8 +459,27 @@ impl Engine {
             self.posed_frame_done = true;
             return Ok(());
         }
-        let start = Instant::now();
         self.scene_time += motion.time_scale / PLAYBACK_FPS;
+        self.pose_scene(&motion)
+    }
+
+    /// Poses the scene at `t` now (the viewer's shared clock, its time slider); nothing for a
+    /// scene that does not move or is at `t` already.
+    pub fn set_scene_time(&mut self, t: f32) -> Result<()> {
+        let Some(motion) = self.scene.motion.clone() else {
+            return Ok(());
+        };
+        if t == self.scene_time {
+            return Ok(());
+        }
+        self.scene_time = t;
+        self.pose_scene(&motion)
+    }
+
+    /// The scene at `scene_time`: re-posed, its buffers rewritten in place (a full upload where
+    /// that cannot be done), the technique told, the accumulated output restarted.
+    fn pose_scene(&mut self, motion: &crate::scene::motion::Motion) -> Result<()> {
+        let start = Instant::now();
         let moved = motion.apply(Arc::make_mut(&mut self.scene), self.scene_time)?;
         if moved.instances.is_empty() && !moved.lights {
             return Ok(());
