@@ -183,6 +183,10 @@ pub fn converge(gpu: Arc<Gpu>, p: &LoadedPreset, opts: &ConvergeOptions) -> Resu
         for e in &events {
             e.apply(&mut scene, &mut camera)?;
         }
+        ensure!(
+            exp.mode == Mode::RealTime || scene.motion.as_ref().is_none_or(|m| m.time_scale == 0.0),
+            "scene.time_scale plays the scene, so every frame has its own pose: it needs mode = \"real-time\" (a reference per scored frame, at that frame's pose)"
+        );
     }
     // Every run's technique and parameters are checked before any GPU work.
     for r in &runs {
@@ -349,13 +353,29 @@ fn real_time_plan(
     let cameras = realtime::frame_cameras(exp.frames, &exp.camera_path, &states[0].camera, events);
     let setup = jobs::reference_setup(p);
     let state_of = |f: u32| events.iter().filter(|e| e.frame <= f).count();
+    // A scene that plays (`scene.time_scale`): frame f is at the pose the engines give it,
+    // t0 + f × time_scale / PLAYBACK_FPS, and its reference is of that pose.
+    let motion = states[0]
+        .scene
+        .motion
+        .clone()
+        .filter(|m| m.time_scale != 0.0);
+    let t0 = states[0].scene.posed_at.unwrap_or(0.0);
+    let frame_time = |f: u32| {
+        motion
+            .as_ref()
+            .map(|m| t0 + f as f32 * m.time_scale / crate::render::engine::PLAYBACK_FPS)
+    };
     let wanted: Vec<(u32, usize, u32, String)> = realtime::reference_frames(exp.frames, every)
         .into_iter()
         .map(|f| {
             let state = state_of(f);
             let seed = realtime::frame_seed(setup.seed, f);
-            let key =
-                realtime::frame_reference_key(&states[state].info.key, &cameras[f as usize], seed);
+            let state_key = match frame_time(f) {
+                Some(t) => format!("{}@t={t}", states[state].info.key),
+                None => states[state].info.key.clone(),
+            };
+            let key = realtime::frame_reference_key(&state_key, &cameras[f as usize], seed);
             (f, state, seed, key)
         })
         .collect();
@@ -379,10 +399,18 @@ fn real_time_plan(
     for (f, state, seed, key) in &wanted {
         let started = std::time::Instant::now();
         let fresh = missing.iter().any(|m| m.0 == *f);
+        let mut scene = (*states[*state].scene).clone();
+        if let (Some(m), Some(t)) = (&motion, frame_time(*f)) {
+            // The pose of frame f, held still while its reference accumulates.
+            let mut held = (**m).clone();
+            held.time_scale = 0.0;
+            held.apply(&mut scene, t)?;
+            scene.motion = Some(Arc::new(held));
+        }
         let (image, path) = jobs::reference_image_seeded(
             gpu.clone(),
             p,
-            (*states[*state].scene).clone(),
+            scene,
             cameras[*f as usize],
             key,
             &opts.cache,
