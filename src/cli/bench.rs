@@ -467,6 +467,13 @@ pub struct TechniqueBench {
     pub rays_by_kind: Vec<(String, u64)>,
     pub timing: String,
     pub clock_check: crate::gpu::calibrate::ClockCheck,
+    /// A playing scene (`[scene] time_scale`): CPU ms per frame of re-posing it (motion, BVH
+    /// top level, scene buffers written), min / median / max; and wall ms of the technique's
+    /// reaction (which may wait for frames in flight).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reposing_ms: Option<[f64; 3]>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reaction_ms: Option<[f64; 3]>,
 }
 
 fn stats(mut v: Vec<f64>) -> (f64, f64, f64) {
@@ -507,10 +514,23 @@ pub fn preset(
         e.take_completed();
         let rays_before = e.ray_counts()?;
         let mut results = Vec::new();
+        let (mut reposing, mut reaction) = (Vec::new(), Vec::new());
         for _ in 0..frames {
             e.submit_frame(None)?;
+            reposing.push(e.last_motion_ms);
+            reaction.push(e.last_reaction_ms);
             results.extend(e.take_completed());
         }
+        let plays = e.scene.motion.as_ref().is_some_and(|m| m.time_scale != 0.0);
+        let three = |v: Vec<f64>| {
+            let (a, b, c) = stats(v);
+            [a, b, c]
+        };
+        let (reposing_ms, reaction_ms) = if plays {
+            (Some(three(reposing)), Some(three(reaction)))
+        } else {
+            (None, None)
+        };
         let after = calibration.measure(&gpu)?;
         e.finish_frames()?;
         results.extend(e.take_completed());
@@ -578,6 +598,8 @@ pub fn preset(
                 .first()
                 .map_or("none".into(), |r| format!("{:?}", r.report.timing)),
             clock_check: check,
+            reposing_ms,
+            reaction_ms,
         });
     }
     println!(
@@ -614,6 +636,10 @@ pub fn preset(
             })
             .collect();
         println!("  rays by kind: {}", kinds.join(", "));
+        if let (Some([a, b, c]), Some([d, e, f])) = (t.reposing_ms, t.reaction_ms) {
+            println!("  scene re-posing (CPU ms per frame): {a:.3} / {b:.3} / {c:.3}");
+            println!("  technique's reaction and restart (wall ms): {d:.3} / {e:.3} / {f:.3}");
+        }
     }
     Ok(out)
 }

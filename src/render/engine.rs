@@ -117,8 +117,11 @@ pub struct Engine {
     /// Whether a frame has been submitted at `scene_time` already (the first frame renders the
     /// pose the scene was loaded at).
     posed_frame_done: bool,
-    /// CPU milliseconds the last re-posing took (motion, BVH top level, buffers, technique).
+    /// CPU milliseconds the last re-posing of the scene took (motion, BVH top level, scene
+    /// buffers written), and the technique's reaction to it with the accumulation restart
+    /// (wall time: it may wait for frames in flight).
     pub last_motion_ms: f64,
+    pub last_reaction_ms: f64,
     /// Scene time is set from outside (`set_scene_time`: the viewer's clock, shared by its
     /// panes) instead of advancing with this engine's frames.
     pub external_clock: bool,
@@ -262,6 +265,7 @@ impl Engine {
             scene_time,
             posed_frame_done: false,
             last_motion_ms: 0.0,
+            last_reaction_ms: 0.0,
             external_clock: false,
         };
         let id = engine.technique.id();
@@ -486,6 +490,10 @@ impl Engine {
         }
         let reposed =
             Arc::make_mut(&mut self.gpu_scene).repose(&self.gpu, &self.scene, &moved.instances);
+        // The scene's own update (motion, BVH top level, buffers written), before anything
+        // that may wait for frames in flight.
+        self.last_motion_ms = start.elapsed().as_secs_f64() * 1e3;
+        let start = Instant::now();
         if reposed {
             self.technique.on_geometry_moved(&render_context!(self))?;
             self.restart_accumulation();
@@ -494,7 +502,7 @@ impl Engine {
             let gpu_scene = Arc::new(GpuScene::upload(&self.gpu, &self.scene));
             self.change_scene(self.scene.clone(), gpu_scene)?;
         }
-        self.last_motion_ms = start.elapsed().as_secs_f64() * 1e3;
+        self.last_reaction_ms = start.elapsed().as_secs_f64() * 1e3;
         Ok(())
     }
 
