@@ -193,7 +193,8 @@ fn gpu_struct_members_match_rust_fields() {
             emission,
             motion,
             triangle,
-            material
+            material,
+            prev_pos
         ]
     );
     assert_same_members!(

@@ -1077,3 +1077,84 @@ fn every_technique_plays_the_moving_scene() {
         }
     }
 }
+
+/// Motion vectors (issue 36): the animated box room played at `time_scale = 30` (0.5 s a
+/// frame: the panel slides, the cube turns and shrinks), rendered twice: with the camera still
+/// (object motion only) and with the camera moved between the frames (both). For every pixel
+/// on a surface, the GPU's motion vector equals the CPU's reprojection of its hit within
+/// 0.01 px: the hit's previous position (its instance's last transform applied to the point
+/// taken back through the current one; the point itself on static geometry) seen by last
+/// frame's camera, against this frame's pixel position of the hit. The previous position the
+/// primary pass stores (`prev_pos`) is that point.
+#[test]
+fn motion_vectors_follow_camera_and_object_motion() {
+    use gilab::scene::gltf_load;
+    let dir = std::env::temp_dir().join(format!("gilab-motion-{}", std::process::id()));
+    let (animated, _) = common::animated_box_room(&dir);
+    let mut scene = gltf_load::load(&animated).unwrap();
+    std::sync::Arc::make_mut(scene.motion.as_mut().unwrap()).time_scale = 30.0;
+    let size = [64u32, 64];
+    let aspect = size[0] as f32 / size[1] as f32;
+    let pixel_of = |cam: &gilab::scene::Camera, p: glam::Vec3, near: f32| {
+        let c = cam.clip_from_world(aspect, near) * p.extend(1.0);
+        let ndc = c.truncate().truncate() / c.w;
+        glam::Vec2::new(
+            (ndc.x * 0.5 + 0.5) * size[0] as f32,
+            (0.5 - ndc.y * 0.5) * size[1] as f32,
+        )
+    };
+    for move_camera in [false, true] {
+        let mut e = common::engine("restir", toml::Table::new(), scene.clone(), size, 1);
+        e.render_frame().unwrap();
+        let before = e.scene.instances.clone();
+        let cam0 = e.camera;
+        if move_camera {
+            let mut c = e.camera;
+            c.position += glam::Vec3::new(0.15, 0.05, -0.1);
+            e.move_camera(c);
+        }
+        e.render_frame().unwrap();
+        let (lo, hi) = e.scene.bounds();
+        let near = ((hi - lo).length() * 1e-4).max(1e-4);
+        let now = &e.scene.instances;
+        let surfaces = e.read_primary_surfaces().unwrap().unwrap();
+        let (mut checked, mut moving, mut worst) = (0, 0, 0.0f32);
+        for s in &surfaces {
+            if s.triangle == gilab::render::primary::NO_SURFACE {
+                continue;
+            }
+            let p = glam::Vec3::from_slice(&s.pos[..3]);
+            let owner = now.iter().enumerate().find(|(_, i)| {
+                (i.first_triangle..i.first_triangle + i.triangle_count).contains(&s.triangle)
+            });
+            let was = match owner {
+                Some((j, i)) => (before[j].transform * i.transform.inverse()).transform_point3(p),
+                None => p,
+            };
+            if was.distance(p) > 1e-4 {
+                moving += 1;
+            }
+            let gpu_was = glam::Vec3::from_slice(&s.prev_pos[..3]);
+            assert!(
+                gpu_was.distance(was) < 1e-4 * (1.0 + was.length()),
+                "{gpu_was} vs {was}"
+            );
+            let gpu = glam::Vec2::from(s.motion);
+            let prev = pixel_of(&cam0, was, near);
+            if prev.x < 0.0 {
+                // Left of last frame's image: the pass stores no motion there.
+                assert_eq!(gpu, glam::Vec2::ZERO);
+                continue;
+            }
+            let motion = pixel_of(&e.camera, p, near) - prev;
+            worst = worst.max((gpu - motion).abs().max_element());
+            checked += 1;
+        }
+        eprintln!(
+            "motion vectors ({}): {checked} pixels on surfaces, {moving} on moving objects, worst difference {worst:.4} px",
+            if move_camera { "camera and objects" } else { "objects only" }
+        );
+        assert!(moving > 40, "the panel and cube cover pixels: {moving}");
+        assert!(worst < 0.01, "worst motion vector difference {worst} px");
+    }
+}

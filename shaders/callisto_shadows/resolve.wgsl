@@ -16,7 +16,7 @@
 #import gilab::frame::{frame, FLAG_NO_PRIMARY_EMISSION}
 #import gilab::counters::{flush_counts, no_counts, RAY_SHADOW, COUNT_INVALID_SAMPLES}
 #import gilab::accumulate::accumulate_sample
-#import gilab::primary::{current_surface, previous_surface, previous_pixel_position, surface_material, GSurface}
+#import gilab::primary::{current_surface, previous_surface, previous_pixel_position, surface_material, GSurface, at_last_frame}
 #import gilab::restir::{gi_reservoirs, gi_sky, reservoir_index, gi_contribution, gi_visible}
 #import gilab::callisto::{params, current, history, debug_out, pixel_direct, pixel_specular, parity}
 #import gilab::brdf::specular_eval
@@ -93,7 +93,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     // holds another surface (at edges the jittered camera rays move a pixel's hit
                     // between surfaces), the nearest of its 8 neighbours that holds this one. No
                     // bilinear resampling: repeated every frame it would blur the mask.
-                    let f = previous_pixel_position(s.pos.xyz);
+                    let f = previous_pixel_position(s.prev_pos.xyz);
                     let centre = vec2<i32>(floor(f));
                     var best = 1e30;
                     for (var k = 0; k < 9 && frame.frame_index > 0u && f.x >= 0.0; k++) {
@@ -111,7 +111,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                         let d = length(vec2<f32>(q) + 0.5 - f);
                         let pidx = u32(q.y) * frame.size.x + u32(q.x);
                         let h = 2u * ((1u - parity()) * params.pixels + pidx);
-                        if d < best && history[h].w > 0.0 && same_surface(s, previous_surface(pidx)) {
+                        if d < best && history[h].w > 0.0 && same_surface(at_last_frame(s), previous_surface(pidx)) {
                             best = d;
                             t = history[h].w;
                             past = Pair(history[h].xyz, history[h + 1u].xyz);

@@ -21,12 +21,15 @@ struct GSurface {
     wo_dist: vec4<f32>,
     // rgb: emitted radiance towards the camera (or sky radiance for a miss).
     emission: vec4<f32>,
-    // Screen motion in pixels: this frame's pixel position minus last frame's (0 on a miss or
-    // where the point was off screen last frame).
+    // Screen motion in pixels: this frame's pixel position minus last frame's, camera and
+    // object motion (0 on a miss or where the point was off screen last frame).
     motion: vec2<f32>,
     // Object id: the hit triangle's index in the scene (NO_SURFACE on a miss), and its material.
     triangle: u32,
     material: u32,
+    // xyz: where this surface point was last frame (its object's previous transform; equal to
+    // pos unless the object moved), what temporal passes reproject; w: unused.
+    prev_pos: vec4<f32>,
 }
 
 const NO_SURFACE: u32 = 0xffffffffu;
@@ -44,6 +47,14 @@ fn current_surface(pixel: u32) -> GSurface {
 
 fn previous_surface(pixel: u32) -> GSurface {
     return surfaces[surface_slot(frame.frame_index + 1u, pixel)];
+}
+
+// The surface where it stood last frame (its object's motion undone), to compare with last
+// frame's surfaces; the surface itself when nothing moved.
+fn at_last_frame(s: GSurface) -> GSurface {
+    var o = s;
+    o.pos = vec4<f32>(s.prev_pos.xyz, s.pos.w);
+    return o;
 }
 
 // Continuous previous-frame pixel position of a world point; x < 0 when it was behind the camera.

@@ -38,6 +38,8 @@ struct TriAttr {
     // primary surfaces report.
     scene_tri: u32,
     flags: u32,
+    // x: the triangle's motion record + 1 (a node index in bvh_nodes; 0: it does not move);
+    // y: unused.
     pad: vec2<u32>,
 }
 
@@ -137,6 +139,19 @@ fn texture_info(index: u32) -> TextureInfo {
 }
 
 // The triangle's index in the scene (before BVH ordering).
+// Where point `p` of triangle `tri` (BVH order) was last frame: its instance's motion record
+// (two BVH nodes past the tree, "this frame's world to last frame's", src/scene/gpu_scene.rs)
+// when the triangle belongs to a moving instance (TriAttr.pad.x = record + 1), else p.
+fn previous_position(tri: u32, p: vec3<f32>) -> vec3<f32> {
+    let record = tri_attr[tri].pad.x;
+    if record == 0u {
+        return p;
+    }
+    let a = bvh_nodes[record - 1u];
+    let b = bvh_nodes[record];
+    return a.bounds_min * p.x + a.bounds_max * p.y + b.bounds_min * p.z + b.bounds_max;
+}
+
 fn scene_triangle(tri: u32) -> u32 {
     return tri_attr[tri].scene_tri;
 }

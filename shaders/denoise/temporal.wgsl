@@ -46,7 +46,7 @@ fn consistent(s: GSurface, n: vec3<f32>, prev: GSurface) -> bool {
     if dot(n, surface_normal(prev)) < 0.9 {
         return false;
     }
-    return abs(dot(prev.pos.xyz - s.pos.xyz, n)) <= 0.01 * s.wo_dist.w;
+    return abs(dot(prev.pos.xyz - s.prev_pos.xyz, n)) <= 0.01 * s.wo_dist.w;
 }
 
 // Last frame's history at the point this pixel sees: bilinear over the 2x2 pixels around its
@@ -54,7 +54,7 @@ fn consistent(s: GSurface, n: vec3<f32>, prev: GSurface) -> bool {
 // 3x3 around it (the paper's fallback); else none (disocclusion).
 fn reproject_history(s: GSurface, n: vec3<f32>) -> History {
     var h = History(vec3<f32>(0.0), vec2<f32>(0.0), 0.0);
-    let prev = previous_pixel_position(s.pos.xyz);
+    let prev = previous_pixel_position(s.prev_pos.xyz);
     if prev.x < 0.0 {
         return h;
     }

@@ -5,7 +5,7 @@
 #import gilab::counters::{flush_counts, no_counts, RAY_CAMERA}
 #import gilab::bvh::{trace_closest, NO_HIT}
 #import gilab::surface::hit_surface
-#import gilab::scene::scene_triangle
+#import gilab::scene::{scene_triangle, previous_position}
 #import gilab::lights::triangle_emission
 #import gilab::primary::{GSurface, surfaces, surface_slot, previous_pixel_position, NO_SURFACE}
 #import gilab::sky::sky_radiance
@@ -21,7 +21,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let dir = camera_ray_dir(pixel_pos);
         let hit = trace_closest(origin, dir, 0.0, 1e30);
         counts[RAY_CAMERA] = 1u;
-        var g = GSurface(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(-dir, 1e30), vec4<f32>(sky_radiance(dir), 0.0), vec2<f32>(0.0), NO_SURFACE, NO_SURFACE);
+        var g = GSurface(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(-dir, 1e30), vec4<f32>(sky_radiance(dir), 0.0), vec2<f32>(0.0), NO_SURFACE, NO_SURFACE, vec4<f32>(0.0));
         if hit.tri != NO_HIT {
             let s = hit_surface(origin, dir, hit);
             let m = s.material;
@@ -33,7 +33,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             g.emission = vec4<f32>(triangle_emission(hit.tri, hit.bary, -dir), 0.0);
             g.triangle = scene_triangle(hit.tri);
             g.material = s.material_index;
-            let prev = previous_pixel_position(s.position);
+            // Camera and object motion: where the point was last frame, seen by last frame's
+            // camera.
+            let was = previous_position(hit.tri, s.position);
+            g.prev_pos = vec4<f32>(was, 1.0);
+            let prev = previous_pixel_position(was);
             if prev.x >= 0.0 {
                 g.motion = pixel_pos - prev;
             }

@@ -10,7 +10,7 @@
 #import gilab::sampling::sample_cosine_hemisphere
 #import gilab::brdf::{bsdf_eval, bsdf_sample, specular_eval, BsdfSample}
 #import gilab::path::{trace_path, PathOptions}
-#import gilab::primary::{reproject, current_surface, previous_surface, surface_material}
+#import gilab::primary::{reproject, current_surface, previous_surface, surface_material, at_last_frame}
 #import gilab::restir::{params, gi_reservoirs, gi_sky, GiReservoir, reservoir_index, parity, empty_gi_reservoir, gi_contribution, gi_target, gi_update, gi_jacobian_ok, similar, TEMPORAL_SEGMENT}
 
 @compute @workgroup_size(8, 8, 1)
@@ -78,11 +78,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 r.big_w = r.w_sum / (r.m * r.target_pdf);
             }
             if params.temporal == 1u && frame.frame_index > 0u {
-                let prev = reproject(s.pos.xyz);
+                let prev = reproject(s.prev_pos.xyz);
                 if prev >= 0 {
                     let pidx = u32(prev);
                     let ps = previous_surface(pidx);
-                    if similar(s, ps) {
+                    if similar(at_last_frame(s), ps) {
                         let pr = gi_reservoirs[reservoir_index(1u - parity(), pidx)];
                         // A sample whose Jacobian is out of bounds is not passed on (weight 0),
                         // but the merge still happens so that Z depends on the chosen sample only.

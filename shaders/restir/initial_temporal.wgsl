@@ -12,7 +12,7 @@
 #import gilab::sampling::{sample_triangle, sample_cosine_hemisphere}
 #import gilab::brdf::{bsdf_eval, bsdf_sample}
 #import gilab::sky::{sample_sky, sky_pdf, sky_importance}
-#import gilab::primary::{GSurface, reproject, current_surface, previous_surface, surface_material}
+#import gilab::primary::{GSurface, reproject, current_surface, previous_surface, surface_material, at_last_frame}
 #import gilab::restir::{params, reservoirs, Reservoir, reservoir_index, parity, empty_reservoir, regir_cell, regir_slots, contribution, target_at, visible, update, similar, oct_encode, SKY_SAMPLE, VISIBILITY_PER_CLASS, VISIBILITY_MERGED, TEMPORAL_SEGMENT}
 
 // W = w_sum / (M p-hat(y)) of a reservoir filled by RIS.
@@ -202,11 +202,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             r = initial_candidates(s, &rng, &counts);
             if params.temporal == 1u && frame.frame_index > 0u {
                 // Where this surface point was on screen last frame.
-                let prev = reproject(s.pos.xyz);
+                let prev = reproject(s.prev_pos.xyz);
                 if prev >= 0 {
                     let pidx = u32(prev);
                     let ps = previous_surface(pidx);
-                    if similar(s, ps) {
+                    if similar(at_last_frame(s), ps) {
                         let pr = reservoirs[reservoir_index(1u - parity(), pidx)];
                         let mc = max(r.m, 1.0);
                         let mp = min(pr.m, params.max_history * mc);

@@ -122,6 +122,8 @@ pub struct Engine {
     /// (wall time: it may wait for frames in flight).
     pub last_motion_ms: f64,
     pub last_reaction_ms: f64,
+    /// Whether the scene was re-posed since the last frame (its motion records hold that move).
+    posed_for_frame: bool,
     /// Scene time is set from outside (`set_scene_time`: the viewer's clock, shared by its
     /// panes) instead of advancing with this engine's frames.
     pub external_clock: bool,
@@ -267,6 +269,7 @@ impl Engine {
             last_motion_ms: 0.0,
             last_reaction_ms: 0.0,
             external_clock: false,
+            posed_for_frame: false,
         };
         let id = engine.technique.id();
         engine
@@ -493,6 +496,7 @@ impl Engine {
         // The scene's own update (motion, BVH top level, buffers written), before anything
         // that may wait for frames in flight.
         self.last_motion_ms = start.elapsed().as_secs_f64() * 1e3;
+        self.posed_for_frame = true;
         let start = Instant::now();
         if reposed {
             self.technique.on_geometry_moved(&render_context!(self))?;
@@ -650,6 +654,10 @@ impl Engine {
     /// accumulated output after the frame, for evaluation later (converge).
     pub fn submit_frame(&mut self, output_copy: Option<&wgpu::Buffer>) -> Result<()> {
         self.advance_motion()?;
+        // A frame the scene did not move into: object motion vectors go back to zero.
+        if !std::mem::take(&mut self.posed_for_frame) && self.gpu_scene.motion_live() {
+            Arc::make_mut(&mut self.gpu_scene).hold_still(&self.gpu);
+        }
         if self.in_flight.len() >= FRAMES_IN_FLIGHT {
             self.complete_oldest(true)?;
         }

@@ -2,8 +2,9 @@
 //! them (`Technique::inputs`). One jittered camera ray per pixel, **traced** (not rasterised) with
 //! the reference's jitter sequence, so a technique's pixel footprints match the reference's; per
 //! pixel it stores position, shading and geometric normals, material, direction to the viewer and
-//! depth, emission, screen motion and object id (triangle and material), this frame's and last
-//! frame's (for reprojection). Shaders read them through `gilab::primary`
+//! depth, emission, screen motion (camera and object motion) and object id (triangle and
+//! material), and where the point was last frame, this frame's and last frame's (for
+//! reprojection). Shaders read them through `gilab::primary`
 //! (shaders/common/primary.wgsl) at bind group 1, binding 2.
 
 use super::pipelines;
@@ -32,6 +33,9 @@ pub struct PrimarySurface {
     /// The hit triangle's index in the scene (`Scene::triangles`), `NO_SURFACE` on a miss.
     pub triangle: u32,
     pub material: u32,
+    /// xyz: where this surface point was last frame (it equals `pos` unless its object moved:
+    /// playback), for temporal reprojection; w: unused.
+    pub prev_pos: [f32; 4],
 }
 
 /// `PrimarySurface::triangle` of a miss.

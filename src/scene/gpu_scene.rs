@@ -1,9 +1,10 @@
 //! GpuScene: the scene's buffers on the GPU (bind group 0 of every technique) and the light pool.
 
-use super::{bvh::Bvh, features::luminance, features::SceneFeatures, PunctualKind, Scene};
+use super::bvh::{Bvh, BvhNode};
+use super::{features::luminance, features::SceneFeatures, PunctualKind, Scene};
 use crate::compare::tonemap::{linear_to_srgb, srgb_to_linear};
 use crate::gpu::Gpu;
-use glam::Vec3;
+use glam::{Mat4, Vec3};
 use wgpu::util::DeviceExt;
 
 #[repr(C)]
@@ -584,6 +585,7 @@ impl Geometry {
         set_class_cdf(&mut lights[..local], &powers[..local]);
         set_class_cdf(&mut lights[local..], &powers[local..]);
 
+        let records = motion_records(bvh);
         let mut tri_geom = Vec::with_capacity(tris.len());
         let mut tri_attr = Vec::with_capacity(tris.len());
         let mut vertices = Vec::with_capacity(tris.len() * 3);
@@ -634,7 +636,7 @@ impl Geometry {
                 uv1_bc: [uv1[1].x, uv1[1].y, uv1[2].x, uv1[2].y],
                 scene_tri: orig,
                 flags,
-                pad: [0; 2],
+                pad: [records.get(bvh_index).copied().unwrap_or(0), 0],
             });
             vertices.extend(p.map(|v| RasterVertex {
                 position: v.to_array(),
@@ -674,6 +676,71 @@ pub struct GpuScene {
     /// The buffers that move with the geometry: BVH nodes, triangle geometry and attributes,
     /// light pool (bindings 0, 1, 2, 5), rewritten in place by `repose`.
     moving: [wgpu::Buffer; 4],
+    /// The instances' transforms as last written (motion records go from them to the next).
+    transforms: Vec<glam::Mat4>,
+    /// Whether the motion records hold a move (else identity).
+    motion_live: bool,
+}
+
+/// Per triangle in BVH order: the node index + 1 of its instance's motion record (the records
+/// follow the BVH's own nodes in the GPU buffer, two nodes per top-level entry), 0 for triangles
+/// of the rest of the scene or of a flat BVH. The primary-surface pass reads it
+/// (`previous_position`, shaders/common/scene.wgsl).
+fn motion_records(bvh: &Bvh) -> Vec<u32> {
+    let mut out = vec![0u32; bvh.order.len()];
+    let Some(top) = &bvh.top else {
+        return out;
+    };
+    for (e, entry) in top.entries.iter().enumerate() {
+        if entry.instance.is_none() {
+            continue;
+        }
+        let start = entry.tri_offset as usize;
+        let end = top
+            .entries
+            .get(e + 1)
+            .map_or(out.len(), |n| n.tri_offset as usize)
+            .min(out.len());
+        let record = (bvh.nodes.len() + 2 * e) as u32 + 1;
+        out[start.min(end)..end]
+            .iter_mut()
+            .for_each(|r| *r = record);
+    }
+    out
+}
+
+/// A motion record (this frame's world to last frame's, affine), as two BVH nodes: columns x
+/// and y in the first node's bounds, z and the translation in the second's.
+fn motion_record(m: Mat4) -> [BvhNode; 2] {
+    let c = |v: glam::Vec4| v.truncate().to_array();
+    [
+        BvhNode {
+            min: c(m.x_axis),
+            skip: 0,
+            max: c(m.y_axis),
+            tris: 0,
+        },
+        BvhNode {
+            min: c(m.z_axis),
+            skip: 0,
+            max: c(m.w_axis),
+            tris: 0,
+        },
+    ]
+}
+
+/// The BVH nodes buffer's contents: the BVH's nodes, then one motion record per top-level
+/// entry (`motions[e]`; identity where None).
+fn nodes_with_motion(bvh: &Bvh, motions: &[Mat4]) -> Vec<BvhNode> {
+    let mut nodes = bvh.nodes.clone();
+    if let Some(top) = &bvh.top {
+        for e in 0..top.entries.len() {
+            nodes.extend(motion_record(
+                motions.get(e).copied().unwrap_or(Mat4::IDENTITY),
+            ));
+        }
+    }
+    nodes
 }
 
 /// The light pool buffer's contents: a header (lights, emissive triangles, punctual lights,
@@ -734,7 +801,10 @@ impl GpuScene {
                     usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
                 })
         };
-        let nodes = storage("bvh nodes", bytemuck::cast_slice(&data.bvh.nodes));
+        let nodes = storage(
+            "bvh nodes",
+            bytemuck::cast_slice(&nodes_with_motion(&data.bvh, &[])),
+        );
         let geom = storage("tri geom", bytemuck::cast_slice(&data.tri_geom));
         let attr = storage("tri attr", bytemuck::cast_slice(&data.tri_attr));
         let mats = storage("materials", bytemuck::cast_slice(&data.materials));
@@ -771,6 +841,8 @@ impl GpuScene {
             vertex_buffer,
             vertex_count,
             moving: [nodes, geom, attr, lights],
+            transforms: scene.instances.iter().map(|i| i.transform).collect(),
+            motion_live: false,
         }
     }
 
@@ -800,9 +872,27 @@ impl GpuScene {
         {
             return false;
         }
+        // Motion records: from this pose back to the last one written, per top-level entry.
+        let motions: Vec<Mat4> = bvh.top.as_ref().map_or(Vec::new(), |top| {
+            top.entries
+                .iter()
+                .map(|e| match e.instance {
+                    Some(j) => match (self.transforms.get(j), scene.instances.get(j)) {
+                        (Some(prev), Some(now)) => *prev * now.transform.inverse(),
+                        _ => Mat4::IDENTITY,
+                    },
+                    None => Mat4::IDENTITY,
+                })
+                .collect()
+        });
+        self.motion_live = motions.iter().any(|m| *m != Mat4::IDENTITY);
         let [nodes, geom, attr, lights] = &self.moving;
         let q = &gpu.queue;
-        q.write_buffer(nodes, 0, bytemuck::cast_slice(&bvh.nodes));
+        q.write_buffer(
+            nodes,
+            0,
+            bytemuck::cast_slice(&nodes_with_motion(bvh, &motions)),
+        );
         q.write_buffer(geom, 0, bytemuck::cast_slice(&g.tri_geom));
         q.write_buffer(attr, 0, bytemuck::cast_slice(&g.tri_attr));
         q.write_buffer(lights, 0, &light_pool_bytes(&g.lights));
@@ -815,6 +905,29 @@ impl GpuScene {
         d.vertices = g.vertices;
         d.timings.bvh_build_ms = bvh_build_ms;
         d.timings.prepare_ms = start.elapsed().as_secs_f64() * 1e3;
+        self.transforms = scene.instances.iter().map(|i| i.transform).collect();
         true
+    }
+
+    /// Whether the motion records hold a move (`hold_still` clears them).
+    pub fn motion_live(&self) -> bool {
+        self.motion_live
+    }
+
+    /// A frame where nothing moved: the motion records go back to identity (once), so motion
+    /// vectors show the camera's motion only.
+    pub fn hold_still(&mut self, gpu: &crate::gpu::Gpu) {
+        if !self.motion_live {
+            return;
+        }
+        self.motion_live = false;
+        if let Some(top) = &self.data.bvh.top {
+            let at = self.data.bvh.nodes.len() * std::mem::size_of::<BvhNode>();
+            let identity: Vec<BvhNode> = (0..top.entries.len())
+                .flat_map(|_| motion_record(Mat4::IDENTITY))
+                .collect();
+            gpu.queue
+                .write_buffer(&self.moving[0], at as u64, bytemuck::cast_slice(&identity));
+        }
     }
 }

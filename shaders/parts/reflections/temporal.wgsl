@@ -17,7 +17,7 @@ fn same_surface(s: GSurface, prev: i32) -> bool {
     if o.pos.w < 0.5 {
         return false;
     }
-    let plane = abs(dot(o.pos.xyz - s.pos.xyz, s.normal_alpha.xyz));
+    let plane = abs(dot(o.pos.xyz - s.prev_pos.xyz, s.normal_alpha.xyz));
     return plane < 0.02 * s.wo_dist.w && dot(o.normal_alpha.xyz, s.normal_alpha.xyz) > 0.9;
 }
 
@@ -34,9 +34,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let l = luminance(cur.xyz);
     var moments = vec2<f32>(l, l * l);
     if s.pos.w > 0.5 && has_flag(FLAG_TEMPORAL) && frame.frame_index > 0u {
-        var prev = reproject(s.pos.xyz - s.wo_dist.xyz * cur.w);
+        // The reflected point moves with the reflecting surface (its object's motion).
+        var prev = reproject(s.prev_pos.xyz - s.wo_dist.xyz * cur.w);
         if !same_surface(s, prev) {
-            prev = reproject(s.pos.xyz);
+            prev = reproject(s.prev_pos.xyz);
         }
         if same_surface(s, prev) {
             let old = history[history_slot(frame.frame_index + 1u, 0u, u32(prev))];
