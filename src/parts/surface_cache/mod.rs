@@ -29,12 +29,12 @@ pub mod cards;
 use crate::gpu::{timing::PassTimer, Gpu};
 use crate::parts::world_cache::{WorldCache, WorldCachePipelines, WorldCacheSettings};
 use crate::parts::world_regir::{WorldRegir, WorldRegirSettings};
+use crate::render::pipelines::init_buffer;
 use crate::render::{pipelines, PassInfo, RenderContext};
 use crate::scene::features::SceneFeatures;
 use anyhow::Result;
 use cards::CardSet;
 use glam::Vec3;
-use wgpu::util::DeviceExt;
 
 /// The lookup's bindings (`gilab::surface_cache`): cards, objects' card ranges, triangle
 /// objects, direct and indirect irradiance per texel, the atlas textures. Binding numbers are
@@ -836,17 +836,6 @@ impl SurfaceCache {
 
 /// Bindings of Lumen's group 2 that its tracing reads besides the cache's: the distance field.
 const TRACE_BINDINGS: [u32; 8] = [4, 5, 6, 7, 8, 9, 10, 11];
-
-fn init_buffer(gpu: &Gpu, label: &str, contents: &[u8], usage: wgpu::BufferUsages) -> wgpu::Buffer {
-    let mut bytes = contents.to_vec();
-    bytes.resize(bytes.len().max(16), 0);
-    gpu.device
-        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some(label),
-            contents: &bytes,
-            usage,
-        })
-}
 
 /// The card buffers (cards, object cards, triangle objects, tiles after a `CacheParamsGpu`
 /// header), the capture index buffer, and the tile counts.

@@ -43,6 +43,7 @@ mod params;
 pub mod screen_probes;
 pub mod sdf;
 
+use crate::render::pipelines::init_buffer;
 pub use params::{LumenParamsGpu, LumenSettings, FLAG_BVH, FLAG_LIGHTS, FLAG_SKY, PARAMS};
 pub use screen_probes::ProbeStats;
 use screen_probes::{ProbePipelines, ScreenProbes};
@@ -60,7 +61,6 @@ use anyhow::Result;
 use glam::Vec3;
 use params::*;
 use sdf::{Clipmaps, MAX_LEVELS};
-use wgpu::util::DeviceExt;
 
 const COMPUTE: [(&str, &str); 6] = [
     ("sdf release", "lumen/sdf_release.wgsl"),
@@ -200,17 +200,6 @@ fn lumen_bind_group(
         layout,
         entries: &entries,
     })
-}
-
-fn init_buffer(gpu: &Gpu, label: &str, contents: &[u8], usage: wgpu::BufferUsages) -> wgpu::Buffer {
-    let mut bytes = contents.to_vec();
-    bytes.resize(bytes.len().max(16), 0);
-    gpu.device
-        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some(label),
-            contents: &bytes,
-            usage,
-        })
 }
 
 /// Lumen's own entry files.
