@@ -230,6 +230,7 @@ fn playing_scene_has_a_reference_per_frame_pose() {
 [scene]
 source = "moving"
 time_scale = 12.0
+play_until = 1.0
 [render]
 size = [32, 32]
 seed = 1
@@ -269,6 +270,17 @@ frames = 8
         hi < 0.6,
         "a reference is not of its frame's pose: {errors:?}"
     );
+    // Playback stops at 1 s, frame 5 (0.2 s a frame): frames 6 and 8 (rows count from 1) see
+    // the held pose, and the report measures settling and ghosts.
+    assert_eq!(summary.motion_stop_frame, Some(5));
+    let times: Vec<Option<f64>> = rows.iter().map(|r| r.scene_time).collect();
+    println!("scene times of the scored frames: {times:?}");
+    assert_eq!(times.last().copied().flatten(), Some(1.0));
+    let motion = &summary.analysis.motion;
+    println!("{motion:?}");
+    assert_eq!(motion.len(), 1);
+    assert!(motion[0].steady_error.is_some() && motion[0].settle_frames.is_some());
+    assert!(motion[0].moving_error.is_some());
     let err = format!(
         "{:#}",
         converge(&text("accumulate"), "moving-acc").unwrap_err()

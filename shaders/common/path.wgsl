@@ -57,6 +57,8 @@ struct PathResult {
     // The first hit (w = 1) or a miss (w = 0), and its geometric normal facing the ray.
     first_hit: vec4<f32>,
     first_normal: vec3<f32>,
+    // The first hit's triangle (BVH order), NO_HIT on a miss: reuse follows it when it moves.
+    first_tri: u32,
 }
 
 struct NextEvent {
@@ -172,7 +174,7 @@ fn add_contribution(out: ptr<function, PathResult>, c: vec3<f32>, depth: u32) {
 // `skip_first_emission` the emission of the first hit is left out (ReSTIR GI: direct light
 // from emitters is ReSTIR DI's job).
 fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, max_depth: u32, skip_first_emission: bool, options: PathOptions) -> PathResult {
-    var out = PathResult(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0), 0u, 0u, 0u, vec4<f32>(0.0), vec3<f32>(0.0));
+    var out = PathResult(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0), 0u, 0u, 0u, vec4<f32>(0.0), vec3<f32>(0.0), NO_HIT);
     var origin = origin_in;
     var dir = dir_in;
     var throughput = vec3<f32>(1.0);
@@ -216,6 +218,7 @@ fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, 
         if depth == 0u {
             out.first_hit = vec4<f32>(surf.position, 1.0);
             out.first_normal = surf.geo_normal;
+            out.first_tri = hit.tri;
         }
         let le = triangle_emission(hit.tri, hit.bary, -dir);
         if any(le > vec3<f32>(0.0)) && !(depth == 0u && skip_first_emission) {

@@ -28,7 +28,9 @@ struct GSurface {
     triangle: u32,
     material: u32,
     // xyz: where this surface point was last frame (its object's previous transform; equal to
-    // pos unless the object moved), what temporal passes reproject; w: unused.
+    // pos unless the object moved), what temporal passes reproject; w: the hit triangle in BVH
+    // order + 1 (exact as f32 up to 2^24 triangles), 0 on a miss: the id a cache keeps to
+    // follow the object (`next_position`).
     prev_pos: vec4<f32>,
 }
 

@@ -152,6 +152,43 @@ fn previous_position(tri: u32, p: vec3<f32>) -> vec3<f32> {
     return a.bounds_min * p.x + a.bounds_max * p.y + b.bounds_min * p.z + b.bounds_max;
 }
 
+// The inverse of `previous_position`: where a point of triangle `tri` recorded last frame is
+// now (a reservoir's reconnection point on a moving object follows the object).
+fn next_position(tri: u32, p: vec3<f32>) -> vec3<f32> {
+    let record = tri_attr[tri].pad.x;
+    if record == 0u {
+        return p;
+    }
+    let a = bvh_nodes[record - 1u];
+    let b = bvh_nodes[record];
+    let c0 = a.bounds_min;
+    let c1 = a.bounds_max;
+    let c2 = b.bounds_min;
+    let det = dot(c0, cross(c1, c2));
+    if abs(det) < 1e-20 {
+        return p;
+    }
+    // Rows of the inverse are the columns' cross products over the determinant.
+    let inv = transpose(mat3x3<f32>(cross(c1, c2), cross(c2, c0), cross(c0, c1))) * (1.0 / det);
+    return inv * (p - b.bounds_max);
+}
+
+// A normal of triangle `tri` recorded last frame, as it faces now: normals go with the inverse
+// transpose of the point map, and the inverse of "now to last frame" transposed back is its
+// own transpose.
+fn next_normal(tri: u32, n: vec3<f32>) -> vec3<f32> {
+    let record = tri_attr[tri].pad.x;
+    if record == 0u {
+        return n;
+    }
+    let a = bvh_nodes[record - 1u];
+    let b = bvh_nodes[record];
+    let m = mat3x3<f32>(a.bounds_min, a.bounds_max, b.bounds_min);
+    let t = transpose(m) * n;
+    let len = length(t);
+    return select(n, t / len, len > 0.0);
+}
+
 fn scene_triangle(tri: u32) -> u32 {
     return tri_attr[tri].scene_tri;
 }

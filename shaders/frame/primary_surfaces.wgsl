@@ -36,7 +36,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             // Camera and object motion: where the point was last frame, seen by last frame's
             // camera.
             let was = previous_position(hit.tri, s.position);
-            g.prev_pos = vec4<f32>(was, 1.0);
+            // w: the hit triangle (BVH order) + 1, so caches can follow the object it is on.
+            g.prev_pos = vec4<f32>(was, f32(hit.tri + 1u));
             let prev = previous_pixel_position(was);
             if prev.x >= 0.0 {
                 g.motion = pixel_pos - prev;

@@ -11,6 +11,7 @@
 #import gilab::brdf::{bsdf_eval, bsdf_sample, specular_eval, BsdfSample}
 #import gilab::path::{trace_path, PathOptions}
 #import gilab::primary::{reproject, current_surface, previous_surface, surface_material, at_last_frame}
+#import gilab::scene::{next_position, next_normal}
 #import gilab::restir::{params, gi_reservoirs, gi_sky, GiReservoir, reservoir_index, parity, empty_gi_reservoir, gi_contribution, gi_target, gi_update, gi_jacobian_ok, similar, TEMPORAL_SEGMENT}
 
 @compute @workgroup_size(8, 8, 1)
@@ -55,7 +56,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     sky = bs.weight * path.radiance;
                     sky_w = 1.0;
                 } else if path.first_hit.w > 0.5 {
-                    let cand = GiReservoir(path.first_hit, vec4<f32>(path.first_normal, 0.0), vec4<f32>(path.radiance, 0.0), 0.0, 0.0, 0.0, 0.0);
+                    // normal.w: the hit's triangle + 1, so reuse can follow it if it moves.
+                    let cand = GiReservoir(path.first_hit, vec4<f32>(path.first_normal, f32(path.first_tri + 1u)), vec4<f32>(path.radiance, 0.0), 0.0, 0.0, 0.0, 0.0);
                     let e = gi_contribution(s, cand);
                     if e.geom > 0.0 {
                         // Area-measure source pdf: solid-angle pdf times the geometry term.
@@ -83,7 +85,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     let pidx = u32(prev);
                     let ps = previous_surface(pidx);
                     if similar(at_last_frame(s), ps) {
-                        let pr = gi_reservoirs[reservoir_index(1u - parity(), pidx)];
+                        let pr = follow_motion(gi_reservoirs[reservoir_index(1u - parity(), pidx)]);
                         // A sample whose Jacobian is out of bounds is not passed on (weight 0),
                         // but the merge still happens so that Z depends on the chosen sample only.
                         let mp = min(pr.m, params.max_history * r.m);
@@ -116,4 +118,17 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         gi_sky[idx] = vec4<f32>(sky, sky_w);
     }
     flush_counts(local_index, counts);
+}
+
+// Last frame's reconnection point on an object that moved since goes with the object (the
+// seed's "re-evaluate": its position and normal are this frame's; its radiance, like any
+// reused sample's, is last frame's). Triangle + 1 in normal.w (exact as f32 up to 2^24).
+fn follow_motion(r: GiReservoir) -> GiReservoir {
+    var out = r;
+    let tri = u32(r.normal.w);
+    if tri > 0u && r.point.w > 0.5 {
+        out.point = vec4<f32>(next_position(tri - 1u, r.point.xyz), r.point.w);
+        out.normal = vec4<f32>(next_normal(tri - 1u, r.normal.xyz), r.normal.w);
+    }
+    return out;
 }

@@ -1,11 +1,12 @@
-// Recycling (per slot): the seed's heuristic decides which live surfels go back to the free
+// Recycling (per slot), after moving surfels on moving objects with them: the seed's heuristic decides which live surfels go back to the free
 // stack, from the pool's fill level, frames since the surfel last lit a visible pixel, its
 // distance, and whether the pixels it lit were over-covered; compared with a random number.
 // Writes 1 per recycled slot for the prefix sum that gives each its stack position (push.wgsl).
 #import gilab::frame::frame
 #import gilab::math::max_component
 #import gilab::rng::{rng_init, rand, STREAM_SURFEL_RECYCLE}
-#import gilab::surfels::{params, surfels, pool, seen, slot_scan, is_live}
+#import gilab::surfels::{params, surfels, pool, seen, slot_scan, is_live, surfel_id}
+#import gilab::scene::{next_position, next_normal}
 
 
 @compute @workgroup_size(64, 1, 1)
@@ -19,6 +20,14 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     var recycle = 0u;
     if is_live(slot) {
+        // Transform ids: a surfel on a moving object goes with it (its triangle's instance
+        // record, identity for static geometry), before this frame's grid is built.
+        let tri = surfel_id(surfels[slot]);
+        if tri > 0u {
+            let s = surfels[slot];
+            surfels[slot].pos_radius = vec4<f32>(next_position(tri - 1u, s.pos_radius.xyz), s.pos_radius.w);
+            surfels[slot].normal_id = vec4<f32>(next_normal(tri - 1u, s.normal_id.xyz), s.normal_id.w);
+        }
         let last_seen = atomicLoad(&seen[3u * slot]);
         let lit = atomicLoad(&seen[3u * slot + 1u]);
         let crowded = atomicLoad(&seen[3u * slot + 2u]);

@@ -38,7 +38,8 @@ const FLAG_SHARING: u32 = 128u;
 struct Surfel {
     pos_radius: vec4<f32>,
     // xyz: normal (the geometric normal of the surface it sits on, facing the camera at spawn);
-    // w: bitcast id of the object it sits on (the scene triangle).
+    // w: bitcast id of the object it sits on: its triangle in BVH order + 1 (0: none), whose
+    // instance's motion record moves the surfel with it (GIBS's transform ids).
     normal_id: vec4<f32>,
     // rgb: diffuse albedo; w: bitcast frame it spawned in.
     albedo_spawn: vec4<f32>,

@@ -23,7 +23,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let p = s.pos.xyz;
     let r = surfel_radius(p);
     let albedo = s.base_metal.xyz * (1.0 - s.base_metal.w);
-    surfels[slot] = Surfel(vec4<f32>(p, r), vec4<f32>(s.geo_specular.xyz, bitcast<f32>(s.triangle)), vec4<f32>(albedo, bitcast<f32>(frame.frame_index)));
+    surfels[slot] = Surfel(vec4<f32>(p, r), vec4<f32>(s.geo_specular.xyz, bitcast<f32>(u32(s.prev_pos.w))), vec4<f32>(albedo, bitcast<f32>(frame.frame_index)));
     states[slot] = SurfelState(vec4<f32>(0.0), vec4<f32>(0.0, 0.0, 0.0, 1.0), vec4<f32>(0.0), vec4<u32>(0u));
     for (var w = 0u; w < GUIDE_WORDS; w++) {
         guide[slot * GUIDE_WORDS + w] = 0xffffffffu;

@@ -555,7 +555,16 @@ impl Session {
         // At most a tenth of a second a step, so a slow frame does not jump the scene.
         let dt = last.map_or(0.0, |l| (now - l).as_secs_f32().min(0.1));
         if dt > 0.0 {
-            self.set_scene_time(self.scene_time + dt * scale);
+            let mut t = self.scene_time + dt * scale;
+            // `[scene] play_until`: the clock stops there (the slider still scrubs past it).
+            if let Some(u) = self.scene.motion.as_ref().and_then(|m| m.play_until) {
+                if scale > 0.0 && self.scene_time <= u {
+                    t = t.min(u);
+                }
+            }
+            if t != self.scene_time {
+                self.set_scene_time(t);
+            }
         }
     }
 

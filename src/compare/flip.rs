@@ -18,8 +18,13 @@ pub fn default_pixels_per_degree() -> f32 {
     distance * (width_px / width_m) * std::f32::consts::PI / 180.0
 }
 
-/// Mean LDR-FLIP between two 8-bit sRGB RGB images (row-major, 3 bytes per pixel).
-pub fn ldr_flip_srgb8(test: &[u8], reference: &[u8], width: u32, height: u32) -> Result<f64> {
+/// Per-pixel LDR-FLIP between two 8-bit sRGB RGB images (row-major, 3 bytes per pixel).
+pub fn ldr_flip_map_srgb8(
+    test: &[u8],
+    reference: &[u8],
+    width: u32,
+    height: u32,
+) -> Result<Vec<f32>> {
     let n = (width * height * 3) as usize;
     ensure!(
         test.len() == n && reference.len() == n,
@@ -28,13 +33,17 @@ pub fn ldr_flip_srgb8(test: &[u8], reference: &[u8], width: u32, height: u32) ->
     ensure!(width > 0 && height > 0, "FLIP: empty image");
     let r = nv_flip::FlipImageRgb8::with_data(width, height, reference);
     let t = nv_flip::FlipImageRgb8::with_data(width, height, test);
-    let map = nv_flip::flip(r, t, default_pixels_per_degree());
-    let values = map.to_vec();
+    Ok(nv_flip::flip(r, t, default_pixels_per_degree()).to_vec())
+}
+
+/// Mean LDR-FLIP between two 8-bit sRGB RGB images (row-major, 3 bytes per pixel).
+pub fn ldr_flip_srgb8(test: &[u8], reference: &[u8], width: u32, height: u32) -> Result<f64> {
+    let values = ldr_flip_map_srgb8(test, reference, width, height)?;
     Ok(values.iter().map(|&v| v as f64).sum::<f64>() / values.len() as f64)
 }
 
-/// Mean LDR-FLIP of `image` against `reference` after the display transform.
-pub fn ldr_flip(image: &Image, reference: &Image, tm: &tonemap::Settings) -> Result<f64> {
+/// Per-pixel LDR-FLIP of `image` against `reference` after the display transform.
+pub fn ldr_flip_map(image: &Image, reference: &Image, tm: &tonemap::Settings) -> Result<Vec<f32>> {
     ensure!(
         image.width == reference.width && image.height == reference.height,
         "image sizes differ"
@@ -46,5 +55,11 @@ pub fn ldr_flip(image: &Image, reference: &Image, tm: &tonemap::Settings) -> Res
             .flat_map(|p| [p[0], p[1], p[2]])
             .collect()
     };
-    ldr_flip_srgb8(&rgb(image), &rgb(reference), image.width, image.height)
+    ldr_flip_map_srgb8(&rgb(image), &rgb(reference), image.width, image.height)
+}
+
+/// Mean LDR-FLIP of `image` against `reference` after the display transform.
+pub fn ldr_flip(image: &Image, reference: &Image, tm: &tonemap::Settings) -> Result<f64> {
+    let values = ldr_flip_map(image, reference, tm)?;
+    Ok(values.iter().map(|&v| v as f64).sum::<f64>() / values.len().max(1) as f64)
 }

@@ -2,12 +2,18 @@
 //! frame, one reference per scored frame (and per frame before one, for flicker), rendered once
 //! and cached by content, and the temporal-stability measure: the mean change of the displayed
 //! image between consecutive frames after reprojection, against the same for the references.
+//!
+//! A scene that plays (`[scene] time_scale`) is posed on the CPU at every frame the plan looks
+//! at: reprojection then follows moving objects as well as the camera, and each scored frame
+//! gets a ghost mask, the pixels a moving object uncovered in the frames just before it, where
+//! caches that lag behind the motion leave their ghosts.
 
 use super::rows::ReferenceInfo;
 use super::spec::{camera_on_path, CameraKey, Event};
 use crate::compare::{tonemap, Image};
+use crate::scene::motion::Motion;
 use crate::scene::{bvh::Bvh, Camera, Scene};
-use glam::Vec3;
+use glam::{Mat4, Vec3};
 use std::collections::{BTreeMap, BTreeSet};
 
 /// What a real-time run does with a frame's image.
@@ -92,6 +98,13 @@ pub struct RealTimePlan {
     pub reprojection: BTreeMap<u32, Option<Vec<u32>>>,
     /// The references' flicker per scored frame f > 0.
     pub reference_flicker: BTreeMap<u32, f64>,
+    /// Per scored frame of a playing scene, the pixels a moving object covered in one of the
+    /// `ghost_frames` frames before it and no longer covers (absent: none).
+    pub ghost_masks: BTreeMap<u32, Vec<bool>>,
+    /// The first frame of the pose playback stops at (`[scene] play_until`).
+    pub motion_stop_frame: Option<u32>,
+    /// Scene time of each scored frame of a playing scene.
+    pub scene_times: BTreeMap<u32, f32>,
 }
 
 impl RealTimePlan {
@@ -102,17 +115,65 @@ impl RealTimePlan {
 
 pub const INVALID: u32 = u32::MAX;
 
-/// The scene's triangles and BVH on the CPU, for reprojection.
+/// The scene's triangles and BVH on the CPU, for reprojection; with the instances' transforms
+/// and which of them the scene's motion moves.
 pub struct CpuScene {
     tris: Vec<[Vec3; 3]>,
     bvh: Bvh,
+    /// Per triangle, its instance (`NO_INSTANCE`: not in one).
+    instance_of: Vec<u32>,
+    transforms: Vec<Mat4>,
+    moving: Vec<bool>,
 }
+
+const NO_INSTANCE: u32 = u32::MAX;
 
 impl CpuScene {
     pub fn new(scene: &Scene) -> CpuScene {
         let tris = scene.triangle_positions();
         let bvh = Bvh::build(&tris);
-        CpuScene { tris, bvh }
+        let mut instance_of = vec![NO_INSTANCE; tris.len()];
+        for (i, inst) in scene.instances.iter().enumerate() {
+            let range =
+                inst.first_triangle as usize..(inst.first_triangle + inst.triangle_count) as usize;
+            for t in range {
+                if let Some(slot) = instance_of.get_mut(t) {
+                    *slot = i as u32;
+                }
+            }
+        }
+        let mut moving = vec![false; scene.instances.len()];
+        for m in scene.motion.iter().flat_map(|m| m.meshes.iter()) {
+            if let Some(slot) = moving.get_mut(m.instance) {
+                *slot = true;
+            }
+        }
+        CpuScene {
+            tris,
+            bvh,
+            instance_of,
+            transforms: scene.instances.iter().map(|i| i.transform).collect(),
+            moving,
+        }
+    }
+
+    /// The moving instance a triangle belongs to, if any.
+    fn moving_instance(&self, tri: u32) -> Option<usize> {
+        let i = *self.instance_of.get(tri as usize)?;
+        (i != NO_INSTANCE && self.moving.get(i as usize) == Some(&true)).then_some(i as usize)
+    }
+
+    /// Per pixel (through its centre): whether it shows a moving object.
+    pub fn moving_coverage(&self, camera: &Camera, extent: [u32; 2]) -> Vec<bool> {
+        let (w, h) = (extent[0], extent[1]);
+        (0..w * h)
+            .map(|i| {
+                let d = ray_dir(camera, extent, (i % w) as f32 + 0.5, (i / w) as f32 + 0.5);
+                self.bvh
+                    .closest_hit(&self.tris, camera.position, d, f32::MAX)
+                    .is_some_and(|(_, tri)| self.moving_instance(tri).is_some())
+            })
+            .collect()
     }
 
     /// Original index of the triangle seen through a pixel position (in pixels), if any: the
@@ -159,11 +220,13 @@ fn project(camera: &Camera, extent: [u32; 2], p: Vec3) -> Option<(u32, u32)> {
         .then_some((px as u32, py as u32))
 }
 
-/// The motion vectors of a camera move, from the geometry: per pixel of the current frame
-/// (through its centre), the previous frame's pixel showing the same point, or `INVALID`
-/// where that point was hidden from the previous camera (disocclusion) or off screen. The sky
-/// is reprojected as a point far away.
+/// The motion vectors of a camera move and of moving objects, from the geometry: per pixel of
+/// the current frame (through its centre), the previous frame's pixel showing the same point,
+/// or `INVALID` where that point was hidden from the previous camera (disocclusion) or off
+/// screen. A point on a moving instance goes back with the instance (last frame's transform
+/// times the inverse of this frame's). The sky is reprojected as a point far away.
 pub fn reprojection_map(
+    prev_scene: &CpuScene,
     scene: &CpuScene,
     prev: &Camera,
     cur: &Camera,
@@ -175,8 +238,15 @@ pub fn reprojection_map(
     for y in 0..h {
         for x in 0..w {
             let d = ray_dir(cur, extent, x as f32 + 0.5, y as f32 + 0.5);
-            let t = scene.closest(cur.position, d, far).unwrap_or(far);
-            let p = cur.position + d * t;
+            let hit = scene.bvh.closest_hit(&scene.tris, cur.position, d, far);
+            let mut p = cur.position + d * hit.map_or(far, |h| h.0);
+            if let Some(i) = hit.and_then(|h| scene.moving_instance(h.1)) {
+                if let (Some(now), Some(then)) =
+                    (scene.transforms.get(i), prev_scene.transforms.get(i))
+                {
+                    p = (*then * now.inverse()).transform_point3(p);
+                }
+            }
             let Some((qx, qy)) = project(prev, extent, p) else {
                 continue;
             };
@@ -186,7 +256,7 @@ pub fn reprojection_map(
             if dist <= 0.0 {
                 continue;
             }
-            let hidden = scene
+            let hidden = prev_scene
                 .closest(prev.position, to / dist, dist * (1.0 - 1e-3))
                 .is_some();
             if !hidden {
@@ -233,27 +303,128 @@ pub fn flicker(current: &[f32], previous: &[f32], map: Option<&[u32]>) -> Option
     (n > 0).then(|| sum / n as f64)
 }
 
-/// Reprojection maps for every scored frame after the first, shared by all runs.
-pub fn reprojection_maps(
-    scene: &Scene,
+/// The scene of every frame: one pose for a still scene, else the pose playback gives frame f,
+/// `Motion::time_after(t0, f)` (held still: the scene as the frame's reference renders it).
+pub struct FramePoses<'a> {
+    scene: &'a Scene,
+    motion: Option<Motion>,
+    t0: f32,
+}
+
+impl<'a> FramePoses<'a> {
+    pub fn new(scene: &'a Scene) -> FramePoses<'a> {
+        let motion = scene
+            .motion
+            .as_deref()
+            .filter(|m| m.time_scale != 0.0)
+            .cloned();
+        FramePoses {
+            scene,
+            motion,
+            t0: scene.posed_at.unwrap_or(0.0),
+        }
+    }
+
+    /// Scene time of frame f (None: the scene does not play).
+    pub fn time(&self, f: u32) -> Option<f32> {
+        self.motion
+            .as_ref()
+            .map(|m| m.time_after(self.t0, f, crate::render::engine::PLAYBACK_FPS))
+    }
+
+    /// The scene posed for frame f, holding still.
+    pub fn scene(&self, f: u32) -> anyhow::Result<Scene> {
+        let mut scene = self.scene.clone();
+        if let (Some(m), Some(t)) = (&self.motion, self.time(f)) {
+            let mut held = m.clone();
+            held.time_scale = 0.0;
+            held.apply(&mut scene, t)?;
+            scene.motion = Some(std::sync::Arc::new(held));
+        }
+        Ok(scene)
+    }
+
+    /// The first frame of the pose playback stops at (`play_until`), when it stops.
+    pub fn stop_frame(&self, frames: u32) -> Option<u32> {
+        let m = self.motion.as_ref()?;
+        m.play_until?;
+        let last = self.time(frames.checked_sub(1)?)?;
+        (0..frames).find(|f| self.time(*f) == Some(last) && self.time(f + 1) == Some(last))
+    }
+}
+
+/// What the plan computes from the CPU scene of each frame: reprojection maps for every scored
+/// frame after the first, and ghost masks for a playing scene.
+pub struct CpuFrames {
+    pub reprojection: BTreeMap<u32, Option<Vec<u32>>>,
+    pub ghost_masks: BTreeMap<u32, Vec<bool>>,
+}
+
+/// Reprojection maps (shared by all runs) and, for a playing scene, each scored frame's ghost
+/// mask over the `ghost_frames` frames before it.
+pub fn cpu_frames(
+    poses: &FramePoses,
     cameras: &[Camera],
     every: u32,
+    ghost_frames: u32,
     extent: [u32; 2],
-) -> BTreeMap<u32, Option<Vec<u32>>> {
-    let mut cpu: Option<CpuScene> = None;
-    let mut maps = BTreeMap::new();
-    for f in 1..cameras.len() as u32 {
-        if frame_use(f, every) != FrameUse::Scored {
-            continue;
+) -> anyhow::Result<CpuFrames> {
+    let plays = poses.motion.is_some();
+    let frames = cameras.len() as u32;
+    let scored: Vec<u32> = (0..frames)
+        .filter(|f| frame_use(*f, every) == FrameUse::Scored)
+        .collect();
+    let mut needed = BTreeSet::new();
+    for &f in &scored {
+        needed.insert(f);
+        if f > 0 {
+            needed.insert(f - 1);
         }
-        let (prev, cur) = (&cameras[f as usize - 1], &cameras[f as usize]);
-        let map = (prev != cur).then(|| {
-            let cpu = cpu.get_or_insert_with(|| CpuScene::new(scene));
-            reprojection_map(cpu, prev, cur, extent)
-        });
-        maps.insert(f, map);
+        if plays {
+            needed.extend(f.saturating_sub(ghost_frames)..f);
+        }
     }
-    maps
+    let mut out = CpuFrames {
+        reprojection: BTreeMap::new(),
+        ghost_masks: BTreeMap::new(),
+    };
+    // The last frame's scene (with its time), reused while the pose holds.
+    let mut last: Option<(u32, Option<f32>, std::rc::Rc<CpuScene>)> = None;
+    let mut coverage: BTreeMap<u32, Vec<bool>> = BTreeMap::new();
+    for f in needed {
+        let time = poses.time(f);
+        let scene = match &last {
+            Some((_, t, s)) if *t == time => s.clone(),
+            _ => std::rc::Rc::new(CpuScene::new(&poses.scene(f)?)),
+        };
+        if plays {
+            coverage.insert(f, scene.moving_coverage(&cameras[f as usize], extent));
+            coverage.retain(|k, _| k + ghost_frames + 1 > f);
+        }
+        if f > 0 && frame_use(f, every) == FrameUse::Scored {
+            let (prev_cam, cam) = (&cameras[f as usize - 1], &cameras[f as usize]);
+            let map = match &last {
+                Some((k, t, prev)) if *k + 1 == f => (prev_cam != cam || *t != time)
+                    .then(|| reprojection_map(prev, &scene, prev_cam, cam, extent)),
+                _ => None,
+            };
+            out.reprojection.insert(f, map);
+            if let Some(now) = coverage.get(&f) {
+                let mut mask = vec![false; now.len()];
+                for (k, before) in coverage.range(f.saturating_sub(ghost_frames)..f) {
+                    let _ = k;
+                    for (m, (b, n)) in mask.iter_mut().zip(before.iter().zip(now)) {
+                        *m |= *b && !*n;
+                    }
+                }
+                if mask.iter().any(|m| *m) {
+                    out.ghost_masks.insert(f, mask);
+                }
+            }
+        }
+        last = Some((f, time, scene));
+    }
+    Ok(out)
 }
 
 #[cfg(test)]
@@ -282,7 +453,7 @@ mod tests {
         let cpu = CpuScene::new(&scene);
         let cam = scene.default_camera();
         let extent = [32, 32];
-        let same = reprojection_map(&cpu, &cam, &cam, extent);
+        let same = reprojection_map(&cpu, &cpu, &cam, &cam, extent);
         assert!(same.iter().enumerate().all(|(i, j)| *j == i as u32));
         // Moving the camera 0.5 sideways along its right vector (about 3 pixels here): points shift left on screen.
         let (right, _, _) = cam.basis();
@@ -291,7 +462,7 @@ mod tests {
             target: cam.target + right * 0.5,
             ..cam
         };
-        let map = reprojection_map(&cpu, &cam, &moved, extent);
+        let map = reprojection_map(&cpu, &cpu, &cam, &moved, extent);
         let valid = map.iter().filter(|j| **j != INVALID).count();
         assert!(valid > 900, "{valid} of 1024 pixels reproject");
         let shifted = map
@@ -303,5 +474,112 @@ mod tests {
             shifted > 500,
             "{shifted} pixels map to a pixel further right"
         );
+    }
+
+    /// The built-in `moving` scene playing at `time_scale`, optionally stopping.
+    fn moving(time_scale: f32, play_until: Option<f32>) -> Scene {
+        let mut scene =
+            crate::scene::builtin::build("moving", &Default::default()).expect("moving");
+        let m = std::sync::Arc::make_mut(scene.motion.as_mut().expect("motion"));
+        m.time_scale = time_scale;
+        m.play_until = play_until;
+        scene
+    }
+
+    #[test]
+    fn reprojection_follows_a_moving_object_and_ghosts_are_what_it_uncovered() {
+        // 0.1 s a frame: the ball rolls a few pixels a frame at 48x48.
+        let scene = moving(6.0, None);
+        let poses = FramePoses::new(&scene);
+        let cam = scene.default_camera();
+        let extent = [48, 48];
+        let (f, t_then, t_now) = (20u32, poses.time(19).unwrap(), poses.time(20).unwrap());
+        assert!(t_now > t_then);
+        let (then, now) = (
+            CpuScene::new(&poses.scene(f - 1).unwrap()),
+            CpuScene::new(&poses.scene(f).unwrap()),
+        );
+        let map = reprojection_map(&then, &now, &cam, &cam, extent);
+        let (mut on_object, mut followed, mut still_same, mut still) = (0, 0, 0, 0);
+        for (i, &j) in map.iter().enumerate() {
+            let (x, y) = (i as u32 % 48, i as u32 / 48);
+            let d = ray_dir(&cam, extent, x as f32 + 0.5, y as f32 + 0.5);
+            let Some((t, tri)) = now.bvh.closest_hit(&now.tris, cam.position, d, f32::MAX) else {
+                continue;
+            };
+            let Some(inst) = now.moving_instance(tri) else {
+                still += 1;
+                still_same += usize::from(j == i as u32);
+                continue;
+            };
+            // Interior pixels only: at a silhouette the pixel centre it maps to may miss.
+            let same = |dx: i32, dy: i32| {
+                let dn = ray_dir(
+                    &cam,
+                    extent,
+                    x as f32 + 0.5 + dx as f32,
+                    y as f32 + 0.5 + dy as f32,
+                );
+                now.bvh
+                    .closest_hit(&now.tris, cam.position, dn, f32::MAX)
+                    .is_some_and(|(_, k)| now.moving_instance(k) == Some(inst))
+            };
+            if j == INVALID || !(same(1, 0) && same(-1, 0) && same(0, 1) && same(0, -1)) {
+                continue;
+            }
+            on_object += 1;
+            // The pixel it maps to shows the same object last frame, at the point moved back
+            // with it (within a pixel's footprint at that depth).
+            let (qx, qy) = (j % 48, j / 48);
+            let dq = ray_dir(&cam, extent, qx as f32 + 0.5, qy as f32 + 0.5);
+            let Some((tq, tri_q)) = then.bvh.closest_hit(&then.tris, cam.position, dq, f32::MAX)
+            else {
+                continue;
+            };
+            let p_now = cam.position + d * t;
+            let back =
+                (then.transforms[inst] * now.transforms[inst].inverse()).transform_point3(p_now);
+            let p_then = cam.position + dq * tq;
+            let footprint = 2.5 * t * (cam.fov_y.to_radians() * 0.5).tan() * 2.0 / 48.0;
+            if then.moving_instance(tri_q) == Some(inst) && (p_then - back).length() < footprint {
+                followed += 1;
+            }
+        }
+        println!("moving objects: {followed} of {on_object} pixels reproject onto their object; {still_same} of {still} still pixels map to themselves");
+        assert!(on_object > 10, "{on_object} pixels on moving objects");
+        assert!(followed * 10 >= on_object * 9, "{followed} of {on_object}");
+        // All but those the object hid last frame (disoccluded: no previous pixel).
+        assert!(still_same * 100 >= still * 98, "{still_same} of {still}");
+        // Ghost masks: pixels a moving object covered in the frames before and not now.
+        let cameras = vec![cam; 24];
+        let frames = cpu_frames(&poses, &cameras, 4, 6, extent).unwrap();
+        assert!(!frames.ghost_masks.is_empty(), "the ball uncovers nothing");
+        for (f, mask) in &frames.ghost_masks {
+            let now = CpuScene::new(&poses.scene(*f).unwrap()).moving_coverage(&cam, extent);
+            let mut before = vec![false; mask.len()];
+            for k in f.saturating_sub(6)..*f {
+                let c = CpuScene::new(&poses.scene(k).unwrap()).moving_coverage(&cam, extent);
+                before.iter_mut().zip(c).for_each(|(b, c)| *b |= c);
+            }
+            for i in 0..mask.len() {
+                assert_eq!(mask[i], before[i] && !now[i], "frame {f} pixel {i}");
+            }
+        }
+        // A moving scene's scored frames all reproject through object motion.
+        assert!(frames.reprojection.values().all(|m| m.is_some()));
+    }
+
+    #[test]
+    fn playback_stops_at_play_until() {
+        let scene = moving(6.0, Some(1.0));
+        let poses = FramePoses::new(&scene);
+        assert_eq!(poses.time(5), Some(0.5));
+        assert_eq!(poses.time(10), Some(1.0));
+        assert_eq!(poses.time(30), Some(1.0));
+        assert_eq!(poses.stop_frame(30), Some(10));
+        assert_eq!(FramePoses::new(&moving(6.0, None)).stop_frame(30), None);
+        // The same held pose: the scenes of frames after the stop are the same.
+        let (a, b) = (poses.scene(12).unwrap(), poses.scene(29).unwrap());
+        assert_eq!(a.positions, b.positions);
     }
 }

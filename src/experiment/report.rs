@@ -29,6 +29,33 @@ pub struct Analysis {
     /// Real-time mode: per frame-time budget and technique entry, the best run that fits.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub frame_budgets: Vec<FrameBudget>,
+    /// Real-time mode on a playing scene: per run, error while moving, settling after the
+    /// motion stops, and ghosting.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub motion: Vec<MotionRun>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct MotionRun {
+    pub label: String,
+    /// Median per-frame error over the scored frames before the motion stops (all of them
+    /// when it never stops).
+    pub moving_error: Option<f64>,
+    /// The first scored frame at or after the stop: its error, the steady level after it
+    /// (median of the last frames, as for events), the threshold (`settle_factor` × steady),
+    /// and the frames from the stop until the error is under it.
+    pub error_at_stop: Option<f64>,
+    pub steady_error: Option<f64>,
+    pub threshold: Option<f64>,
+    pub settle_frames: Option<u32>,
+    pub settle_ms: Option<f64>,
+    /// Scored frames with uncovered pixels, and the median over them of the mean FLIP there and
+    /// elsewhere.
+    pub ghost_frames: u32,
+    pub ghost_flip: Option<f64>,
+    pub rest_flip: Option<f64>,
+    /// ghost / rest (1: uncovered pixels no worse than the rest of the image).
+    pub ghost_ratio: Option<f64>,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -357,6 +384,53 @@ pub fn analyse(summary: &Summary, rows: &[Row]) -> Analysis {
         }
     }
 
+    let plays = rows.iter().any(|r| r.scene_time.is_some());
+    let motion: Vec<MotionRun> = if real_time_mode && plays {
+        runs.iter()
+            .map(|(i, label)| {
+                let mut v: Vec<&Row> = rows.iter().filter(|r| r.run == *i).collect();
+                v.sort_by_key(|r| r.frame);
+                // Row frames count from 1: frame index = frame - 1.
+                let stop = summary.motion_stop_frame;
+                let still = |r: &&Row| stop.is_some_and(|s| r.frame > s);
+                let moving: Vec<f64> = v
+                    .iter()
+                    .filter(|r| !still(r))
+                    .map(|r| r.error(metric))
+                    .collect();
+                let after: Vec<&Row> = v.iter().copied().filter(still).collect();
+                let steady = (!after.is_empty()).then(|| steady_error(&after, metric));
+                let threshold = steady.map(|e| s.settle_factor * e);
+                let settled =
+                    threshold.and_then(|th| after.iter().find(|r| r.error(metric) <= th).copied());
+                let before_stop = v.iter().rev().find(|r| !still(r));
+                let ghosts: Vec<&&Row> = v.iter().filter(|r| r.ghost_flip.is_some()).collect();
+                // Medians over the frames: one firefly frame does not decide the ratio.
+                let ghost =
+                    super::run::median(ghosts.iter().filter_map(|r| r.ghost_flip).collect());
+                let rest = super::run::median(ghosts.iter().filter_map(|r| r.rest_flip).collect());
+                MotionRun {
+                    label: label.clone(),
+                    moving_error: super::run::median(moving),
+                    error_at_stop: after.first().map(|r| r.error(metric)),
+                    steady_error: steady,
+                    threshold,
+                    settle_frames: settled
+                        .zip(stop)
+                        .map(|(r, s)| (r.frame - 1).saturating_sub(s)),
+                    settle_ms: settled
+                        .map(|r| r.gpu_ms_cum - before_stop.map_or(0.0, |b| b.gpu_ms_cum)),
+                    ghost_frames: ghosts.len() as u32,
+                    ghost_flip: ghost,
+                    rest_flip: rest,
+                    ghost_ratio: ratio(ghost, rest),
+                }
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+
     // Accumulated-image tables say nothing about single real-time frames.
     let (equal_time_ms, equal_time, target_error, time_to_error) = if real_time_mode {
         (None, Vec::new(), None, Vec::new())
@@ -375,6 +449,7 @@ pub fn analyse(summary: &Summary, rows: &[Row]) -> Analysis {
         lag,
         real_time,
         frame_budgets,
+        motion,
     }
 }
 
@@ -480,6 +555,33 @@ pub fn headline(s: &Summary) -> String {
             opt(r.median_error, 4),
             ratio_text(r.flicker_ratio)
         );
+    }
+    if !a.motion.is_empty() {
+        let _ = writeln!(
+            t,
+            "motion (median {} while moving; settle frames after it stops; ghost FLIP in uncovered pixels / elsewhere, medians over frames):",
+            a.metric
+        );
+        for r in &a.motion {
+            let _ = writeln!(
+                t,
+                "  {:<40} moving {:>10}  settles in {:>5}  ghost {:>10} / {:>10} = {}",
+                r.label,
+                opt(r.moving_error, 4),
+                r.settle_frames.map_or(
+                    if r.steady_error.is_some() {
+                        "never"
+                    } else {
+                        "—"
+                    }
+                    .into(),
+                    |f| f.to_string()
+                ),
+                opt(r.ghost_flip, 4),
+                opt(r.rest_flip, 4),
+                ratio_text(r.ghost_ratio)
+            );
+        }
     }
     for l in &a.lag {
         let _ = writeln!(
@@ -786,6 +888,42 @@ pub fn markdown(s: &Summary) -> String {
                 l.settle_frames
                     .map_or("not settled".into(), |f| f.to_string()),
                 opt(l.settle_ms, 1)
+            );
+        }
+    }
+    if !a.motion.is_empty() {
+        let stop = match s.motion_stop_frame {
+            Some(f) => format!("The motion stops at frame {f} (`[scene] play_until`); settled: {} under {}× its steady level after the stop (median of the last scored frames, up to 8).", a.metric, s.settings.settle_factor),
+            None => "The motion does not stop in this run (set `[scene] play_until` to measure settling).".into(),
+        };
+        let _ = writeln!(
+            m,
+            "\n## Motion\n\n{stop} Ghosting: FLIP in the pixels a moving object uncovered in the {} frames before a scored frame, against the rest of that frame (medians over the frames that have such pixels).\n",
+            s.settings.ghost_frames
+        );
+        let _ = writeln!(m, "| run | median {} while moving | at the stop | steady | settle frames | settle GPU ms | frames with ghosts | ghost FLIP | elsewhere | ratio |\n| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |", a.metric);
+        for r in &a.motion {
+            let _ = writeln!(
+                m,
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+                r.label,
+                opt(r.moving_error, 4),
+                opt(r.error_at_stop, 4),
+                opt(r.steady_error, 4),
+                r.settle_frames.map_or(
+                    if r.steady_error.is_some() {
+                        "not settled"
+                    } else {
+                        "—"
+                    }
+                    .into(),
+                    |f| f.to_string()
+                ),
+                opt(r.settle_ms, 1),
+                r.ghost_frames,
+                opt(r.ghost_flip, 4),
+                opt(r.rest_flip, 4),
+                ratio_text(r.ghost_ratio)
             );
         }
     }

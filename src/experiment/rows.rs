@@ -50,6 +50,18 @@ pub struct Row {
     /// The same between this frame's and the previous frame's references.
     #[serde(default)]
     pub flicker_reference: Option<f64>,
+    /// A playing scene: the frame's scene time (seconds).
+    #[serde(default)]
+    pub scene_time: Option<f64>,
+    /// A playing scene: pixels a moving object uncovered in the `ghost_frames` frames before
+    /// this one (where a lagging cache leaves a ghost).
+    #[serde(default)]
+    pub ghost_pixels: u32,
+    /// Mean FLIP over those pixels, and over the rest of the image.
+    #[serde(default)]
+    pub ghost_flip: Option<f64>,
+    #[serde(default)]
+    pub rest_flip: Option<f64>,
     /// GPU ms of this frame per pass: `name=ms;name=ms`.
     pub passes: String,
 }
@@ -133,6 +145,9 @@ pub struct Summary {
     pub total_runs: usize,
     pub shards: Vec<Shard>,
     pub references: Vec<ReferenceInfo>,
+    /// A playing scene that stops (`[scene] play_until`): the first frame of the held pose.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub motion_stop_frame: Option<u32>,
     pub runs: Vec<RunSummary>,
     /// Recomputed from the rows whenever outputs are written (merges included), so it is not read back.
     #[serde(skip_deserializing, default)]

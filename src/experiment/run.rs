@@ -281,6 +281,7 @@ pub fn converge(gpu: Arc<Gpu>, p: &LoadedPreset, opts: &ConvergeOptions) -> Resu
             Some(plan) => plan.infos.clone(),
             None => states.iter().map(|s| s.info.clone()).collect(),
         },
+        motion_stop_frame: plan.as_ref().and_then(|p| p.motion_stop_frame),
         runs: summaries,
         analysis: Analysis::default(),
     };
@@ -354,18 +355,10 @@ fn real_time_plan(
     let setup = jobs::reference_setup(p);
     let state_of = |f: u32| events.iter().filter(|e| e.frame <= f).count();
     // A scene that plays (`scene.time_scale`): frame f is at the pose the engines give it,
-    // t0 + f × time_scale / PLAYBACK_FPS, and its reference is of that pose.
-    let motion = states[0]
-        .scene
-        .motion
-        .clone()
-        .filter(|m| m.time_scale != 0.0);
-    let t0 = states[0].scene.posed_at.unwrap_or(0.0);
-    let frame_time = |f: u32| {
-        motion
-            .as_ref()
-            .map(|m| t0 + f as f32 * m.time_scale / crate::render::engine::PLAYBACK_FPS)
-    };
+    // t0 + f × time_scale / PLAYBACK_FPS (held at `play_until`), and its reference is of that
+    // pose.
+    let poses = realtime::FramePoses::new(&states[0].scene);
+    let frame_time = |f: u32| poses.time(f);
     let wanted: Vec<(u32, usize, u32, String)> = realtime::reference_frames(exp.frames, every)
         .into_iter()
         .map(|f| {
@@ -399,14 +392,11 @@ fn real_time_plan(
     for (f, state, seed, key) in &wanted {
         let started = std::time::Instant::now();
         let fresh = missing.iter().any(|m| m.0 == *f);
-        let mut scene = (*states[*state].scene).clone();
-        if let (Some(m), Some(t)) = (&motion, frame_time(*f)) {
-            // The pose of frame f, held still while its reference accumulates.
-            let mut held = (**m).clone();
-            held.time_scale = 0.0;
-            held.apply(&mut scene, t)?;
-            scene.motion = Some(Arc::new(held));
-        }
+        // The pose of frame f, held still while its reference accumulates.
+        let scene = match frame_time(*f) {
+            Some(_) => realtime::FramePoses::new(&states[*state].scene).scene(*f)?,
+            None => (*states[*state].scene).clone(),
+        };
         let (image, path) = jobs::reference_image_seeded(
             gpu.clone(),
             p,
@@ -443,8 +433,14 @@ fn real_time_plan(
         });
     }
     bar.finish_and_clear();
-    let reprojection =
-        realtime::reprojection_maps(&states[0].scene, &cameras, every, p.preset.render.size);
+    let cpu = realtime::cpu_frames(
+        &poses,
+        &cameras,
+        every,
+        exp.ghost_frames,
+        p.preset.render.size,
+    )?;
+    let reprojection = cpu.reprojection;
     let tm = p.preset.tonemap;
     let mut reference_flicker = BTreeMap::new();
     for (f, map) in &reprojection {
@@ -464,6 +460,12 @@ fn real_time_plan(
         infos,
         reprojection,
         reference_flicker,
+        ghost_masks: cpu.ghost_masks,
+        motion_stop_frame: poses.stop_frame(exp.frames),
+        scene_times: (0..exp.frames)
+            .filter(|f| realtime::frame_use(*f, every) == FrameUse::Scored)
+            .filter_map(|f| Some((f, poses.time(f)?)))
+            .collect(),
     })
 }
 
@@ -791,12 +793,38 @@ fn evaluate(
                 row.flicker = realtime::flicker(&luminance, prev, map);
                 row.flicker_reference = plan.reference_flicker.get(&frame).copied();
             }
+            if let Some(mask) = plan.ghost_masks.get(&frame) {
+                let (ghost, rest) = masked_flip(&image, reference, tonemap, mask)?;
+                row.ghost_pixels = mask.iter().filter(|m| **m).count() as u32;
+                row.ghost_flip = ghost;
+                row.rest_flip = rest;
+            }
+            row.scene_time = plan.scene_times.get(&frame).map(|t| *t as f64);
             rows.push(row);
             *last_image = Some(image);
         }
         *previous = Some((frame, luminance));
     }
     Ok(())
+}
+
+/// Mean FLIP over the pixels of `mask` and over the others (None where a side has no pixel).
+/// FLIP rather than relMSE: bounded per pixel, so one firefly does not decide a ghost.
+fn masked_flip(
+    image: &Image,
+    reference: &Image,
+    tonemap: crate::compare::tonemap::Settings,
+    mask: &[bool],
+) -> Result<(Option<f64>, Option<f64>)> {
+    let map = flip::ldr_flip_map(image, reference, &tonemap)?;
+    let (mut sums, mut counts) = ([0.0f64; 2], [0usize; 2]);
+    for (e, m) in map.iter().zip(mask) {
+        let side = usize::from(*m);
+        sums[side] += *e as f64;
+        counts[side] += 1;
+    }
+    let mean = |k: usize| (counts[k] > 0).then(|| sums[k] / counts[k] as f64);
+    Ok((mean(1), mean(0)))
 }
 
 /// One CSV row for a scored frame (the run's identity is filled in by `label_rows`).
@@ -854,6 +882,10 @@ fn score_row(
         flip,
         flicker: None,
         flicker_reference: None,
+        scene_time: None,
+        ghost_pixels: 0,
+        ghost_flip: None,
+        rest_flip: None,
         passes: report
             .gpu_ms_by_pass
             .iter()

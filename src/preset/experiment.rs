@@ -51,6 +51,10 @@ pub struct ExperimentSettings {
     /// switched on, where the error before the event is not a fair target.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub settle_error: Option<f64>,
+    /// Real-time mode on a playing scene: a scored frame's ghost mask holds the pixels a
+    /// moving object covered in one of this many frames before it and no longer covers.
+    #[serde(default = "default_ghost_frames")]
+    pub ghost_frames: u32,
     /// `accumulate` (default): runs average frames as the viewer shows them and are scored as
     /// they converge. `real-time`: every displayed frame is scored on its own against the
     /// reference of that frame; every technique runs with `accumulate = false` (the reference
@@ -82,6 +86,9 @@ fn default_frames() -> u32 {
 }
 fn default_error_every() -> u32 {
     1
+}
+fn default_ghost_frames() -> u32 {
+    10
 }
 fn default_settle_factor() -> f64 {
     1.1

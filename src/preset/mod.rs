@@ -211,6 +211,15 @@ pub struct SceneRef {
         deserialize_with = "time_scale_f32"
     )]
     pub time_scale: f32,
+    /// Playback stops at this scene time and holds the pose there (with a positive
+    /// `time_scale`): a real-time experiment then measures how long each technique takes to
+    /// settle after the motion stops. Unset: playback loops on.
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "time_f32"
+    )]
+    pub play_until: Option<f32>,
 }
 
 fn time_scale_f32<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<f32, D::Error> {
@@ -623,7 +632,10 @@ impl LoadedPreset {
         let mut scene = gltf_load::load_posed(&path, s.environment.is_some(), pose.as_ref())?;
         if s.time_scale != 0.0 {
             match scene.motion.as_mut().map(std::sync::Arc::make_mut) {
-                Some(m) => m.time_scale = s.time_scale,
+                Some(m) => {
+                    m.time_scale = s.time_scale;
+                    m.play_until = s.play_until;
+                }
                 None => bail!(
                     "scene.time_scale = {} plays animations, but nothing in {} moves (no animated mesh or light)",
                     s.time_scale,
@@ -639,7 +651,11 @@ impl LoadedPreset {
     /// silently changing nothing.
     fn pose_builtin(&self, scene: &mut Scene) -> Result<()> {
         let s = &self.preset.scene;
-        if s.time.is_none() && s.animation.is_none() && s.time_scale == 0.0 {
+        if s.time.is_none()
+            && s.animation.is_none()
+            && s.time_scale == 0.0
+            && s.play_until.is_none()
+        {
             return Ok(());
         }
         let Some(motion) = scene.motion.as_mut().map(std::sync::Arc::make_mut) else {
@@ -659,6 +675,7 @@ impl LoadedPreset {
             motion.clip = Some(name.clone());
         }
         motion.time_scale = s.time_scale;
+        motion.play_until = s.play_until;
         let motion = motion.clone();
         if let Some(t) = s.time {
             motion.apply(scene, t)?;

@@ -466,7 +466,12 @@ impl Engine {
             self.posed_frame_done = true;
             return Ok(());
         }
-        self.scene_time += motion.time_scale / PLAYBACK_FPS;
+        let next = motion.time_after(self.scene_time, 1, PLAYBACK_FPS);
+        if next == self.scene_time {
+            // Held at `play_until`: nothing moves, and the output accumulates again.
+            return Ok(());
+        }
+        self.scene_time = next;
         self.pose_scene(&motion)
     }
 

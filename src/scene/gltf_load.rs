@@ -244,6 +244,7 @@ fn load_inner(path: &Path, environment: bool, pose: Option<&PoseRequest>) -> Res
         meshes: Vec::new(),
         lights: Vec::new(),
         time_scale: 0.0,
+        play_until: None,
     };
     for node in doc.nodes() {
         for child in node.children() {

@@ -60,6 +60,9 @@ pub struct Motion {
     /// Playback speed (`[scene] time_scale`): scene seconds per second of frames; 0 holds the
     /// pose.
     pub time_scale: f32,
+    /// Playback stops at this scene time and holds that pose (`[scene] play_until`): the frames
+    /// after it show how each cache settles once the motion stops.
+    pub play_until: Option<f32>,
 }
 
 impl std::fmt::Debug for Motion {
@@ -85,6 +88,16 @@ impl Motion {
     /// Instances the animations move.
     pub fn moving_instances(&self) -> usize {
         self.meshes.len()
+    }
+
+    /// Scene time `frames` frames after `t0` at `fps` frames a second of playback, held at
+    /// `play_until` once it is reached (moving forwards).
+    pub fn time_after(&self, t0: f32, frames: u32, fps: f32) -> f32 {
+        let t = t0 + frames as f32 * self.time_scale / fps;
+        match self.play_until {
+            Some(u) if self.time_scale > 0.0 && t0 <= u => t.min(u),
+            _ => t,
+        }
     }
 
     /// The longest clip that plays (seconds); playback loops over each clip's own length.
@@ -206,6 +219,7 @@ impl MotionBuilder {
                 meshes: Vec::new(),
                 lights: Vec::new(),
                 time_scale: 0.0,
+                play_until: None,
             },
             tracks: Vec::new(),
             clip: clip.to_string(),

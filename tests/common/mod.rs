@@ -459,3 +459,27 @@ pub fn animated_box_room(dir: &std::path::Path) -> (std::path::PathBuf, KeyData)
     std::fs::write(&animated, doc.to_string()).unwrap();
     (animated, data)
 }
+
+/// Distance from `p` to triangle `t` (closest point on the triangle).
+pub fn point_triangle_distance(p: glam::Vec3, t: &[glam::Vec3; 3]) -> f32 {
+    let (a, b, c) = (t[0], t[1], t[2]);
+    let n = (b - a).cross(c - a);
+    if n.length_squared() > 0.0 {
+        let n = n.normalize();
+        let q = p - n * (p - a).dot(n);
+        let inside = [(a, b), (b, c), (c, a)]
+            .iter()
+            .all(|(u, v)| (*v - *u).cross(q - *u).dot(n) >= 0.0);
+        if inside {
+            return (p - q).length();
+        }
+    }
+    [(a, b), (b, c), (c, a)]
+        .iter()
+        .map(|(u, v)| {
+            let e = *v - *u;
+            let s = ((p - *u).dot(e) / e.length_squared().max(1e-30)).clamp(0.0, 1.0);
+            (p - (*u + e * s)).length()
+        })
+        .fold(f32::MAX, f32::min)
+}

@@ -223,6 +223,21 @@ impl RestirLighting {
         }
     }
 
+    /// The GI reservoirs' sample points (xyz, w = 1 when the reservoir holds one) this frame's
+    /// temporal pass wrote (tests: a reused point on a moving object moved with it).
+    pub fn gi_temporal_points(&self, gpu: &Gpu) -> anyhow::Result<Vec<[f32; 4]>> {
+        let Some(buffer) = &self.gi.reservoirs else {
+            return Ok(Vec::new());
+        };
+        let px = (self.extent[0] * self.extent[1]) as usize;
+        // 16 floats a reservoir, three segments of px: the temporal pass's is the third.
+        let all: Vec<[f32; 16]> = crate::gpu::readback::read_buffer(gpu, buffer, 3 * px)?;
+        Ok(all[2 * px..]
+            .iter()
+            .map(|r| [r[0], r[1], r[2], r[3]])
+            .collect())
+    }
+
     /// Forgets the DI reservoirs (camera cut, parameter change).
     pub fn reset(&self, gpu: &Gpu) {
         let mut enc = gpu.device.create_command_encoder(&Default::default());

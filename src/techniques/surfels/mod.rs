@@ -610,6 +610,27 @@ impl Surfels {
         readback::read_buffer(gpu, &r.pixel_direct, pixels).map(Some)
     }
 
+    /// Every live surfel's position and normal, and the triangle it sits on (BVH order + 1,
+    /// 0: none): tests check that surfels on moving objects move with them.
+    pub fn surfel_positions(&self, gpu: &Gpu) -> Result<Vec<(glam::Vec3, glam::Vec3, u32)>> {
+        let Some(r) = &self.res else {
+            return Ok(Vec::new());
+        };
+        let surfels: Vec<[f32; 12]> =
+            readback::read_buffer(gpu, &r.surfels, r.gpu_params.max_surfels as usize)?;
+        Ok(surfels
+            .iter()
+            .filter(|s| s[3] > 0.0)
+            .map(|s| {
+                (
+                    glam::Vec3::new(s[0], s[1], s[2]),
+                    glam::Vec3::new(s[4], s[5], s[6]),
+                    s[7].to_bits(),
+                )
+            })
+            .collect())
+    }
+
     /// Every live surfel's integrator state.
     pub fn surfel_states(&self, gpu: &Gpu) -> Result<Vec<SurfelSnapshot>> {
         let Some(r) = &self.res else {
