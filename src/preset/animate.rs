@@ -223,7 +223,7 @@ impl AnimateEntry {
                 let n = values.len();
                 let slope = |a: usize, b: usize| (values[b] - values[a]) / (t[b] - t[a]);
                 let mut keys = Vec::with_capacity(3 * n);
-                for k in 0..n {
+                for (k, &value) in values.iter().enumerate() {
                     let m = if n == 1 {
                         Vec4::ZERO
                     } else if k == 0 {
@@ -233,7 +233,7 @@ impl AnimateEntry {
                     } else {
                         slope(k - 1, k + 1)
                     };
-                    keys.extend([m, values[k], m]);
+                    keys.extend([m, value, m]);
                 }
                 (keys, Interpolation::CubicSpline)
             }
