@@ -330,6 +330,9 @@ pub fn reference_key_for_camera(p: &LoadedPreset, camera: &crate::scene::Camera)
     if s.time.is_some() || s.animation.is_some() {
         canonical["pose"] = serde_json::json!([s.time, s.animation]);
     }
+    if !s.animate.is_empty() {
+        canonical["animate"] = serde_json::json!(s.animate);
+    }
     let mut h = fnv::FnvHasher::default();
     h.write(canonical.to_string().as_bytes());
     format!("{:016x}", h.finish())

@@ -1627,3 +1627,242 @@ fn playback_reposes_like_a_load_and_rebuilds_only_the_top_level() {
     eprintln!("playback: {hits} of 10000 rays hit, the same t as the flat BVH of the pose");
     assert!(hits > 2_000, "{hits}");
 }
+
+/// A Cornell preset with `[[scene.animate]]` tables (after `[scene] source = "cornell"`).
+fn animated_cornell(tables: &str, extra_scene: &str) -> Result<gilab::scene::Scene, String> {
+    let text = format!("[scene]\nsource = \"cornell\"\n{extra_scene}\n{tables}");
+    LoadedPreset::from_text(&text, Some(Path::new("p.toml")))
+        .and_then(|p| p.load_scene())
+        .map_err(|e| e.to_string())
+}
+
+/// The positions of a named object's triangles, corner by corner.
+fn object_corners(scene: &gilab::scene::Scene, name: &str) -> Vec<Vec3> {
+    let o = scene
+        .objects
+        .iter()
+        .find(|o| o.name == name)
+        .unwrap_or_else(|| panic!("no object {name}"));
+    let first = o.first_triangle as usize;
+    scene.triangle_positions()[first..first + o.triangle_count as usize]
+        .iter()
+        .flatten()
+        .copied()
+        .collect()
+}
+
+#[test]
+fn preset_keyframes_move_named_objects_of_builtins() {
+    let still = builtin::cornell();
+    // Naming adds no triangle: the objects cover the scene's 34 triangles in order.
+    let names: Vec<(&str, u32, u32)> = still
+        .objects
+        .iter()
+        .map(|o| (o.name.as_str(), o.first_triangle, o.triangle_count))
+        .collect();
+    assert_eq!(
+        names,
+        [
+            ("floor", 0, 2),
+            ("ceiling", 2, 2),
+            ("back wall", 4, 2),
+            ("green wall", 6, 2),
+            ("red wall", 8, 2),
+            ("light", 10, 2),
+            ("short box", 12, 12),
+            ("tall box", 24, 12)
+        ]
+    );
+    assert_eq!(still.triangles.len(), 36);
+    let loaded = LoadedPreset::load_or_default(None)
+        .unwrap()
+        .load_scene()
+        .unwrap();
+    assert!(loaded.instances.is_empty() && loaded.motion.is_none());
+    assert_eq!(loaded.triangle_positions(), still.triangle_positions());
+
+    let tables = r#"
+[[scene.animate]]
+object = "tall box"
+times = [0.0, 1.0]
+rotation_deg = [[0, 0, 0], [0, 90, 0]]
+
+[[scene.animate]]
+object = "light"
+times = [0.0, 2.0]
+translation = [[0, 0, 0], [1.0, -1.0, 0]]
+
+[[scene.animate]]
+object = "short box"
+times = [0.0, 1.0, 2.0]
+translation = [[0, 0, 0], [0, 0.5, 0], [0, 1, 0]]
+interpolation = "step"
+
+[[scene.animate]]
+object = "back wall"
+times = [0.0, 1.0, 2.0]
+translation = [[0, 0, 0], [0, 1, 0], [0, 0, 0]]
+interpolation = "cubicspline"
+"#;
+    let t = 0.5f32;
+    let posed = animated_cornell(tables, &format!("time = {t}")).unwrap();
+    assert_eq!(posed.triangles.len(), still.triangles.len());
+    assert_eq!(posed.triangle_material, still.triangle_material);
+    assert_eq!(posed.instances.len(), 4, "one instance per animated object");
+    let close = |a: &[Vec3], b: &[Vec3], what: &str| {
+        assert_eq!(a.len(), b.len());
+        for (p, q) in a.iter().zip(b) {
+            assert!(p.distance(*q) < 1e-5, "{what}: {p} vs {q}");
+        }
+    };
+    // LINEAR rotation: 45° about +Y at 0.5 s, about the box's bounding-box centre.
+    let rest = object_corners(&still, "tall box");
+    let (lo, hi) = rest.iter().fold(
+        (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+        |(l, h), p| (l.min(*p), h.max(*p)),
+    );
+    let pivot = (lo + hi) * 0.5;
+    let turn = glam::Quat::from_rotation_y(45f32.to_radians());
+    let want: Vec<Vec3> = rest.iter().map(|p| pivot + turn * (*p - pivot)).collect();
+    close(&object_corners(&posed, "tall box"), &want, "tall box");
+    // LINEAR translation: a quarter of the way at 0.5 s of 2; an emitter like any other.
+    let want: Vec<Vec3> = object_corners(&still, "light")
+        .iter()
+        .map(|p| *p + Vec3::new(0.25, -0.25, 0.0))
+        .collect();
+    close(&object_corners(&posed, "light"), &want, "light");
+    // STEP: the first key's value until 1 s.
+    close(
+        &object_corners(&posed, "short box"),
+        &object_corners(&still, "short box"),
+        "short box at 0.5 s",
+    );
+    let at = |t: f32| animated_cornell(tables, &format!("time = {t}")).unwrap();
+    let later = at(1.5);
+    let want: Vec<Vec3> = object_corners(&still, "short box")
+        .iter()
+        .map(|p| *p + Vec3::new(0.0, 0.5, 0.0))
+        .collect();
+    close(
+        &object_corners(&later, "short box"),
+        &want,
+        "short box at 1.5 s",
+    );
+    // CUBICSPLINE, Catmull-Rom tangents: keys 0, 1, 0 at 0, 1, 2 s; at 0.5 s the tangents are
+    // 1 (one-sided) and 0, so y = 0.125 + 0.5 = 0.625.
+    let want: Vec<Vec3> = object_corners(&still, "back wall")
+        .iter()
+        .map(|p| *p + Vec3::new(0.0, 0.625, 0.0))
+        .collect();
+    close(&object_corners(&posed, "back wall"), &want, "back wall");
+    // Everything else is the still scene's, bit for bit.
+    let moved: Vec<usize> = posed
+        .instances
+        .iter()
+        .flat_map(|i| i.first_triangle as usize..(i.first_triangle + i.triangle_count) as usize)
+        .collect();
+    let (a, b) = (posed.triangle_positions(), still.triangle_positions());
+    for k in (0..a.len()).filter(|k| !moved.contains(k)) {
+        assert_eq!(a[k], b[k], "triangle {k}");
+    }
+    // Without `time` the scene is at 0; `time_scale` plays the clip "animate", and a frame
+    // re-posed to t equals the preset posed at t.
+    let mut playing = animated_cornell(tables, "time_scale = 1.0").unwrap();
+    close(
+        &object_corners(&playing, "tall box"),
+        &object_corners(&still, "tall box"),
+        "tall box at 0",
+    );
+    let motion = playing.motion.clone().unwrap();
+    assert_eq!(motion.time_scale, 1.0);
+    assert_eq!(playing.animations.len(), 1);
+    assert_eq!(playing.animations[0].name, "animate");
+    let moved = motion.apply(&mut playing, 1.5).unwrap();
+    assert_eq!(moved.instances.len(), 4);
+    assert_eq!(playing.positions, later.positions);
+    assert_eq!(playing.instances, later.instances);
+    // Spheres share vertices: the object gets vertices of its own, appended.
+    let glossy = r#"
+[[scene.animate]]
+object = "sphere r0.3"
+times = [0.0, 1.0]
+translation = [[0, 0, 0], [0, 2, 0]]
+"#;
+    let text = format!("[scene]\nsource = \"glossy\"\ntime = 0.5\n{glossy}");
+    let posed = LoadedPreset::from_text(&text, None)
+        .unwrap()
+        .load_scene()
+        .unwrap();
+    let rest = builtin::build("glossy", &Default::default()).unwrap();
+    let want: Vec<Vec3> = object_corners(&rest, "sphere r0.3")
+        .iter()
+        .map(|p| *p + Vec3::Y)
+        .collect();
+    close(&object_corners(&posed, "sphere r0.3"), &want, "sphere");
+    assert_eq!(
+        object_corners(&posed, "sphere r0.7"),
+        object_corners(&rest, "sphere r0.7")
+    );
+}
+
+#[test]
+fn preset_keyframe_errors_are_clear() {
+    let entry = |body: &str| format!("[[scene.animate]]\nobject = \"tall box\"\n{body}\n");
+    let cases = [
+        (entry("times = [0.0]\ntranslation = [[0, 0, 0]]").replace("tall box", "tall bx"), "p.toml:4: scene.animate (object \"tall bx\"): the scene 'cornell' has no such object (it has: floor, ceiling, back wall, green wall, red wall, light, short box, tall box)"),
+        (entry("times = [0.0, 1.0, 1.0]\ntranslation = [[0, 0, 0], [1, 0, 0], [2, 0, 0]]"), "`times` must increase strictly: key 2 (1) is not after key 1 (1)"),
+        (entry("times = [0.0, 1.0]\ntranslation = [[0, 0, 0]]"), "`translation` has 1 values for 2 key times (one per key)"),
+        (entry("times = [0.0, 1.0]\nscale = [[1, 1, 1], [1, 1]]"), "`scale` value 1 has 2 numbers, expected 3 ([x, y, z])"),
+        (entry("times = [0.0]\nrotation = [[0, 0, 1]]"), "`rotation` value 0 has 3 numbers, expected 4 ([x, y, z, w])"),
+        (entry("times = [0.0]\nrotation = [[0, 0, 1, 0]]\nrotation_deg = [[0, 0, 0]]"), "give `rotation` (quaternions) or `rotation_deg`, not both"),
+        (entry("times = [0.0, 1.0]"), "nothing to animate"),
+        (entry("times = [0.0]\nscale = [[1, 1, 1]]\ninterpolation = \"cubic\""), "unknown variant `cubic`"),
+        (entry("times = [0.0]\ntranslation = [[0, 0, 0]]\n[[scene.animate]]\nobject = \"tall box\"\ntimes = [1.0]\ntranslation = [[1, 0, 0]]"), "its translation is animated twice"),
+    ];
+    for (tables, want) in cases {
+        let err = animated_cornell(&tables, "").unwrap_err();
+        eprintln!("{err}");
+        assert!(err.contains(want), "{err}\n  wanted: {want}");
+        assert!(!err.contains('\n'), "{err}");
+    }
+    // Malformed tables are reported where they are written (line and column).
+    let err = animated_cornell(
+        &entry("times = [1.0, 0.5]\nscale = [[1, 1, 1], [2, 2, 2]]"),
+        "",
+    )
+    .unwrap_err();
+    assert!(err.starts_with("p.toml:4:"), "{err}");
+    // Scenes that name no object, and glTF files, are told what to do.
+    let text = format!(
+        "[scene]\nsource = \"furnace\"\n{}",
+        entry("times = [0.0]\nscale = [[1, 1, 1]]")
+    );
+    let err = LoadedPreset::from_text(&text, None)
+        .unwrap()
+        .load_scene()
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("'furnace' names none (cornell, glossy and material-balls do)"),
+        "{err}"
+    );
+    let dir = std::env::temp_dir().join(format!("gilab-animate-{}", std::process::id()));
+    let (file, _) = common::animated_box_room(&dir);
+    let text = format!(
+        "[scene]\nsource = {:?}\n{}",
+        file.display().to_string(),
+        entry("times = [0.0]\nscale = [[1, 1, 1]]")
+    );
+    let err = LoadedPreset::from_text(&text, None)
+        .unwrap()
+        .load_scene()
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("come from the file"), "{err}");
+    // Still refused on a built-in without motion and without keyframes.
+    let err = animated_cornell("", "time_scale = 1.0").unwrap_err();
+    assert!(
+        err.contains("the built-in scene 'cornell' has none"),
+        "{err}"
+    );
+}

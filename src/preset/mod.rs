@@ -3,6 +3,7 @@
 //! CLI overrides (`--scene`, `--technique`, `--size`, `--spp`, `--seed`, `--set key=value`) are
 //! applied to the parsed document before it is checked again.
 
+pub mod animate;
 pub mod experiment;
 
 use crate::scene::animation::PoseRequest;
@@ -220,6 +221,10 @@ pub struct SceneRef {
         deserialize_with = "time_f32"
     )]
     pub play_until: Option<f32>,
+    /// `[[scene.animate]]`: keyframes that move named objects of a built-in scene (the clip
+    /// "animate"; docs/scenes.md).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub animate: Vec<animate::AnimateEntry>,
 }
 
 fn time_scale_f32<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<f32, D::Error> {
@@ -445,6 +450,7 @@ impl LoadedPreset {
             // Parameters of the preset's scene do not carry over to another scene.
             if let Some(toml::Value::Table(scene)) = doc.get_mut("scene") {
                 scene.remove("params");
+                scene.remove("animate");
             }
             // Relative to where the user typed it, not to the preset.
             let p = Path::new(s);
@@ -598,6 +604,7 @@ impl LoadedPreset {
         let src = &self.preset.scene.source;
         let Some(path) = self.scene_path() else {
             let mut scene = builtin::build(src, &self.preset.scene.params)?;
+            self.animate_builtin(&mut scene)?;
             self.pose_builtin(&mut scene)?;
             return Ok(scene);
         };
@@ -610,6 +617,7 @@ impl LoadedPreset {
             if !path.exists() {
                 // Most likely a misspelt built-in name (its error lists the built-ins).
                 let mut scene = builtin::build(src, &self.preset.scene.params)?;
+                self.animate_builtin(&mut scene)?;
                 self.pose_builtin(&mut scene)?;
                 return Ok(scene);
             }
@@ -625,6 +633,13 @@ impl LoadedPreset {
             );
         }
         let s = &self.preset.scene;
+        if !s.animate.is_empty() {
+            bail!(
+                "{}scene.animate moves objects of built-in scenes; the animations of {} come from the file (scene.time poses them, scene.time_scale plays them)",
+                self.animate_at(0),
+                path.display()
+            );
+        }
         let pose = (s.time.is_some() || s.animation.is_some()).then(|| PoseRequest {
             time: s.time.unwrap_or(0.0),
             clip: s.animation.clone(),
@@ -646,6 +661,42 @@ impl LoadedPreset {
         Ok(scene)
     }
 
+    /// `[[scene.animate]]` on a built-in scene: its objects move, posed at 0 unless
+    /// `scene.time` poses them elsewhere (`pose_builtin`).
+    fn animate_builtin(&self, scene: &mut Scene) -> Result<()> {
+        let s = &self.preset.scene;
+        if s.animate.is_empty() {
+            return Ok(());
+        }
+        animate::animate_objects(scene, &s.animate, |i| self.animate_at(i))?;
+        if s.time.is_none() {
+            if let Some(motion) = scene.motion.clone() {
+                motion.apply(scene, 0.0)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// `file:line: ` of the preset's `[[scene.animate]]` table number `i`, where the text
+    /// has it (empty otherwise: an inline table, or a preset made in code).
+    fn animate_at(&self, i: usize) -> String {
+        let Some(line) = self
+            .text
+            .lines()
+            .enumerate()
+            .filter(|(_, l)| l.trim_start().starts_with("[[scene.animate]]"))
+            .nth(i)
+            .map(|(n, _)| n + 1)
+        else {
+            return String::new();
+        };
+        let path = self
+            .path
+            .as_ref()
+            .map_or("<preset>".to_string(), |p| p.display().to_string());
+        format!("{path}:{line}: ")
+    }
+
     /// `scene.time`, `scene.animation` and `scene.time_scale` for a built-in scene: posed and
     /// played where it moves (`moving`); refused where it has nothing to move, rather than
     /// silently changing nothing.
@@ -660,7 +711,7 @@ impl LoadedPreset {
         }
         let Some(motion) = scene.motion.as_mut().map(std::sync::Arc::make_mut) else {
             bail!(
-                "scene.time, scene.animation and scene.time_scale pose and play animations; the built-in scene '{}' has none (the built-in 'moving' has)",
+                "scene.time, scene.animation and scene.time_scale pose and play animations; the built-in scene '{}' has none (the built-in 'moving' has, and [[scene.animate]] tables add keyframes to a built-in scene)",
                 s.source
             );
         };

@@ -137,43 +137,57 @@ pub fn cornell_with_lamp(lamp: Option<f32>) -> Scene {
     let light = s.add_material(Material::emitter("light", Vec3::new(17.0, 12.0, 4.0)));
     let (w, h, l) = (5.56, 5.488, 5.592);
     let v = Vec3::new;
-    s.add_quad(
-        v(0.0, 0.0, 0.0),
-        v(0.0, 0.0, l),
-        v(w, 0.0, l),
-        v(w, 0.0, 0.0),
-        white,
-    ); // floor
-    s.add_quad(
-        v(0.0, h, 0.0),
-        v(w, h, 0.0),
-        v(w, h, l),
-        v(0.0, h, l),
-        white,
-    ); // ceiling
-    s.add_quad(
-        v(0.0, 0.0, l),
-        v(0.0, h, l),
-        v(w, h, l),
-        v(w, 0.0, l),
-        white,
-    ); // back
-    s.add_quad(
-        v(0.0, 0.0, 0.0),
-        v(0.0, h, 0.0),
-        v(0.0, h, l),
-        v(0.0, 0.0, l),
-        green,
-    ); // x = 0: right as seen
-    s.add_quad(v(w, 0.0, 0.0), v(w, 0.0, l), v(w, h, l), v(w, h, 0.0), red); // x = w: left as seen
+    s.named("floor", |s| {
+        s.add_quad(
+            v(0.0, 0.0, 0.0),
+            v(0.0, 0.0, l),
+            v(w, 0.0, l),
+            v(w, 0.0, 0.0),
+            white,
+        )
+    });
+    s.named("ceiling", |s| {
+        s.add_quad(
+            v(0.0, h, 0.0),
+            v(w, h, 0.0),
+            v(w, h, l),
+            v(0.0, h, l),
+            white,
+        )
+    });
+    s.named("back wall", |s| {
+        s.add_quad(
+            v(0.0, 0.0, l),
+            v(0.0, h, l),
+            v(w, h, l),
+            v(w, 0.0, l),
+            white,
+        )
+    });
+    // x = 0: right as seen.
+    s.named("green wall", |s| {
+        s.add_quad(
+            v(0.0, 0.0, 0.0),
+            v(0.0, h, 0.0),
+            v(0.0, h, l),
+            v(0.0, 0.0, l),
+            green,
+        )
+    });
+    // x = w: left as seen.
+    s.named("red wall", |s| {
+        s.add_quad(v(w, 0.0, 0.0), v(w, 0.0, l), v(w, h, l), v(w, h, 0.0), red)
+    });
     let y = h - 0.001;
-    s.add_quad(
-        v(2.13, y, 2.27),
-        v(3.43, y, 2.27),
-        v(3.43, y, 3.32),
-        v(2.13, y, 3.32),
-        light,
-    );
+    s.named("light", |s| {
+        s.add_quad(
+            v(2.13, y, 2.27),
+            v(3.43, y, 2.27),
+            v(3.43, y, 3.32),
+            v(2.13, y, 3.32),
+            light,
+        )
+    });
     if let Some(radiance) = lamp {
         // Back wall, left of the tall block as seen, facing the camera; warm white.
         let m = s.add_material(Material::emitter(
@@ -181,23 +195,29 @@ pub fn cornell_with_lamp(lamp: Option<f32>) -> Scene {
             Vec3::new(1.0, 0.85, 0.6) * radiance.max(0.0),
         ));
         let z = l - 0.001;
-        s.add_quad(
-            v(1.2, 2.0, z),
-            v(1.2, 2.6, z),
-            v(2.0, 2.6, z),
-            v(2.0, 2.0, z),
-            m,
-        );
+        s.named("lamp", |s| {
+            s.add_quad(
+                v(1.2, 2.0, z),
+                v(1.2, 2.6, z),
+                v(2.0, 2.6, z),
+                v(2.0, 2.0, z),
+                m,
+            )
+        });
     }
-    let block = |s: &mut Scene, top: [Vec3; 4]| {
+    let block = |s: &mut Scene, name: &str, top: [Vec3; 4]| {
         let b = top.map(|t| Vec3::new(t.x, 0.0, t.z));
-        s.add_box(
-            [b[0], b[1], b[2], b[3], top[0], top[1], top[2], top[3]],
-            white,
-        );
+        s.named(name, |s| {
+            s.add_box(
+                [b[0], b[1], b[2], b[3], top[0], top[1], top[2], top[3]],
+                white,
+            )
+        });
     };
+    // The short box, then the tall one.
     block(
         &mut s,
+        "short box",
         [
             v(1.30, 1.65, 0.65),
             v(0.82, 1.65, 2.25),
@@ -207,6 +227,7 @@ pub fn cornell_with_lamp(lamp: Option<f32>) -> Scene {
     );
     block(
         &mut s,
+        "tall box",
         [
             v(4.23, 3.30, 2.47),
             v(2.65, 3.30, 2.96),
@@ -554,13 +575,15 @@ pub fn glossy() -> Scene {
         v(6.0, 4.0, -4.0),
         wall,
     );
-    s.add_quad(
-        v(-2.0, 3.99, -1.0),
-        v(2.0, 3.99, -1.0),
-        v(2.0, 3.99, 1.0),
-        v(-2.0, 3.99, 1.0),
-        light,
-    );
+    s.named("light", |s| {
+        s.add_quad(
+            v(-2.0, 3.99, -1.0),
+            v(2.0, 3.99, -1.0),
+            v(2.0, 3.99, 1.0),
+            v(-2.0, 3.99, 1.0),
+            light,
+        )
+    });
     let colours = [
         v(0.95, 0.95, 0.95),
         v(1.0, 0.78, 0.34),
@@ -574,7 +597,9 @@ pub fn glossy() -> Scene {
             1.0,
             *rough,
         ));
-        add_uv_sphere(&mut s, v(-3.3 + 2.2 * i as f32, 0.9, -0.5), 0.9, m, 24, 48);
+        s.named(&format!("sphere r{rough}"), |s| {
+            add_uv_sphere(s, v(-3.3 + 2.2 * i as f32, 0.9, -0.5), 0.9, m, 24, 48)
+        });
     }
     s.sky = Vec3::splat(0.15);
     s.camera = Some(Camera {
@@ -927,7 +952,9 @@ pub fn material_balls() -> Scene {
             callisto: f.callisto,
             ..Material::lambert(name, f.base)
         });
-        add_uv_sphere(&mut s, v(-5.0 + 2.0 * i as f32, 0.8, 0.0), 0.8, m, 32, 64);
+        s.named(name, |s| {
+            add_uv_sphere(s, v(-5.0 + 2.0 * i as f32, 0.8, 0.0), 0.8, m, 32, 64)
+        });
     }
     // Key light low on the left: the terminator runs down the middle of each ball.
     s.lights.push(PunctualLight {

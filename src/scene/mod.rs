@@ -317,6 +317,17 @@ pub struct Scene {
     /// What the animations move and how to re-pose it (`[scene] time_scale` plays it); None
     /// when nothing moves.
     pub motion: Option<std::sync::Arc<motion::Motion>>,
+    /// Named triangle ranges of a built-in scene ("tall box", "light"): what a preset's
+    /// `[[scene.animate]]` can move. Naming changes no triangle.
+    pub objects: Vec<NamedObject>,
+}
+
+/// Scene triangles `first_triangle..first_triangle + triangle_count`, under a name.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NamedObject {
+    pub name: String,
+    pub first_triangle: u32,
+    pub triangle_count: u32,
 }
 
 /// One placement of a mesh: scene triangles `first_triangle..first_triangle + triangle_count`
@@ -343,6 +354,17 @@ impl Scene {
     pub fn add_material(&mut self, m: Material) -> u32 {
         self.materials.push(m);
         self.materials.len() as u32 - 1
+    }
+
+    /// Names the triangles `add` puts into the scene (`Scene::objects`).
+    pub fn named(&mut self, name: &str, add: impl FnOnce(&mut Scene)) {
+        let first = self.triangles.len();
+        add(self);
+        self.objects.push(NamedObject {
+            name: name.to_string(),
+            first_triangle: first as u32,
+            triangle_count: (self.triangles.len() - first) as u32,
+        });
     }
 
     /// Adds a triangle with flat normals (computed from the winding) and planar UVs.

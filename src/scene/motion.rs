@@ -14,8 +14,12 @@
 //! moving object is added at the origin and placed by a node of its own, which the clip's
 //! tracks animate.
 //!
-//! Not built yet: skins and morph targets (drawn in their bind pose at load), cameras that move,
-//! and keyframes written in presets (`[[scene.animate]]`).
+//! A preset's `[[scene.animate]]` moves a named object of a built-in scene
+//! (`Scene::objects`): [`MotionBuilder::named_object`] makes its triangles, where they are, an
+//! instance of its own placed by a node at the object's centre.
+//!
+//! Not built yet: skins and morph targets (drawn in their bind pose at load), and cameras that
+//! move.
 
 use super::animation::{posed_locals, Clip, PoseRequest, Trs};
 use super::animation::{Interpolation, Keyframes, Property, Track};
@@ -226,6 +230,129 @@ impl MotionBuilder {
         }
     }
 
+    /// Goes on with the scene's own motion (the built-in `moving`), or starts one.
+    pub fn continuing(scene: &mut Scene, clip: &str) -> MotionBuilder {
+        let mut b = MotionBuilder::new(clip);
+        if let Some(m) = scene.motion.take() {
+            b.motion = std::sync::Arc::unwrap_or_clone(m);
+        }
+        b
+    }
+
+    /// Makes the scene's triangles `first..first + count` (already placed) a moving object,
+    /// without changing their order or materials: an instance of its own, placed by the node
+    /// returned, at rest a translation to the triangles' bounding-box centre (the pivot of its
+    /// rotation and scale, also returned). Vertices shared with other triangles are copied.
+    pub fn named_object(
+        &mut self,
+        scene: &mut Scene,
+        first: usize,
+        count: usize,
+    ) -> Result<(usize, Vec3)> {
+        let range = first..first + count;
+        if count == 0 || range.end > scene.triangles.len() {
+            bail!("an object without triangles");
+        }
+        if scene.instances.iter().any(|i| {
+            let (a, n) = (i.first_triangle as usize, i.triangle_count as usize);
+            a < range.end && range.start < a + n
+        }) {
+            bail!("the object is already an instance of a mesh");
+        }
+        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        for t in &scene.triangles[range.clone()] {
+            for &v in t {
+                lo = lo.min(scene.positions[v as usize]);
+                hi = hi.max(scene.positions[v as usize]);
+            }
+        }
+        let pivot = (lo + hi) * 0.5;
+        // One vertex per corner, in triangle order: in place when the object already has
+        // them (`Scene::add_triangle`), else appended.
+        let fv = scene.triangles[first][0] as usize;
+        let in_place = scene.triangles[range.clone()]
+            .iter()
+            .enumerate()
+            .all(|(k, t)| (0..3).all(|c| t[c] as usize == fv + 3 * k + c))
+            && scene.triangles.iter().enumerate().all(|(k, t)| {
+                range.contains(&k)
+                    || t.iter()
+                        .all(|&v| !(fv..fv + 3 * count).contains(&(v as usize)))
+            });
+        let first_vertex = if in_place { fv } else { scene.positions.len() };
+        // One primitive per run of one material (emit_at writes them one after another).
+        let mut primitives: Vec<Primitive> = Vec::new();
+        for k in range.clone() {
+            let material = scene.triangle_material[k];
+            if primitives.last().is_none_or(|p| p.material != material) {
+                primitives.push(Primitive {
+                    material,
+                    positions: Vec::new(),
+                    normals: Vec::new(),
+                    uvs: Vec::new(),
+                    uvs1: (!scene.uvs1.is_empty()).then(Vec::new),
+                    tangents: (!scene.tangents.is_empty()).then(Vec::new),
+                });
+            }
+            let p = primitives.last_mut().expect("pushed above");
+            for v in scene.triangles[k].map(|v| v as usize) {
+                p.positions.push(scene.positions[v] - pivot);
+                p.normals.push(scene.normals[v]);
+                p.uvs.push(scene.uvs[v]);
+                if let Some(u) = &mut p.uvs1 {
+                    u.push(scene.uvs1[v]);
+                }
+                if let Some(t) = &mut p.tangents {
+                    t.push(scene.tangents[v]);
+                }
+            }
+        }
+        if !in_place {
+            let n = first_vertex + 3 * count;
+            scene.positions.resize(n, Vec3::ZERO);
+            scene.normals.resize(n, Vec3::ZERO);
+            scene.uvs.resize(n, glam::Vec2::ZERO);
+            if !scene.uvs1.is_empty() {
+                scene.uvs1.resize(n, glam::Vec2::ZERO);
+            }
+            if !scene.tangents.is_empty() {
+                scene.tangents.resize(n, Vec4::ZERO);
+            }
+            for (k, t) in scene.triangles[range.clone()].iter_mut().enumerate() {
+                let b = (first_vertex + 3 * k) as u32;
+                *t = [b, b + 1, b + 2];
+            }
+        }
+        let rest = Trs {
+            translation: pivot,
+            rotation: glam::Quat::IDENTITY,
+            scale: Vec3::ONE,
+        };
+        let transform = rest.matrix();
+        let mut vertex = first_vertex;
+        for p in &primitives {
+            vertex = emit_at(scene, p, transform, vertex);
+        }
+        let node = self.motion.parents.len();
+        self.motion.parents.push(None);
+        self.motion.rest_local.push(transform);
+        self.motion.rest_trs.push(rest);
+        self.motion.meshes.push(MovingMesh {
+            instance: scene.instances.len(),
+            node,
+            local: None,
+            primitives,
+            first_vertex,
+        });
+        scene.instances.push(MeshInstance {
+            mesh: 1_000_000 + node as u32,
+            transform,
+            first_triangle: first as u32,
+            triangle_count: count as u32,
+        });
+        Ok((node, pivot))
+    }
+
     /// Adds a moving object: `add` puts its triangles (one material) into the scene around
     /// the origin, in object space; the object is placed at `rest` and becomes an instance of
     /// its own, moved by the node returned (for `track`).
@@ -312,14 +439,14 @@ impl MotionBuilder {
         Ok(())
     }
 
-    /// The motion, into the scene (which then lists its clip).
+    /// The motion, into the scene (which then lists its clip after any it had).
     pub fn finish(mut self, scene: &mut Scene) {
         let clip = Clip {
             name: self.clip,
             tracks: self.tracks,
         };
-        scene.animations = vec![super::animation::ClipInfo::of(&clip)];
-        self.motion.clips = vec![clip];
+        scene.animations.push(super::animation::ClipInfo::of(&clip));
+        self.motion.clips.push(clip);
         scene.motion = Some(std::sync::Arc::new(self.motion));
     }
 }
