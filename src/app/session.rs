@@ -50,6 +50,9 @@ pub struct Run {
     costs: BTreeMap<u32, (f64, f64)>,
     errors_by_frame: BTreeMap<u32, Metrics>,
     gpu_ms_cum: f64,
+    /// The engine frame the curve starts at: the last reset, or the last pose the scene's
+    /// motion gave it (the accumulation restarts there, and so does the curve).
+    curve_from: u32,
     pub probe: PixelProbe,
 }
 
@@ -94,6 +97,7 @@ impl Run {
             costs: BTreeMap::new(),
             errors_by_frame: BTreeMap::new(),
             gpu_ms_cum: 0.0,
+            curve_from: 0,
         })
     }
 
@@ -115,6 +119,20 @@ impl Run {
         self.costs.clear();
         self.errors_by_frame.clear();
         self.gpu_ms_cum = 0.0;
+        self.curve_from = 0;
+        self.version += 1;
+    }
+
+    /// The scene moved to a new pose: the accumulated image starts over, so does the curve
+    /// (frames and GPU time counted from here; errors of earlier frames still in flight are
+    /// dropped).
+    fn restart_curve(&mut self) {
+        self.curve.clear();
+        self.costs.clear();
+        self.errors_by_frame.clear();
+        self.error = None;
+        self.gpu_ms_cum = 0.0;
+        self.curve_from = self.engine.frame_index;
         self.version += 1;
     }
 
@@ -146,6 +164,9 @@ impl Run {
         self.engine.poll_frames(false)?;
         let pixels = (self.engine.extent[0] * self.engine.extent[1]) as f64;
         for f in self.engine.take_completed() {
+            if f.report.frame_index < self.curve_from {
+                continue;
+            }
             self.gpu_ms_cum += f.report.gpu_ms;
             self.costs.insert(
                 f.report.frame_index,
@@ -156,6 +177,9 @@ impl Run {
         }
         self.probe.poll(&self.engine.gpu)?;
         for (frame, m) in self.metrics.poll(&self.engine.gpu)? {
+            if frame < self.curve_from {
+                continue;
+            }
             self.errors_by_frame.insert(frame, m);
             self.error = Some(m);
         }
@@ -169,7 +193,7 @@ impl Run {
             let m = self.errors_by_frame.remove(&k).expect("listed");
             let (gpu_ms, rays_per_pixel) = self.costs[&k];
             self.curve.push(ConvergencePoint {
-                frame: k + 1,
+                frame: k + 1 - self.curve_from,
                 gpu_ms,
                 rays_per_pixel,
                 mse: m.mse,
@@ -527,8 +551,12 @@ impl Session {
         self.scene_time = t;
         let mut failed = Vec::new();
         for r in &mut self.runs {
-            if let Err(e) = r.engine.set_scene_time(t) {
-                failed.push(format!("{}: {e:#}", r.label()));
+            if r.engine.scene_time == t {
+                continue;
+            }
+            match r.engine.set_scene_time(t) {
+                Ok(()) => r.restart_curve(),
+                Err(e) => failed.push(format!("{}: {e:#}", r.label())),
             }
         }
         if self.reference.engine.scene_time != t {
