@@ -33,6 +33,7 @@ const FLAG_ACCUMULATE: u32 = 16u;
 const FLAG_REFLECTIONS: u32 = 32u;
 const FLAG_CACHE_ONLY: u32 = 64u;
 const FLAG_SHARING: u32 = 128u;
+const FLAG_QUARTER_APPLY: u32 = 256u;
 
 // One surfel's geometry. radius 0 marks a free slot.
 struct Surfel {
@@ -309,6 +310,10 @@ fn footprint_d2(v: vec3<f32>, n: vec3<f32>, radius: f32) -> f32 {
 }
 
 // mark_seen: the surfels that weigh in have lit a visible pixel this frame (recycling).
+// With `mark_seen`: how far past its radius a surfel counts as seen (quarter-area apply: the
+// block's other pixels, which do not gather); 0 elsewhere.
+var<private> mark_reach: f32 = 0.0;
+
 fn gather(p: vec3<f32>, n: vec3<f32>, center: vec3<f32>, mark_seen: bool) -> Gather {
     var g = Gather(vec3<f32>(0.0), 0.0, 0.0, 0.0, vec3<f32>(0.0), 0.0, NONE, 0u);
     let cell = cell_of(p, center);
@@ -342,6 +347,9 @@ fn gather(p: vec3<f32>, n: vec3<f32>, center: vec3<f32>, mark_seen: bool) -> Gat
         if sampled && (!has_flag(FLAG_RADIAL_DEPTH) || t < 2.0 * r) {
             g.cell_irradiance += st.mean.xyz * n_w * vis;
             g.cell_weight += n_w * vis;
+        }
+        if mark_seen && mark_reach > 0.0 && t < r + mark_reach {
+            atomicMax(&seen[3u * slot], frame.frame_index);
         }
         let d2 = footprint_d2(v, sn, r);
         if d2 >= 1.0 {
@@ -393,6 +401,12 @@ fn gathered_irradiance(g: Gather) -> vec3<f32> {
 
 // Debug planes: plane 0 = (surfel id, coverage, rays of the surfel, MSME variance), plane 1 =
 // (grid cell, surfel age, 0, 0).
+// Quarter-area apply: the pixel a 2x2 block gathers at (its top-left), by block index.
+fn block_sample_pixel(block: u32) -> u32 {
+    let bx = (frame.size.x + 1u) / 2u;
+    return (2u * (block / bx)) * frame.size.x + 2u * (block % bx);
+}
+
 fn write_debug(pixel: u32, first_plane: vec4<f32>, second_plane: vec4<f32>) {
     let px = frame.size.x * frame.size.y;
     debug_out[pixel] = first_plane;

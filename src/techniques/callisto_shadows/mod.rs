@@ -138,7 +138,7 @@ const CALLISTO_AND_RESTIR_FILES: [&str; 11] = [
 ];
 
 /// With the cache parts' (compiled only with `gi_terminate = "lumen-cards"` or `"surfels"`).
-const SHADER_FILES: [&str; 36] = crate::render::concat_files(
+const SHADER_FILES: [&str; 37] = crate::render::concat_files(
     crate::render::concat_files::<15, 6, 21>(
         OWN_SHADER_FILES,
         crate::parts::surface_cache::SURFACE_CACHE_FILES,

@@ -70,7 +70,7 @@ pub const OWN_SHADER_FILES: [&str; 7] = [
 
 /// ReSTIR's files and the cache parts' (compiled only with `gi_terminate = "lumen-cards"` or
 /// `"surfels"`).
-const SHADER_FILES: [&str; 28] = crate::render::concat_files(
+const SHADER_FILES: [&str; 29] = crate::render::concat_files(
     crate::render::concat_files::<7, 6, 13>(
         OWN_SHADER_FILES,
         crate::parts::surface_cache::SURFACE_CACHE_FILES,

@@ -58,7 +58,7 @@ const RAY_RESULT_BYTES: u64 = 32;
 /// The centre grid spans this fraction of the scene's diagonal.
 const GRID_FRACTION: f32 = 0.1;
 
-const ENTRIES: [(&str, &str); 13] = [
+const ENTRIES: [(&str, &str); 14] = [
     ("recycle", "surfels/recycle.wgsl"),
     ("push", "surfels/push.wgsl"),
     ("coverage", "surfels/coverage.wgsl"),
@@ -71,14 +71,15 @@ const ENTRIES: [(&str, &str); 13] = [
     ("estimate", "surfels/estimate.wgsl"),
     ("integrate", "surfels/integrate.wgsl"),
     ("direct", "surfels/direct_nee.wgsl"),
+    ("apply gather", "surfels/apply_gather.wgsl"),
     ("apply", "surfels/apply.wgsl"),
 ];
 const RAY_OWNER: &str = "surfels/ray_owner.wgsl";
 
 /// The surfels' entry files and their parts' (direct light, reflections), for hot reload.
-const SHADER_FILES: [&str; 25] = crate::render::concat_files(
-    crate::render::concat_files::<20, 4, 24>(
-        crate::render::concat_files::<15, 5, 20>(
+const SHADER_FILES: [&str; 26] = crate::render::concat_files(
+    crate::render::concat_files::<21, 4, 25>(
+        crate::render::concat_files::<16, 5, 21>(
             SURFEL_CACHE_FILES,
             crate::parts::restir_direct::SHADER_FILES,
         ),
@@ -89,7 +90,7 @@ const SHADER_FILES: [&str; 25] = crate::render::concat_files(
 
 /// Every entry file the surfels compile without their parts: what the surfel-cache part
 /// (`crate::parts::SurfelCache`, this technique in cache-only mode) builds.
-pub const SURFEL_CACHE_FILES: [&str; 15] = [
+pub const SURFEL_CACHE_FILES: [&str; 16] = [
     "surfels/recycle.wgsl",
     "surfels/push.wgsl",
     "surfels/coverage.wgsl",
@@ -103,6 +104,7 @@ pub const SURFEL_CACHE_FILES: [&str; 15] = [
     "surfels/estimate.wgsl",
     "surfels/integrate.wgsl",
     "surfels/direct_nee.wgsl",
+    "surfels/apply_gather.wgsl",
     "surfels/apply.wgsl",
     "surfels/scan.wgsl",
 ];
@@ -311,6 +313,7 @@ impl Surfels {
             (self.reflections_active(), FLAG_REFLECTIONS),
             (self.cache_only, FLAG_CACHE_ONLY),
             (s.sharing, FLAG_SHARING),
+            (s.quarter_apply && !self.cache_only, FLAG_QUARTER_APPLY),
         ] {
             if on {
                 flags |= flag;
@@ -442,7 +445,9 @@ impl Surfels {
         let cell_surfels = buf("surfel cell lists", max * 8 * 4);
         let ray_owner = buf("surfel ray owner", ray_capacity as u64 * 4);
         let ray_results = buf("surfel ray results", ray_capacity as u64 * RAY_RESULT_BYTES);
-        let pixel_direct = buf("surfel pixel direct", pixels * 16);
+        // Per pixel, then (quarter-area apply) per 2x2 block: the gathered irradiance.
+        let blocks = ctx.extent[0].div_ceil(2) as u64 * ctx.extent[1].div_ceil(2) as u64;
+        let pixel_direct = buf("surfel pixel direct", (pixels + blocks) * 16);
         // Two planes of the surfels' views, a third for the reflections part's.
         let debug = buf("surfel debug", 3 * pixels * 16);
         let pixel_specular = buf("surfel pixel specular", 2 * pixels * 16);
@@ -724,7 +729,12 @@ impl Technique for Surfels {
                 "NEE: one light by power, one shadow ray".into()
             },
         ));
-        v.push(pass("apply", true, "gather the cell's surfels (distance, normal, depth), cell average where weight < 1; accumulate".into()));
+        if s.quarter_apply {
+            v.push(pass("apply gather", true, "once per 2x2 block: gather the cell's surfels (distance, normal, depth), cell average where weight < 1".into()));
+            v.push(pass("apply", true, "irradiance upsampled from the 4 nearest block samples (bilinear x depth x normal; a pixel none matches gathers itself); accumulate".into()));
+        } else {
+            v.push(pass("apply", true, "gather the cell's surfels (distance, normal, depth), cell average where weight < 1; accumulate".into()));
+        }
         v.extend(self.reflections.family_passes(s.reflections, f));
         v
     }
@@ -926,6 +936,15 @@ impl Technique for Surfels {
                 true,
             );
             self.reflections.copy_debug(enc, ctx.extent, &r.debug, 2);
+        }
+        if self.settings.quarter_apply {
+            let blocks = [ctx.extent[0].div_ceil(2), ctx.extent[1].div_ceil(2)];
+            pass(
+                enc,
+                timer,
+                "apply gather",
+                [blocks[0].div_ceil(8), blocks[1].div_ceil(8), 1],
+            );
         }
         pass(enc, timer, "apply", image);
     }

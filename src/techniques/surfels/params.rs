@@ -7,7 +7,7 @@ use crate::render::params::{ParamKind, ParamSpec, Params};
 pub const MAX_RAYS_PER_SURFEL: u32 = 4096;
 
 /// The surfels' own parameters; [`PARAMS`] adds the reflections part's.
-const OWN_PARAMS: [ParamSpec; 10] = [
+const OWN_PARAMS: [ParamSpec; 11] = [
     ParamSpec {
         name: "max_surfels",
         what: "size of the surfel pool, allocated up front (the seed's fixed budget)",
@@ -71,6 +71,14 @@ const OWN_PARAMS: [ParamSpec; 10] = [
         default: 0.0,
     },
     ParamSpec {
+        name: "apply_resolution",
+        what: "where pixels gather the surfels: once per 2x2 block, upsampled per pixel by depth and normal (the seed's quarter-area apply; a pixel no block sample matches gathers itself), or at every pixel",
+        higher: "full: every pixel gathers (sharper at edges, about 4x the gather work)",
+        lower: "quarter: a quarter of the gathers, irradiance upsampled across smooth surfaces",
+        kind: ParamKind::Choice(&["quarter", "full"]),
+        default: 0.0,
+    },
+    ParamSpec {
         name: "coverage_target",
         what: "surfel weight a tile's least-covered pixel must reach before spawning stops there",
         higher: "denser surfels: smoother, sharper irradiance, more surfels to feed",
@@ -102,13 +110,13 @@ const OWN_PARAMS: [ParamSpec; 10] = [
     },
 ];
 
-const WITH_REFLECTIONS: [ParamSpec; 16] = crate::render::params::concat_params::<10, 6, 16>(
+const WITH_REFLECTIONS: [ParamSpec; 17] = crate::render::params::concat_params::<11, 6, 17>(
     OWN_PARAMS,
     crate::parts::reflections::PARAMS,
 );
 
 /// The surfels' parameters and their parts' (reflections, the ray hits' light sampling).
-pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<16, 3, 19>(
+pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<17, 3, 20>(
     WITH_REFLECTIONS,
     crate::parts::world_regir::PARAMS,
 );
@@ -122,6 +130,8 @@ pub struct SurfelSettings {
     pub radial_depth: bool,
     pub msme: bool,
     pub sharing: bool,
+    /// `apply_resolution = "quarter"`.
+    pub quarter_apply: bool,
     pub direct_restir: bool,
     pub coverage_target: f32,
     pub surfel_size: f32,
@@ -143,6 +153,7 @@ impl SurfelSettings {
             radial_depth: p.bool("radial_depth"),
             msme: p.bool("msme"),
             sharing: p.bool("irradiance_sharing"),
+            quarter_apply: p.u32("apply_resolution") == 0,
             direct_restir: p.u32("direct") == 1,
             coverage_target: p.f32("coverage_target"),
             surfel_size: p.f32("surfel_size"),
@@ -184,3 +195,5 @@ pub const FLAG_REFLECTIONS: u32 = 32;
 pub const FLAG_CACHE_ONLY: u32 = 64;
 /// Irradiance sharing between neighbouring surfels before the estimator.
 pub const FLAG_SHARING: u32 = 128;
+/// Quarter-area apply: `apply gather` gathers once per 2x2 block, apply upsamples.
+pub const FLAG_QUARTER_APPLY: u32 = 256;
