@@ -674,15 +674,7 @@ fn gi_reconnections_follow_moving_objects() {
         .filter(|p| p[3] > 0.5)
         .map(|p| glam::Vec3::new(p[0], p[1], p[2]))
         .collect();
-    let off: Vec<f32> = held
-        .iter()
-        .map(|p| {
-            tris.iter()
-                .map(|t| common::point_triangle_distance(*p, t))
-                .fold(f32::MAX, f32::min)
-        })
-        .filter(|d| *d > 0.01)
-        .collect();
+    let off = common::off_surface(&held, &tris);
     println!(
         "{} GI samples at t = {:.2} s; {} more than 1 cm off every surface (worst {:.3} m)",
         held.len(),

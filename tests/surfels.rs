@@ -551,15 +551,8 @@ fn surfels_move_with_their_objects() {
     frames(&mut e, 16);
     let tris = e.scene.triangle_positions();
     let live = surfels(&e).surfel_positions(&e.gpu).unwrap();
-    let off: Vec<f32> = live
-        .iter()
-        .map(|(p, _, _)| {
-            tris.iter()
-                .map(|t| common::point_triangle_distance(*p, t))
-                .fold(f32::MAX, f32::min)
-        })
-        .filter(|d| *d > 0.01)
-        .collect();
+    let points: Vec<Vec3> = live.iter().map(|s| s.0).collect();
+    let off = common::off_surface(&points, &tris);
     println!(
         "{} live surfels at t = {:.2} s; {} more than 1 cm off every surface (worst {:.3} m)",
         live.len(),

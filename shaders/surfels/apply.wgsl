@@ -10,15 +10,12 @@
 // cache-only mode (FLAG_CACHE_ONLY: another technique reads the surfels) it only marks: the
 // pixels are that technique's.
 #import gilab::frame::{frame, FLAG_NO_PRIMARY_EMISSION}
-#import gilab::math::{INV_PI, luminance}
+#import gilab::math::INV_PI
 #import gilab::counters::{flush_counts, no_counts, COUNT_INVALID_SAMPLES}
 #import gilab::accumulate::accumulate_sample
 #import gilab::primary::{current_surface, surface_material, GSurface}
 #import gilab::brdf::diffuse_color
-#import gilab::surfels::{params, surfels, states, seen, pixel_direct, pixel_specular, FLAG_REFLECTIONS, has_flag, gather, Gather, gathered_irradiance, grid_center_for, spawn_frame, write_debug, block_sample_pixel, FLAG_ACCUMULATE, FLAG_CACHE_ONLY, FLAG_QUARTER_APPLY, NONE}
-
-// Coverage above this multiple of the target counts a pixel as crowded (recycling thins it).
-const CROWDED: f32 = 4.0;
+#import gilab::surfels::{pixel_direct, pixel_specular, FLAG_REFLECTIONS, has_flag, gather, Gather, gathered_irradiance, grid_center_for, write_debug, block_sample_pixel, note_gather, FLAG_ACCUMULATE, FLAG_CACHE_ONLY, FLAG_QUARTER_APPLY, NONE}
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
@@ -56,19 +53,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 let px = frame.size.x * frame.size.y;
                 l += pixel_specular[idx].xyz + pixel_specular[px + idx].xyz * irradiance * INV_PI;
             }
-            first_plane.y = g.coverage;
-            second_plane.x = f32(g.cell + 1u);
-            if gathered && g.best != NONE {
-                let st = states[g.best];
-                let mean = max(luminance(st.mean.xyz), 1e-6);
-                first_plane.x = f32(g.best + 1u);
-                first_plane.z = f32(st.info.x);
-                first_plane.w = luminance(st.variance.xyz) / (mean * mean);
-                second_plane.y = f32(frame.frame_index - spawn_frame(surfels[g.best])) + 1.0;
-                atomicAdd(&seen[3u * g.best + 1u], 1u);
-                if g.coverage > CROWDED * params.coverage_target {
-                    atomicAdd(&seen[3u * g.best + 2u], 1u);
-                }
+            if gathered {
+                let d = note_gather(g, 1u);
+                first_plane = d.first;
+                second_plane = d.second;
             }
         }
         if !has_flag(FLAG_CACHE_ONLY) {

@@ -4,12 +4,8 @@
 // the sample is on a surface). It marks the surfels it used as seen and writes the debug
 // planes for the whole block.
 #import gilab::frame::frame
-#import gilab::math::luminance
 #import gilab::primary::current_surface
-#import gilab::surfels::{params, surfels, states, seen, pixel_direct, gather, mark_reach, gathered_irradiance, grid_center_for, spawn_frame, write_debug, block_sample_pixel, NONE}
-
-// As in apply.wgsl: coverage above this multiple of the target counts a pixel as crowded.
-const CROWDED: f32 = 4.0;
+#import gilab::surfels::{pixel_direct, gather, mark_reach, gathered_irradiance, grid_center_for, write_debug, block_sample_pixel, note_gather}
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -32,21 +28,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         mark_reach = min(mark_reach, 0.1 * s.wo_dist.w);
         let g = gather(s.pos.xyz, s.normal_alpha.xyz, grid_center_for(frame.camera_pos.xyz), true);
         out = vec4<f32>(gathered_irradiance(g), 1.0);
-        first_plane.y = g.coverage;
-        second_plane.x = f32(g.cell + 1u);
-        if g.best != NONE {
-            let st = states[g.best];
-            let mean = max(luminance(st.mean.xyz), 1e-6);
-            first_plane.x = f32(g.best + 1u);
-            first_plane.z = f32(st.info.x);
-            first_plane.w = luminance(st.variance.xyz) / (mean * mean);
-            second_plane.y = f32(frame.frame_index - spawn_frame(surfels[g.best])) + 1.0;
-            // The block's four pixels saw it.
-            atomicAdd(&seen[3u * g.best + 1u], 4u);
-            if g.coverage > CROWDED * params.coverage_target {
-                atomicAdd(&seen[3u * g.best + 2u], 4u);
-            }
-        }
+        // The block's four pixels saw its best surfel.
+        let d = note_gather(g, 4u);
+        first_plane = d.first;
+        second_plane = d.second;
     }
     pixel_direct[px + block] = out;
     let corner = 2u * gid.xy;

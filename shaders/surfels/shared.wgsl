@@ -401,6 +401,35 @@ fn gathered_irradiance(g: Gather) -> vec3<f32> {
 
 // Debug planes: plane 0 = (surfel id, coverage, rays of the surfel, MSME variance), plane 1 =
 // (grid cell, surfel age, 0, 0).
+// Coverage above this multiple of the target counts a pixel as crowded (recycling thins it).
+const CROWDED: f32 = 4.0;
+
+// A pixel gather's two debug planes.
+struct GatherDebug {
+    first: vec4<f32>,
+    second: vec4<f32>,
+}
+
+// What apply records of a gather: the debug planes (best surfel id, coverage, rays, relative
+// variance; cell, age), and its best surfel counted as lighting `pixels` pixels, crowded or not
+// (recycling's over-coverage test).
+fn note_gather(g: Gather, pixels: u32) -> GatherDebug {
+    var d = GatherDebug(vec4<f32>(0.0, g.coverage, 0.0, 0.0), vec4<f32>(f32(g.cell + 1u), 0.0, 0.0, 0.0));
+    if g.best != NONE {
+        let st = states[g.best];
+        let mean = max(luminance(st.mean.xyz), 1e-6);
+        d.first.x = f32(g.best + 1u);
+        d.first.z = f32(st.info.x);
+        d.first.w = luminance(st.variance.xyz) / (mean * mean);
+        d.second.y = f32(frame.frame_index - spawn_frame(surfels[g.best])) + 1.0;
+        atomicAdd(&seen[3u * g.best + 1u], pixels);
+        if g.coverage > CROWDED * params.coverage_target {
+            atomicAdd(&seen[3u * g.best + 2u], pixels);
+        }
+    }
+    return d;
+}
+
 // Quarter-area apply: the pixel a 2x2 block gathers at (its top-left), by block index.
 fn block_sample_pixel(block: u32) -> u32 {
     let bx = (frame.size.x + 1u) / 2u;

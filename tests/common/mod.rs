@@ -483,3 +483,17 @@ pub fn point_triangle_distance(p: glam::Vec3, t: &[glam::Vec3; 3]) -> f32 {
         })
         .fold(f32::MAX, f32::min)
 }
+
+/// The distances (> 1 cm) to the nearest triangle of the points that lie off every surface:
+/// caches on moving objects must stay on them.
+pub fn off_surface(points: &[glam::Vec3], tris: &[[glam::Vec3; 3]]) -> Vec<f32> {
+    points
+        .iter()
+        .map(|p| {
+            tris.iter()
+                .map(|t| point_triangle_distance(*p, t))
+                .fold(f32::MAX, f32::min)
+        })
+        .filter(|d| *d > 0.01)
+        .collect()
+}
