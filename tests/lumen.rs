@@ -1041,8 +1041,13 @@ fn playing_keeps_the_cache_and_rebuilds_the_sdf_where_objects_moved() {
     let mut e = engine("lumen", params, scene, [32, 32], 1);
     frames(&mut e, 10);
     let play = |e: &mut Engine| {
-        std::sync::Arc::make_mut(std::sync::Arc::make_mut(&mut e.scene).motion.as_mut().unwrap())
-            .time_scale = 12.0;
+        std::sync::Arc::make_mut(
+            std::sync::Arc::make_mut(&mut e.scene)
+                .motion
+                .as_mut()
+                .unwrap(),
+        )
+        .time_scale = 12.0;
     };
     play(&mut e);
     frames(&mut e, 2);
@@ -1074,7 +1079,11 @@ fn playing_keeps_the_cache_and_rebuilds_the_sdf_where_objects_moved() {
         if !moving {
             assert_eq!(a, b, "a static card stays as built");
         } else {
-            assert_eq!((a.rect, a.draw), (b.rect, b.draw), "a moved card keeps its texels");
+            assert_eq!(
+                (a.rect, a.draw),
+                (b.rect, b.draw),
+                "a moved card keeps its texels"
+            );
             replaced += (a.box_min != b.box_min) as usize;
         }
     }
@@ -1091,7 +1100,10 @@ fn playing_keeps_the_cache_and_rebuilds_the_sdf_where_objects_moved() {
     assert!(replaced > 0, "the moving objects' cards follow them");
     assert!(lit > texels.len() / 4, "{lit} of {} lit", texels.len());
     // Only the round robin's 4,096 texels relit static cards (a reset would leave none kept).
-    assert!(lit - kept <= 4096, "{kept} of {lit} kept: the cache was reset");
+    assert!(
+        lit - kept <= 4096,
+        "{kept} of {lit} kept: the cache was reset"
+    );
 
     // The distance field against a fresh build of the pose, held still.
     let mut posed = (*e.scene).clone();
