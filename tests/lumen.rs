@@ -1071,6 +1071,10 @@ fn playing_keeps_the_cache_and_rebuilds_the_sdf_where_objects_moved() {
     frames(&mut e, 1);
     let l = lumen(&e);
     assert_eq!(l.last_refresh(), Some(Refresh::Moved));
+    assert!(
+        l.world_invalidated() > 0,
+        "world probes around the moved objects start again"
+    );
     let now = l.card_set().unwrap();
     assert_eq!(now.cards.len(), first.cards.len());
     let mut replaced = 0;
@@ -1093,9 +1097,10 @@ fn playing_keeps_the_cache_and_rebuilds_the_sdf_where_objects_moved() {
         .filter(|&&t| before[t][0] > 0.0 && before[t] == after[t])
         .count();
     eprintln!(
-        "{} cards, {replaced} moved; static texels lit before a re-posing: {lit} of {}, unchanged after it: {kept}",
+        "{} cards, {replaced} moved; static texels lit before a re-posing: {lit} of {}, unchanged after it: {kept}; {} world probes invalidated",
         now.cards.len(),
-        texels.len()
+        texels.len(),
+        l.world_invalidated()
     );
     assert!(replaced > 0, "the moving objects' cards follow them");
     assert!(lit > texels.len() / 4, "{lit} of {} lit", texels.len());

@@ -495,9 +495,9 @@ impl SurfaceCache {
     }
 
     /// A scene change keeps what still holds: unchanged triangles keep everything; a material
-    /// edit recaptures the cards; objects that moved rigidly (same triangles, same card layers)
-    /// get their cards re-placed (`Refresh::Moved`); other moved, added or removed triangles
-    /// rebuild the cards (the lighting starts over).
+    /// edit recaptures the cards; objects of instances that moved get their cards re-placed
+    /// (`Refresh::Moved`); other moved, added or removed triangles rebuild the cards (the
+    /// lighting starts over).
     pub fn refresh_for_scene(&mut self, ctx: &RenderContext) -> Result<Refresh> {
         let gpu = ctx.gpu;
         let data = &ctx.scene.data;

@@ -257,6 +257,8 @@ pub struct Lumen {
     scene_tris: Vec<[Vec3; 3]>,
     /// What the last scene change did to the surface cache (tests).
     last_refresh: Option<Refresh>,
+    /// World-cache slots the last re-posing marked never traced.
+    world_invalidated: usize,
     features: SceneFeatures,
     sky: bool,
     extent: [u32; 2],
@@ -282,6 +284,7 @@ impl Default for Lumen {
             clipmaps: None,
             scene_tris: Vec::new(),
             last_refresh: None,
+            world_invalidated: 0,
             built_with: None,
             restir_direct: RestirDirect::default(),
             reflections: Reflections::default(),
@@ -570,7 +573,7 @@ impl Lumen {
                 // and new places start again; the rest of the history stays (temporal passes
                 // reproject with the motion vectors).
                 if let Some(r) = self.res.as_ref() {
-                    r.world.invalidate(gpu, &changed);
+                    self.world_invalidated = r.world.invalidate(gpu, &changed);
                 }
             }
             if let Some(c) = self.clipmaps.as_mut() {
@@ -610,6 +613,11 @@ impl Lumen {
     /// What the last scene change or re-posing did to the surface cache.
     pub fn last_refresh(&self) -> Option<Refresh> {
         self.last_refresh
+    }
+
+    /// World-cache slots the last re-posing marked never traced (around moved objects).
+    pub fn world_invalidated(&self) -> usize {
+        self.world_invalidated
     }
 
     /// The surface cache's direct irradiance per atlas texel (tests).
@@ -1162,10 +1170,11 @@ impl Technique for Lumen {
             self.build(ctx)?;
         }
         log::debug!(
-            "lumen: re-posing handled in {:.3} ms ({:?}, {} cards re-placed)",
+            "lumen: re-posing handled in {:.3} ms ({:?}, {} cards re-placed, {} world probes invalidated)",
             start.elapsed().as_secs_f64() * 1e3,
             self.last_refresh,
-            self.cache.moved_cards().len()
+            self.cache.moved_cards().len(),
+            self.world_invalidated
         );
         Ok(())
     }
