@@ -1185,7 +1185,10 @@ fn playing_keeps_the_cache_and_rebuilds_the_sdf_where_objects_moved() {
         .collect();
     let lookups = |e: &Engine| {
         let out = query(e, QueryMode::CacheRay, &inputs);
-        let hits = out.iter().filter(|o| o[0][1] > 0.5 && o[0][2] < 0.5).count();
+        let hits = out
+            .iter()
+            .filter(|o| o[0][1] > 0.5 && o[0][2] < 0.5)
+            .count();
         let empty = out
             .iter()
             .filter(|o| o[0][1] > 0.5 && o[0][2] < 0.5 && o[0][3] <= 1e-4)
