@@ -1024,3 +1024,185 @@ fn sdf_through_instances_equals_sdf_through_a_flat_tree() {
     );
     assert!(worst <= 1e-3 * voxel, "fields differ by {worst}");
 }
+
+/// `moving` (issue 36) played at `time_scale = 60` (1 s a frame: the door opens, the ball
+/// rolls, the lamp goes round), Lumen with its distance field: every re-posing re-places the
+/// moved objects' cards (`Refresh::Moved`), so the card set, every static card and most of the
+/// cache's lighting of static cards carry over (a reset would clear it); and the distance field after the motion equals a fresh build of the posed
+/// scene (the seed: "SDF bricks after motion equal a fresh build at the new pose") around the
+/// moved objects' old and new places, and everywhere else.
+#[test]
+fn playing_keeps_the_cache_and_rebuilds_the_sdf_where_objects_moved() {
+    use gilab::parts::surface_cache::{cards::NO_INSTANCE, Refresh};
+    let scene = builtin::build("moving", &toml::Table::new()).unwrap();
+    let start = scene_tris(&scene);
+    // Held still while the cache lights up (4,096 texels of the 512² atlas a frame), then played.
+    let params = small(toml::toml! { direct_texels_per_frame = 262144 });
+    let mut e = engine("lumen", params, scene, [32, 32], 1);
+    frames(&mut e, 10);
+    let play = |e: &mut Engine| {
+        std::sync::Arc::make_mut(
+            std::sync::Arc::make_mut(&mut e.scene)
+                .motion
+                .as_mut()
+                .unwrap(),
+        )
+        .time_scale = 60.0;
+    };
+    play(&mut e);
+    frames(&mut e, 2);
+    let first = lumen(&e).card_set().unwrap().clone();
+    let gpu = e.gpu.clone();
+    let static_texels = |c: &gilab::parts::surface_cache::cards::CardSet| -> Vec<usize> {
+        let atlas = 512;
+        c.cards
+            .iter()
+            .filter(|k| c.object_instance[k.object() as usize] == NO_INSTANCE)
+            .flat_map(|k| {
+                let [x, y, w, h] = k.rect;
+                (y..y + h).flat_map(move |ty| (x..x + w).map(move |tx| (ty * atlas + tx) as usize))
+            })
+            .collect()
+    };
+    let texels = static_texels(&first);
+    let before = lumen(&e).cache_direct(&gpu).unwrap().unwrap();
+    frames(&mut e, 1);
+    let after = lumen(&e).cache_direct(&gpu).unwrap().unwrap();
+    frames(&mut e, 1);
+    let l = lumen(&e);
+    assert_eq!(l.last_refresh(), Some(Refresh::Moved));
+    assert!(
+        l.world_invalidated() > 0,
+        "world probes around the moved objects start again"
+    );
+    let now = l.card_set().unwrap();
+    assert_eq!(now.cards.len(), first.cards.len());
+    let mut replaced = 0;
+    for (a, b) in first.cards.iter().zip(&now.cards) {
+        let moving = first.object_instance[a.object() as usize] != NO_INSTANCE;
+        if !moving {
+            assert_eq!(a, b, "a static card stays as built");
+        } else {
+            assert_eq!(
+                (a.rect, a.draw),
+                (b.rect, b.draw),
+                "a moved card keeps its texels"
+            );
+            replaced += (a.box_min != b.box_min) as usize;
+        }
+    }
+    let lit = texels.iter().filter(|&&t| before[t][0] > 0.0).count();
+    let kept = texels
+        .iter()
+        .filter(|&&t| before[t][0] > 0.0 && before[t] == after[t])
+        .count();
+    eprintln!(
+        "{} cards, {replaced} moved; static texels lit before a re-posing: {lit} of {}, unchanged after it: {kept}; {} world probes invalidated",
+        now.cards.len(),
+        texels.len(),
+        l.world_invalidated()
+    );
+    assert!(replaced > 0, "the moving objects' cards follow them");
+    assert!(lit > texels.len() / 4, "{lit} of {} lit", texels.len());
+    // Only the round robin's 4,096 texels relit static cards (a reset would leave none kept).
+    assert!(
+        lit - kept <= 4096,
+        "{kept} of {lit} kept: the cache was reset"
+    );
+
+    // The distance field against a fresh build of the pose, held still.
+    let mut posed = (*e.scene).clone();
+    std::sync::Arc::make_mut(posed.motion.as_mut().unwrap()).time_scale = 0.0;
+    let end = scene_tris(&posed);
+    let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
+    for (a, b) in start.iter().zip(&end) {
+        if a != b {
+            for p in a.iter().chain(b) {
+                lo = lo.min(*p);
+                hi = hi.max(*p);
+            }
+        }
+    }
+    assert!(lo.x < hi.x, "something moved");
+    let mut fresh = engine("lumen", small(toml::Table::new()), posed, [32, 32], 1);
+    frames(&mut fresh, 1);
+    let (a, b) = (
+        lumen(&e).clipmaps().unwrap(),
+        lumen(&fresh).clipmaps().unwrap(),
+    );
+    assert_eq!(a.brick_origins, b.brick_origins);
+    let voxel = a.voxel(0);
+    let (slo, shi) = e.scene.bounds();
+    let mut rng = Rand(36);
+    let near: Vec<_> = (0..4000)
+        .map(|_| (rng.in_box(lo - 0.3, hi + 0.3).to_array(), [0.0; 3]))
+        .collect();
+    let anywhere: Vec<_> = (0..4000)
+        .map(|_| (rng.in_box(slo, shi).to_array(), [0.0; 3]))
+        .collect();
+    for (name, points) in [("around the moved objects", near), ("anywhere", anywhere)] {
+        let qa = query(&e, QueryMode::SdfDistance, &points);
+        let qb = query(&fresh, QueryMode::SdfDistance, &points);
+        let mut worst = 0.0f32;
+        let mut differ = 0;
+        for (x, y) in qa.iter().zip(&qb) {
+            assert_eq!(x[1][2], y[1][2], "same clipmap level answers");
+            let d = (x[1][0] - y[1][0]).abs();
+            worst = worst.max(d);
+            differ += (d > 1e-3 * voxel) as usize;
+        }
+        eprintln!(
+            "played vs fresh SDF {name}: {differ} of {} samples differ, worst {worst:.2e} (finest voxel {voxel:.3})",
+            points.len()
+        );
+        assert_eq!(differ, 0, "{name}");
+    }
+    // Sphere-traced rays read the coarse volume too (updated near the edits only).
+    let rays: Vec<_> = (0..2000)
+        .map(|_| (rng.in_box(slo, shi).to_array(), rng.dir().to_array()))
+        .collect();
+    let (ta, tb) = (
+        query(&e, QueryMode::SdfTrace, &rays),
+        query(&fresh, QueryMode::SdfTrace, &rays),
+    );
+    let differ = ta.iter().zip(&tb).filter(|(x, y)| x[1] != y[1]).count();
+    eprintln!("played vs fresh SDF: {differ} of 2000 traced rays differ");
+    assert_eq!(differ, 0);
+
+    // The moved objects' surfaces find their cards as well as in a fresh build: rays shot at
+    // each of their triangles from just outside it.
+    let c = lumen(&e).card_set().unwrap();
+    let tris = &e.gpu_scene.data.tris;
+    let inputs: Vec<_> = tris
+        .iter()
+        .enumerate()
+        .filter(|(t, _)| c.object_instance[c.tri_object[*t] as usize] != NO_INSTANCE)
+        .filter_map(|(_, t)| {
+            let n = (t[1] - t[0]).cross(t[2] - t[0]).try_normalize()?;
+            let centre = (t[0] + t[1] + t[2]) / 3.0;
+            Some(((centre + n * 0.02).to_array(), (-n).to_array()))
+        })
+        .collect();
+    let lookups = |e: &Engine| {
+        let out = query(e, QueryMode::CacheRay, &inputs);
+        let hits = out
+            .iter()
+            .filter(|o| o[0][1] > 0.5 && o[0][2] < 0.5)
+            .count();
+        let empty = out
+            .iter()
+            .filter(|o| o[0][1] > 0.5 && o[0][2] < 0.5 && o[0][3] <= 1e-4)
+            .count();
+        (hits, empty)
+    };
+    let ((hits, empty), (fresh_hits, fresh_empty)) = (lookups(&e), lookups(&fresh));
+    eprintln!(
+        "rays at the moved objects ({}): played {empty} of {hits} front hits without a cache answer, fresh {fresh_empty} of {fresh_hits}",
+        inputs.len()
+    );
+    assert!(hits > inputs.len() / 2, "{hits} of {} hit", inputs.len());
+    assert!(
+        empty <= fresh_empty + hits / 100,
+        "moved cards miss their surfaces: {empty} against {fresh_empty}"
+    );
+}

@@ -5,7 +5,7 @@
 #define_import_path gilab::lumen_probes
 
 #import gilab::frame::frame
-#import gilab::primary::previous_pixel_position
+#import gilab::primary::{previous_pixel_position, current_surface}
 
 // Screen probes hold 8x8 equal-area octahedral cells over the whole sphere (gilab::equal_area).
 const PROBE_RES: u32 = 8u;
@@ -232,20 +232,23 @@ fn uniform_neighbours(pixel: vec2<u32>, p: vec3<f32>, n: vec3<f32>, dist: f32) -
 }
 
 // Last frame's uniform probe that stands for probe q (its radiance indexed by the same cells):
-// q's position in last frame's image, the nearest tile of last frame's jittered grid, accepted
-// when that probe lies on q's plane; NO_PROBE otherwise (or without history).
+// q's position in last frame's image (its pixel's surface where it was last frame: the motion
+// vectors undo the camera's and its object's motion), the nearest tile of last frame's jittered
+// grid, accepted when that probe lies on the plane q had; NO_PROBE otherwise (or without history).
 fn previous_match(q: ScreenProbe) -> u32 {
     if !history_valid() || !q.valid {
         return NO_PROBE;
     }
-    let f = previous_pixel_position(q.pos);
+    let s = current_surface(q.pixel.y * frame.size.x + q.pixel.x);
+    let was = select(q.pos, s.prev_pos.xyz, s.pos.w > 0.5);
+    let f = previous_pixel_position(was);
     if f.x < 0.0 || f.y < 0.0 || f.x >= f32(frame.size.x) || f.y >= f32(frame.size.y) {
         return NO_PROBE;
     }
     let t = clamp(vec2<i32>(round((f - vec2<f32>(pp.jitter.zw)) / f32(spacing()))), vec2<i32>(0), vec2<i32>(tiles()) - 1);
     let probe = tile_probe(vec2<u32>(t));
     let prev = load_probe(1u - parity(), probe);
-    if !prev.valid || plane_weight(q.pos, q.normal, q.dist, prev.pos, prev.normal) < 0.3 {
+    if !prev.valid || plane_weight(was, q.normal, q.dist, prev.pos, prev.normal) < 0.3 {
         return NO_PROBE;
     }
     return probe;

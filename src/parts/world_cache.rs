@@ -199,6 +199,52 @@ impl WorldCache {
         );
     }
 
+    /// Forgets the probes within one probe spacing of `boxes` (world boxes: where objects
+    /// were and now are), on every level as last placed: their headers read "never traced", so
+    /// lookups skip them (a coarser level or the ray answers) and `world select` lists them
+    /// first once read. Returns how many slots it wrote.
+    pub fn invalidate(&self, gpu: &Gpu, boxes: &[(Vec3, Vec3)]) -> usize {
+        let p = &self.gpu_params;
+        let n = self.settings.probes as i32;
+        if p.shape[0] == 0 || boxes.is_empty() {
+            return 0;
+        }
+        let never = [0.0f32, 0.0, 0.0, -1.0];
+        let header_at = self.settings.slots() as u64 * WORLD_CELLS * 16;
+        let mut written = 0;
+        for l in 0..self.settings.levels as usize {
+            let [ox, oy, oz, spacing] = p.levels[l];
+            let origin = Vec3::new(ox, oy, oz);
+            let base = glam::IVec3::from_slice(&p.base[l][..3]);
+            let per = (n * n * n) as u64;
+            for &(lo, hi) in boxes {
+                let g0 = ((lo - origin) / spacing - Vec3::ONE).floor().as_ivec3() + base;
+                let g1 = ((hi - origin) / spacing + Vec3::ONE).ceil().as_ivec3() + base;
+                let g0 = g0.max(base);
+                let g1 = g1.min(base + glam::IVec3::splat(n - 1));
+                for z in g0.z..=g1.z {
+                    for y in g0.y..=g1.y {
+                        // Runs of consecutive slots (a row wraps round the torus at most once).
+                        let mut x = g0.x;
+                        while x <= g1.x {
+                            let w = glam::IVec3::new(x, y, z).rem_euclid(glam::IVec3::splat(n));
+                            let run = (g1.x - x + 1).min(n - w.x);
+                            let slot = l as u64 * per + ((w.z * n + w.y) * n + w.x) as u64;
+                            gpu.queue.write_buffer(
+                                &self.probes,
+                                header_at + slot * 16,
+                                bytemuck::cast_slice(&vec![never; run as usize]),
+                            );
+                            written += run as usize;
+                            x += run;
+                        }
+                    }
+                }
+            }
+        }
+        written
+    }
+
     /// A reader's bindings (`lookup_entries`) as entries of its bind group.
     pub fn entries(&self) -> [wgpu::BindGroupEntry<'_>; 2] {
         [

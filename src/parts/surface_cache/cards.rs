@@ -8,6 +8,7 @@
 //! room with a step, gets one card per layer). Each layer is a card; an object keeps its
 //! `MAX_CARDS_PER_OBJECT` largest by projected area.
 
+use crate::scene::bvh::Bvh;
 use crate::scene::gpu_scene::SceneData;
 use anyhow::{bail, Result};
 use glam::Vec3;
@@ -19,6 +20,8 @@ pub const PAGE: u32 = 128;
 pub const CARD_GRANULE: u32 = 8;
 /// Six sides plus extra layers for concave objects.
 pub const MAX_CARDS_PER_OBJECT: usize = 16;
+/// A triangle of no instance (`triangle_instances`).
+pub const NO_INSTANCE: u32 = u32::MAX;
 /// Share of the atlas the first layout attempt aims to fill.
 const TARGET_FILL: f32 = 0.4;
 
@@ -64,6 +67,10 @@ pub struct CardSet {
     /// World size of a texel before per-card clamping.
     pub texel_size: f32,
     pub pages_used: u32,
+    /// Per object: its instance (`NO_INSTANCE`: the rest of the scene).
+    pub object_instance: Vec<u32>,
+    /// The padding its layers were built with (a re-placed card keeps it).
+    pub pad: f32,
 }
 
 impl CardSet {
@@ -86,6 +93,16 @@ impl CardSet {
     }
 }
 
+/// Double-sidedness per scene triangle, from the BVH-ordered attributes.
+fn two_sided(data: &SceneData) -> Vec<bool> {
+    let mut two_sided = vec![false; data.tris.len()];
+    for (bvh_index, &orig) in data.bvh.order.iter().enumerate() {
+        let m = data.tri_attr[bvh_index].material() as usize;
+        two_sided[orig as usize] = data.materials.get(m).is_some_and(|m| m.emissive[3] > 0.5);
+    }
+    two_sided
+}
+
 fn find(parent: &mut [u32], mut i: u32) -> u32 {
     while parent[i as usize] != i {
         parent[i as usize] = parent[parent[i as usize] as usize];
@@ -94,8 +111,34 @@ fn find(parent: &mut [u32], mut i: u32) -> u32 {
     i
 }
 
-/// Object id per triangle: connected components over vertices welded at 1e-5 of the scene's size.
-pub fn objects(tris: &[[Vec3; 3]]) -> (Vec<u32>, usize) {
+/// Per scene triangle: the instance it belongs to (`NO_INSTANCE`: the rest of the scene), from
+/// the two-level BVH's top level.
+pub fn triangle_instances(bvh: &Bvh, n: usize) -> Vec<u32> {
+    let mut out = vec![NO_INSTANCE; n];
+    let Some(top) = &bvh.top else {
+        return out;
+    };
+    for (e, entry) in top.entries.iter().enumerate() {
+        let Some(j) = entry.instance else {
+            continue;
+        };
+        let end = top
+            .entries
+            .get(e + 1)
+            .map_or(bvh.order.len(), |x| x.tri_offset as usize)
+            .min(bvh.order.len());
+        for &orig in &bvh.order[(entry.tri_offset as usize).min(end)..end] {
+            if let Some(t) = out.get_mut(orig as usize) {
+                *t = j as u32;
+            }
+        }
+    }
+    out
+}
+
+/// Object id per triangle: connected components over vertices welded at 1e-5 of the scene's
+/// size, never across instances (`instance` per triangle), so an object moves with one instance.
+pub fn objects(tris: &[[Vec3; 3]], instance: &[u32]) -> (Vec<u32>, usize) {
     let mut lo = Vec3::splat(f32::MAX);
     let mut hi = Vec3::splat(f32::MIN);
     for t in tris {
@@ -107,13 +150,15 @@ pub fn objects(tris: &[[Vec3; 3]]) -> (Vec<u32>, usize) {
     let eps = ((hi - lo).length() * 1e-5).max(1e-9);
     let n = tris.len();
     let mut parent: Vec<u32> = (0..n as u32).collect();
-    let mut first: HashMap<[i64; 3], u32> = HashMap::new();
+    let mut first: HashMap<[i64; 4], u32> = HashMap::new();
     for (t, tri) in tris.iter().enumerate() {
+        let inst = instance.get(t).copied().unwrap_or(NO_INSTANCE) as i64;
         for p in tri {
             let key = [
                 (p.x / eps).round() as i64,
                 (p.y / eps).round() as i64,
                 (p.z / eps).round() as i64,
+                inst,
             ];
             let other = *first.entry(key).or_insert(t as u32);
             let (a, b) = (find(&mut parent, t as u32), find(&mut parent, other));
@@ -268,15 +313,15 @@ fn pack(sizes: &[(u32, u32)], atlas: u32) -> Option<(Vec<[u32; 3]>, u32)> {
 
 /// Cards for every object of the scene, laid out in an atlas of `atlas` texels.
 pub fn build(data: &SceneData, atlas: u32) -> Result<CardSet> {
-    let (tri_object, object_count) = objects(&data.tris);
+    let tri_instance = triangle_instances(&data.bvh, data.tris.len());
+    let (tri_object, object_count) = objects(&data.tris, &tri_instance);
+    let mut object_instance = vec![NO_INSTANCE; object_count];
+    for (t, &o) in tri_object.iter().enumerate() {
+        object_instance[o as usize] = tri_instance[t];
+    }
     let f = &data.features;
     let pad = (Vec3::from(f.bounds_max) - Vec3::from(f.bounds_min)).length() * 1e-3;
-    // Double-sidedness per scene triangle, from the BVH-ordered attributes.
-    let mut two_sided = vec![false; data.tris.len()];
-    for (bvh_index, &orig) in data.bvh.order.iter().enumerate() {
-        let m = data.tri_attr[bvh_index].material() as usize;
-        two_sided[orig as usize] = data.materials.get(m).is_some_and(|m| m.emissive[3] > 0.5);
-    }
+    let two_sided = two_sided(data);
     let mut per_object: Vec<Vec<[Vec3; 3]>> = vec![Vec::new(); object_count];
     let mut per_object_two: Vec<Vec<bool>> = vec![Vec::new(); object_count];
     for (t, tri) in data.tris.iter().enumerate() {
@@ -344,6 +389,8 @@ pub fn build(data: &SceneData, atlas: u32) -> Result<CardSet> {
                 indices,
                 texel_size: texel,
                 pages_used,
+                object_instance,
+                pad,
             });
         }
         texel *= 1.25;
@@ -353,4 +400,131 @@ pub fn build(data: &SceneData, atlas: u32) -> Result<CardSet> {
         layers.len(),
         object_count
     )
+}
+
+impl CardSet {
+    /// Re-places the cards of `moved` objects on their current triangles (the seed's cards follow
+    /// their object): each object's layers are found again and take the boxes of its cards
+    /// side by side, nearest layer first. Where they no longer match its cards side by side (a
+    /// turning object can gain or lose a layer), its cards follow its box instead, the old box
+    /// mapped onto the new one (`old`: the triangles before). Atlas rectangles, capture ranges and every other card
+    /// stay, so the atlas keeps its texels. Returns the cards changed.
+    pub fn replace_objects(
+        &mut self,
+        data: &SceneData,
+        old: &[[Vec3; 3]],
+        moved: &[u32],
+    ) -> Vec<u32> {
+        let two = two_sided(data);
+        type Tris = (Vec<[Vec3; 3]>, Vec<bool>, Vec3, Vec3);
+        let empty = (Vec::new(), Vec::new(), Vec3::ZERO, Vec3::ZERO);
+        let mut per: Vec<Tris> = vec![empty; moved.len()];
+        let mut old_box = vec![(Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)); moved.len()];
+        let slot: HashMap<u32, usize> = moved.iter().enumerate().map(|(i, &o)| (o, i)).collect();
+        for (t, tri) in data.tris.iter().enumerate() {
+            if let Some(&i) = self.tri_object.get(t).and_then(|o| slot.get(o)) {
+                per[i].0.push(*tri);
+                per[i].1.push(two[t]);
+                if let Some(p) = old.get(t) {
+                    old_box[i].0 = old_box[i].0.min(p[0].min(p[1]).min(p[2]));
+                    old_box[i].1 = old_box[i].1.max(p[0].max(p[1]).max(p[2]));
+                }
+            }
+        }
+        let mut updates = Vec::new();
+        for ((&o, (tris, two, _, _)), (olo, ohi)) in moved.iter().zip(&per).zip(old_box) {
+            let Some(&[first, count]) = self.object_cards.get(o as usize) else {
+                continue;
+            };
+            let layers = object_layers(tris, two, self.pad);
+            let matched = self.match_layers(first, count, &layers);
+            if let Some(m) = matched {
+                updates.extend(m);
+                continue;
+            }
+            let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
+            for t in tris {
+                lo = lo.min(t[0].min(t[1]).min(t[2]));
+                hi = hi.max(t[0].max(t[1]).max(t[2]));
+            }
+            // The old box mapped onto the new one, axis by axis (a turn or a scale changes it).
+            let scale = (hi - lo) / (ohi - olo).max(Vec3::splat(1e-12));
+            let map = |p: Vec3| lo + (p - olo) * scale;
+            for c in first..first + count {
+                let k = &self.cards[c as usize];
+                updates.push((
+                    c,
+                    map(Vec3::from_slice(&k.box_min[..3])),
+                    map(Vec3::from_slice(&k.box_max[..3])),
+                ));
+            }
+        }
+        let mut changed = Vec::with_capacity(updates.len());
+        for (c, lo, hi) in updates {
+            let card = &mut self.cards[c as usize];
+            card.box_min = [lo.x, lo.y, lo.z, card.box_min[3]];
+            card.box_max = [hi.x, hi.y, hi.z, card.box_max[3]];
+            changed.push(c);
+        }
+        changed
+    }
+
+    /// An object's new layers against its cards `first..first + count`, side by side, nearest
+    /// first: (card, box) each, or None where the counts differ.
+    fn match_layers(
+        &self,
+        first: u32,
+        count: u32,
+        layers: &[Layer],
+    ) -> Option<Vec<(u32, Vec3, Vec3)>> {
+        if layers.len() != count as usize {
+            return None;
+        }
+        let mut updates = Vec::new();
+        {
+            // Front depth along a side's view (nearest the card first).
+            let front = |side: u32, lo: Vec3, hi: Vec3| {
+                let a = (side / 2) as usize;
+                if side & 1 == 1 {
+                    lo[a]
+                } else {
+                    -hi[a]
+                }
+            };
+            for side in 0..6 {
+                let mut old: Vec<u32> = (first..first + count)
+                    .filter(|&c| self.cards[c as usize].side() == side)
+                    .collect();
+                let mut new: Vec<&Layer> = layers.iter().filter(|l| l.side == side).collect();
+                if old.len() != new.len() {
+                    return None;
+                }
+                let card_front = |c: &u32| {
+                    let k = &self.cards[*c as usize];
+                    front(
+                        side,
+                        Vec3::from_slice(&k.box_min[..3]),
+                        Vec3::from_slice(&k.box_max[..3]),
+                    )
+                };
+                old.sort_by(|a, b| card_front(a).total_cmp(&card_front(b)));
+                new.sort_by(|a, b| front(side, a.lo, a.hi).total_cmp(&front(side, b.lo, b.hi)));
+                updates.extend(old.into_iter().zip(new).map(|(c, l)| (c, l.lo, l.hi)));
+            }
+        }
+        Some(updates)
+    }
+
+    /// Per card: its first tile in `tiles(size)`'s list (tiles are listed card by card).
+    pub fn tile_starts(&self, size: u32) -> Vec<u32> {
+        let mut at = 0;
+        self.cards
+            .iter()
+            .map(|c| {
+                let first = at;
+                at += (c.rect[2] / size) * (c.rect[3] / size);
+                first
+            })
+            .collect()
+    }
 }

@@ -125,6 +125,9 @@ struct Resources {
     capture_depth_view: wgpu::TextureView,
     index_buffer: wgpu::Buffer,
     capture_bind_group: wgpu::BindGroup,
+    /// This frame's tile-list headers (moved cards' runs, then the round robin), each copied
+    /// into the tile list's header before its passes.
+    headers: wgpu::Buffer,
 }
 
 impl Resources {
@@ -148,7 +151,13 @@ pub enum Refresh {
     /// Triangles moved: new cards and card buffers (the holder's group 2 must be made anew),
     /// the lighting starts over.
     NewCards,
+    /// Objects moved rigidly: their cards were re-placed in the same buffers and are captured
+    /// and relit first; every other texel keeps its lighting.
+    Moved,
 }
+
+/// Runs of re-placed cards relit ahead of the round robin per frame (one tile-list header each).
+const PRIORITY_RUNS: usize = 15;
 
 /// The cache on its own: the group 2 its passes trace through and the world cache.
 struct Standalone {
@@ -170,6 +179,10 @@ pub struct SurfaceCache {
     cards: Option<CardSet>,
     /// Cards still to capture, nearest first when taken.
     capture_queue: Vec<u32>,
+    /// Re-placed cards: captured next frame whatever the budget, then relit ahead of the
+    /// round robin.
+    moved_captures: Vec<u32>,
+    moved_relight: Vec<u32>,
     direct_tiles: u32,
     probe_tiles: u32,
     direct_cursor: u32,
@@ -197,6 +210,8 @@ impl SurfaceCache {
             res: None,
             cards: None,
             capture_queue: Vec::new(),
+            moved_captures: Vec::new(),
+            moved_relight: Vec::new(),
             direct_tiles: 0,
             probe_tiles: 0,
             direct_cursor: 0,
@@ -450,6 +465,12 @@ impl SurfaceCache {
             (TILES, tiles),
         ];
         let (atlas_views, capture_depth_view) = capture::atlas(gpu, s.atlas_size);
+        let headers = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("lumen tile headers"),
+            size: ((PRIORITY_RUNS + 1) * std::mem::size_of::<CacheParamsGpu>()) as u64,
+            usage: wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
         self.res = Some(Resources {
             gpu_params,
             buffers,
@@ -457,7 +478,10 @@ impl SurfaceCache {
             capture_depth_view,
             index_buffer,
             capture_bind_group,
+            headers,
         });
+        self.moved_captures.clear();
+        self.moved_relight.clear();
         self.direct_tiles = nd;
         self.probe_tiles = np;
         self.direct_cursor = 0;
@@ -471,7 +495,8 @@ impl SurfaceCache {
     }
 
     /// A scene change keeps what still holds: unchanged triangles keep everything; a material
-    /// edit recaptures the cards; moved, added or removed triangles rebuild the cards (the
+    /// edit recaptures the cards; objects of instances that moved get their cards re-placed
+    /// (`Refresh::Moved`); other moved, added or removed triangles rebuild the cards (the
     /// lighting starts over).
     pub fn refresh_for_scene(&mut self, ctx: &RenderContext) -> Result<Refresh> {
         let gpu = ctx.gpu;
@@ -481,6 +506,9 @@ impl SurfaceCache {
         }
         self.features = data.features.clone();
         let materials: Vec<u8> = bytemuck::cast_slice(&data.materials).to_vec();
+        if data.tris != self.scene_tris && materials == self.scene_materials && self.replace(ctx) {
+            return Ok(Refresh::Moved);
+        }
         if data.tris != self.scene_tris {
             let card_set = cards::build(data, self.settings.atlas_size)?;
             let capture_layout = self
@@ -504,6 +532,8 @@ impl SurfaceCache {
             self.direct_tiles = nd;
             self.probe_tiles = np;
             self.capture_queue = (0..card_set.cards.len() as u32).collect();
+            self.moved_captures.clear();
+            self.moved_relight.clear();
             self.cards = Some(card_set);
             self.scene_tris = data.tris.clone();
             self.scene_materials = materials;
@@ -516,6 +546,70 @@ impl SurfaceCache {
                 (0..self.cards.as_ref().map_or(0, |c| c.cards.len() as u32)).collect();
         }
         Ok(Refresh::Kept)
+    }
+
+    /// The objects whose triangles changed (same triangle count) get their cards re-placed and
+    /// written alone to the card buffer; false, with nothing changed, where that cannot be done.
+    fn replace(&mut self, ctx: &RenderContext) -> bool {
+        let data = &ctx.scene.data;
+        let (Some(c), Some(r)) = (self.cards.as_mut(), self.res.as_ref()) else {
+            return false;
+        };
+        if data.tris.len() != self.scene_tris.len() || c.tri_object.len() != data.tris.len() {
+            return false;
+        }
+        let mut moved: Vec<u32> = data
+            .tris
+            .iter()
+            .zip(&self.scene_tris)
+            .zip(&c.tri_object)
+            .filter(|((a, b), _)| a != b)
+            .map(|(_, &o)| o)
+            .collect();
+        moved.sort_unstable();
+        moved.dedup();
+        // Only instances move rigidly; an edit of the rest rebuilds the cards.
+        if moved.iter().any(|&o| {
+            c.object_instance
+                .get(o as usize)
+                .is_none_or(|&i| i == cards::NO_INSTANCE)
+        }) {
+            return false;
+        }
+        let changed = c.replace_objects(data, &self.scene_tris, &moved);
+        let size = std::mem::size_of::<cards::GpuCard>() as u64;
+        for &k in &changed {
+            ctx.gpu.queue.write_buffer(
+                r.buffer(1),
+                k as u64 * size,
+                bytemuck::bytes_of(&c.cards[k as usize]),
+            );
+        }
+        self.capture_queue.retain(|k| !changed.contains(k));
+        for k in changed {
+            if !self.moved_captures.contains(&k) {
+                self.moved_captures.push(k);
+            }
+            if !self.moved_relight.contains(&k) {
+                self.moved_relight.push(k);
+            }
+        }
+        self.scene_tris = data.tris.clone();
+        true
+    }
+
+    /// Direct irradiance per atlas texel (rgb, w: valid), read back (tests).
+    pub fn read_direct(&self, gpu: &Gpu) -> Result<Option<Vec<[f32; 4]>>> {
+        let Some(r) = &self.res else {
+            return Ok(None);
+        };
+        let texels = (self.settings.atlas_size * self.settings.atlas_size) as usize;
+        crate::gpu::readback::read_buffer(gpu, r.buffer(12), texels).map(Some)
+    }
+
+    /// Cards re-placed since the last frame was recorded (tests, debug).
+    pub fn moved_cards(&self) -> &[u32] {
+        &self.moved_relight
     }
 
     /// Forgets the cache's lighting (it relights over the next frames).
@@ -548,7 +642,9 @@ impl SurfaceCache {
         if self.pipelines.is_none() || self.res.is_none() {
             return;
         }
-        let captures = self.next_captures(ctx.camera.position);
+        let mut captures = std::mem::take(&mut self.moved_captures);
+        captures.extend(self.next_captures(ctx.camera.position));
+        let runs = self.moved_runs();
         let direct =
             (self.scaled_budget(self.settings.direct_texels_per_frame) / 64.0).ceil() as u32;
         let probes =
@@ -566,54 +662,115 @@ impl SurfaceCache {
         gp.direct_tile_count = direct;
         gp.probe_tile_first = probe_first;
         gp.probe_tile_count = probes;
+        // Moved cards' runs first, then the round robin: one header each.
+        let mut headers: Vec<CacheParamsGpu> = runs
+            .iter()
+            .map(|&[df, dc, pf, pc]| CacheParamsGpu {
+                direct_tile_first: df,
+                direct_tile_count: dc,
+                probe_tile_first: pf,
+                probe_tile_count: pc,
+                ..*gp
+            })
+            .collect();
+        headers.push(*gp);
         ctx.gpu
             .queue
-            .write_buffer(r.buffer(TILES), 0, bytemuck::bytes_of(&r.gpu_params));
+            .write_buffer(&r.headers, 0, bytemuck::cast_slice(&headers));
         if !captures.is_empty() {
             if let Some(c) = &self.cards {
                 capture::record(ctx, enc, timer, p, r, c, &captures);
             }
         }
-        if self.features.light_count() > 0 && self.direct_tiles > 0 {
-            let regir = self.world_regir.record_for_pass(
+        let lights = self.features.light_count() > 0 && self.direct_tiles > 0;
+        let regir = if lights {
+            self.world_regir.record_for_pass(
                 ctx,
                 enc,
                 timer,
                 self.direct_regir,
                 self.features.many_lights,
-            );
-            let groups: Vec<&wgpu::BindGroup> =
-                [Some(group2), regir].into_iter().flatten().collect();
-            pipelines::technique_pass(
-                ctx,
-                enc,
-                timer,
-                PASSES[0].0,
-                &p.lighting[0],
-                &groups,
-                [direct, 1, 1],
-            );
+            )
+        } else {
+            None
+        };
+        let groups: Vec<&wgpu::BindGroup> = [Some(group2), regir].into_iter().flatten().collect();
+        let header = std::mem::size_of::<CacheParamsGpu>() as u64;
+        for (k, h) in headers.iter().enumerate() {
+            enc.copy_buffer_to_buffer(&r.headers, k as u64 * header, r.buffer(TILES), 0, header);
+            let (direct, probes) = (h.direct_tile_count, h.probe_tile_count);
+            if lights && direct > 0 {
+                pipelines::technique_pass(
+                    ctx,
+                    enc,
+                    timer,
+                    PASSES[0].0,
+                    &p.lighting[0],
+                    &groups,
+                    [direct, 1, 1],
+                );
+            }
+            if self.probe_tiles > 0 && probes > 0 {
+                pipelines::technique_pass(
+                    ctx,
+                    enc,
+                    timer,
+                    PASSES[1].0,
+                    &p.lighting[1],
+                    &[group2],
+                    [probes.div_ceil(64), 1, 1],
+                );
+                pipelines::technique_pass(
+                    ctx,
+                    enc,
+                    timer,
+                    PASSES[2].0,
+                    &p.lighting[2],
+                    &[group2],
+                    [probes.div_ceil(4), 1, 1],
+                );
+            }
         }
-        if self.probe_tiles > 0 {
-            pipelines::technique_pass(
-                ctx,
-                enc,
-                timer,
-                PASSES[1].0,
-                &p.lighting[1],
-                &[group2],
-                [probes.div_ceil(64), 1, 1],
-            );
-            pipelines::technique_pass(
-                ctx,
-                enc,
-                timer,
-                PASSES[2].0,
-                &p.lighting[2],
-                &[group2],
-                [probes.div_ceil(4), 1, 1],
-            );
+    }
+
+    /// Takes the re-placed cards off the relight list as runs of consecutive cards: (first
+    /// direct tile, count, first probe tile, count) each, at most `PRIORITY_RUNS` (the rest
+    /// wait for the next frame).
+    fn moved_runs(&mut self) -> Vec<[u32; 4]> {
+        let Some(c) = &self.cards else {
+            self.moved_relight.clear();
+            return Vec::new();
+        };
+        let mut cards = std::mem::take(&mut self.moved_relight);
+        cards.sort_unstable();
+        let (ds, ps) = (c.tile_starts(8), c.tile_starts(4));
+        let end = |starts: &[u32], k: usize, total: u32| starts.get(k).copied().unwrap_or(total);
+        let mut runs: Vec<[u32; 2]> = Vec::new();
+        for k in cards {
+            match runs.last_mut() {
+                Some(r) if r[1] == k => r[1] = k + 1,
+                _ => runs.push([k, k + 1]),
+            }
         }
+        if runs.len() > PRIORITY_RUNS {
+            for r in runs.split_off(PRIORITY_RUNS) {
+                self.moved_relight.extend(r[0]..r[1]);
+            }
+        }
+        const MAX_GROUPS: u32 = 65_535;
+        runs.iter()
+            .map(|&[a, b]| {
+                let (a, b) = (a as usize, b as usize);
+                let d = end(&ds, a, self.direct_tiles);
+                let q = end(&ps, a, self.probe_tiles);
+                [
+                    d,
+                    (end(&ds, b, self.direct_tiles) - d).min(MAX_GROUPS),
+                    q,
+                    (end(&ps, b, self.probe_tiles) - q).min(MAX_GROUPS * 4),
+                ]
+            })
+            .collect()
     }
 
     /// Takes this frame's captures off the queue: nearest the camera first, up to the budget.
@@ -848,7 +1005,13 @@ fn card_buffers(gpu: &Gpu, c: &CardSet) -> ([wgpu::Buffer; 4], wgpu::Buffer, u32
     tiles.extend(probes);
     (
         [
-            init_buffer(gpu, "lumen cards", bytemuck::cast_slice(&c.cards), storage),
+            // COPY_DST: moved cards are written in place (`replace`).
+            init_buffer(
+                gpu,
+                "lumen cards",
+                bytemuck::cast_slice(&c.cards),
+                storage | wgpu::BufferUsages::COPY_DST,
+            ),
             init_buffer(
                 gpu,
                 "lumen object cards",

@@ -255,6 +255,10 @@ pub struct Lumen {
     /// The scene the distance field was built for: its triangles (scene edits rebuild only the
     /// bricks they touch).
     scene_tris: Vec<[Vec3; 3]>,
+    /// What the last scene change did to the surface cache (tests).
+    last_refresh: Option<Refresh>,
+    /// World-cache slots the last re-posing marked never traced.
+    world_invalidated: usize,
     features: SceneFeatures,
     sky: bool,
     extent: [u32; 2],
@@ -279,6 +283,8 @@ impl Default for Lumen {
             res: None,
             clipmaps: None,
             scene_tris: Vec::new(),
+            last_refresh: None,
+            world_invalidated: 0,
             built_with: None,
             restir_direct: RestirDirect::default(),
             reflections: Reflections::default(),
@@ -287,6 +293,26 @@ impl Default for Lumen {
             extent: [0, 0],
         }
     }
+}
+
+/// Per object whose triangles changed (same triangle list length, `object` per triangle): the
+/// box of its changed triangles where they were and the box where they are (the distance field
+/// rebuilds the bricks of both).
+fn changed_objects(old: &[[Vec3; 3]], new: &[[Vec3; 3]], object: &[u32]) -> Vec<(Vec3, Vec3)> {
+    use std::collections::BTreeMap;
+    let empty = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
+    let mut boxes: BTreeMap<u32, [(Vec3, Vec3); 2]> = BTreeMap::new();
+    for ((a, b), &o) in old.iter().zip(new).zip(object) {
+        if a == b {
+            continue;
+        }
+        let e = boxes.entry(o).or_insert([empty; 2]);
+        for (bx, t) in e.iter_mut().zip([a, b]) {
+            bx.0 = bx.0.min(t[0].min(t[1]).min(t[2]));
+            bx.1 = bx.1.max(t[0].max(t[1]).max(t[2]));
+        }
+    }
+    boxes.into_values().flatten().collect()
 }
 
 /// Scene triangles that are in one list and not the other (a multiset difference by exact
@@ -521,9 +547,11 @@ impl Lumen {
         self.features = data.features.clone();
         self.sky = ctx.scene.sky.max_element() > 0.0 && self.features.sky_visible;
         self.cache.settings = self.settings.surface_cache_settings();
-        match self.cache.refresh_for_scene(ctx)? {
+        let refresh = self.cache.refresh_for_scene(ctx)?;
+        self.last_refresh = Some(refresh);
+        match refresh {
             Refresh::Build => return Ok(false),
-            Refresh::Kept => {}
+            Refresh::Kept | Refresh::Moved => {}
             Refresh::NewCards => {
                 let layout = self.layouts(gpu).lumen.clone();
                 let Some(r) = self.res.as_mut() else {
@@ -533,12 +561,28 @@ impl Lumen {
             }
         }
         if data.tris != self.scene_tris {
-            let changed = changed_triangles(&self.scene_tris, &data.tris);
+            let objects = self.cache.card_set().map(|c| c.tri_object.as_slice());
+            let changed = match objects {
+                Some(o) if o.len() == data.tris.len() => {
+                    changed_objects(&self.scene_tris, &data.tris, o)
+                }
+                _ => changed_triangles(&self.scene_tris, &data.tris),
+            };
+            if refresh == Refresh::Moved {
+                // The seed's reaction: bricks and world probes around the moved objects' old
+                // and new places start again; the rest of the history stays (temporal passes
+                // reproject with the motion vectors).
+                if let Some(r) = self.res.as_ref() {
+                    self.world_invalidated = r.world.invalidate(gpu, &changed);
+                }
+            }
             if let Some(c) = self.clipmaps.as_mut() {
                 c.dirty.extend(changed);
             }
             self.scene_tris = data.tris.clone();
-            self.reset_history(gpu);
+            if refresh != Refresh::Moved {
+                self.reset_history(gpu);
+            }
         }
         Ok(true)
     }
@@ -564,6 +608,21 @@ impl Lumen {
         };
         let pixels = (self.extent[0] * self.extent[1]) as usize;
         readback::read_buffer(gpu, r.buffer(18), pixels).map(Some)
+    }
+
+    /// What the last scene change or re-posing did to the surface cache.
+    pub fn last_refresh(&self) -> Option<Refresh> {
+        self.last_refresh
+    }
+
+    /// World-cache slots the last re-posing marked never traced (around moved objects).
+    pub fn world_invalidated(&self) -> usize {
+        self.world_invalidated
+    }
+
+    /// The surface cache's direct irradiance per atlas texel (tests).
+    pub fn cache_direct(&self, gpu: &Gpu) -> Result<Option<Vec<[f32; 4]>>> {
+        self.cache.read_direct(gpu)
     }
 
     /// The clipmaps' placement as of the last frame.
@@ -1100,14 +1159,23 @@ impl Technique for Lumen {
     /// its update budgets (a material edit recaptures the cards, see `build`).
     fn on_scene_change(&mut self, _gpu: &Gpu) {}
 
-    /// Playback moved geometry: the cards are made again from the moved triangles and the
-    /// distance field's bricks around changed triangles are rebuilt, as for a scripted geometry
-    /// edit (`refresh_for_scene`, which also restarts Lumen's history: the seed's per-object
-    /// reaction, cards in object space and relighting moved texels first, is not built yet).
+    /// Playback moved geometry (`refresh_for_scene`): objects that moved rigidly keep their
+    /// cards, re-placed on their new triangles, captured and relit first; the distance field's
+    /// bricks and the world cache's probes around their old and new places start again; the
+    /// rest of the history stays. Anything else (a deformation) rebuilds the cards and restarts
+    /// the history, as a scripted edit does.
     fn on_geometry_moved(&mut self, ctx: &RenderContext) -> Result<()> {
+        let start = std::time::Instant::now();
         if !self.refresh_for_scene(ctx)? {
             self.build(ctx)?;
         }
+        log::debug!(
+            "lumen: re-posing handled in {:.3} ms ({:?}, {} cards re-placed, {} world probes invalidated)",
+            start.elapsed().as_secs_f64() * 1e3,
+            self.last_refresh,
+            self.cache.moved_cards().len(),
+            self.world_invalidated
+        );
         Ok(())
     }
 

@@ -121,12 +121,15 @@ impl Clipmaps {
             }
             let origin = self.brick_origin(l, camera);
             let whole = !self.valid[li];
-            let update = whole || origin != self.brick_origins[li] || edits;
+            let scrolled = origin != self.brick_origins[li];
+            let update = whole || scrolled || edits;
+            // Edits alone: coarse cells far from every edited box keep their distance.
+            let edits_only = edits && !whole && !scrolled;
             let (lo, _) = self.level_box(l, origin);
             plan.levels[li] = LevelGpu {
                 origin: [lo.x, lo.y, lo.z, self.voxel(l)],
                 brick_origin: [origin.x, origin.y, origin.z, 1],
-                update: [update as u32, whole as u32, 0, 0],
+                update: [update as u32, whole as u32, edits_only as u32, 0],
             };
             plan.any_update |= update;
             self.brick_origins[li] = origin;
