@@ -472,3 +472,48 @@ fn static_shadow_cache_follows_moving_casters_and_lights() {
         }
     }
 }
+
+/// A scene edit (Cornell's back-wall lamp switched on, which also changes the light pool)
+/// empties the shadow cache: the first frame after it equals the frame tracing everything bit
+/// for bit, every cell refilling from the pixels' own rays. Before the edit the full cells'
+/// averages make the two frames differ, so a cache kept across the edit would show.
+#[test]
+fn scene_edit_empties_the_shadow_cache() {
+    let size = [32, 32];
+    let run = |cache: bool| {
+        let mut p: toml::Table = toml::toml! { rate = "full"
+        denoise = false
+        accumulate = false };
+        p.insert("static_shadow_cache".into(), cache.into());
+        let mut e = common::engine(
+            "callisto-shadows",
+            p,
+            builtin::cornell_with_lamp(Some(0.0)),
+            size,
+            3,
+        );
+        for _ in 0..24 {
+            e.render_frame().unwrap();
+        }
+        let before = e.read_output().unwrap();
+        let on = builtin::cornell_with_lamp(Some(40.0));
+        let gpu_scene = std::sync::Arc::new(gilab::scene::gpu_scene::GpuScene::upload(&e.gpu, &on));
+        e.change_scene(std::sync::Arc::new(on), gpu_scene).unwrap();
+        e.render_frame().unwrap();
+        (before, e.read_output().unwrap())
+    };
+    let (on_before, on_after) = run(true);
+    let (off_before, off_after) = run(false);
+    let m = metrics::compare(&on_before, &off_before).unwrap();
+    eprintln!(
+        "cornell, lamp switched on after 24 frames: before, cache on vs off relMSE {:.2e}; first frame after: {}",
+        m.rel_mse,
+        if on_after.rgb == off_after.rgb { "equal" } else { "different" }
+    );
+    assert_eq!(on_after.non_finite_count(), 0);
+    assert!(on_before.rgb != off_before.rgb, "the cells were full");
+    assert!(
+        on_after.rgb == off_after.rgb,
+        "a stale cache after the edit"
+    );
+}
