@@ -309,7 +309,8 @@ impl CallistoShadows {
         let pixel_direct = buf("callisto pixel direct", px * 16);
         let pixel_specular = buf("callisto pixel specular", 2 * px * 16);
         self.split.observe(&ctx.scene.data);
-        let cache_layout = split::CacheLayout::new(&ctx.scene.data, px);
+        let cache_layout =
+            split::CacheLayout::new(&ctx.scene.data, px, self.settings.static_shadow_cache);
         // Zeroed: an empty hash grid.
         let cache = buf("callisto shadow cache", cache_layout.words() * 4);
         gpu.queue.write_buffer(

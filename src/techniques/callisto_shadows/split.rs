@@ -34,12 +34,17 @@ pub struct CacheLayout {
 }
 
 impl CacheLayout {
-    pub fn new(data: &SceneData, pixels: u64) -> CacheLayout {
+    /// `enabled` false: one slot (the split is off; the masks are still read).
+    pub fn new(data: &SceneData, pixels: u64, enabled: bool) -> CacheLayout {
         let entries = data.bvh.top.as_ref().map_or(0, |t| t.entries.len()) as u32;
         let light_mask_base = entries.div_ceil(32).max(1);
         let dynamic_base = light_mask_base + (data.lights.len() as u32).div_ceil(32).max(1);
         // About 8 slots a pixel (a few lights per cell), 2^16 to 2^22 (32 MiB).
-        let slots = (pixels * 8).next_power_of_two().clamp(1 << 16, 1 << 22) as u32;
+        let slots = if enabled {
+            (pixels * 8).next_power_of_two().clamp(1 << 16, 1 << 22) as u32
+        } else {
+            1
+        };
         CacheLayout {
             light_mask_base,
             dynamic_base,
