@@ -27,13 +27,15 @@
 #import gilab::primary::{current_surface, surface_material}
 #import gilab::brdf::bsdf_eval
 #import gilab::lights::{eval_light_point, light_shadow_ray, select_light}
-#import gilab::ray::unoccluded
+#import gilab::callisto_cache::{split_visibility, receiver_dynamic}
 #import gilab::scene::light_pool
 #import gilab::callisto::{params, tile_lists, rates, stats, current, debug_out, list_base, list_count, rate_base, get_rate, find_slot, parity, TILE, RATE_NONE, RATE_QUARTER, RATE_HALF, RATE_FULL, NO_SLOT}
 
 var<workgroup> wg_depth: array<f32, 256>;
 var<workgroup> wg_vis: array<atomic<u32>, 8>;
 var<workgroup> wg_traced: array<atomic<u32>, 8>;
+// Traced visibility per pixel (fractional where the shadow cache averages a cell).
+var<workgroup> wg_visf: array<f32, 256>;
 var<workgroup> wg_rates: array<atomic<u32>, 4>;
 var<workgroup> wg_red: array<f32, 256>;
 var<workgroup> wg_count: u32;
@@ -132,6 +134,8 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
     let n = s.normal_alpha.xyz;
     let wo = s.wo_dist.xyz;
     let material = surface_material(s);
+    // Receivers on moving instances trace the whole scene (the static/dynamic split).
+    let moves = valid && receiver_dynamic(u32(s.prev_pos.w));
     var rng = rng_init(px, frame.sample_offset, STREAM_CALLISTO_LIGHT, frame.seed);
     let prev_segment = 1u - parity();
     // Punctual lights (exact unshadowed light): shadowed and unshadowed, for the shadow mask.
@@ -187,14 +191,14 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
         let trace_here = traced && lit;
         var vis = 0.0;
         if trace_here {
-            rays += 1u;
             let bitv = 1u << (li % 32u);
             atomicOr(&wg_traced[li / 32u], bitv);
-            if unoccluded(light_shadow_ray(p, ng, ls)) {
-                vis = 1.0;
+            vis = split_visibility(light, light_shadow_ray(p, ng, ls), p, ng, z, moves, &rays);
+            if vis >= 0.5 {
                 atomicOr(&wg_vis[li / 32u], bitv);
             }
         }
+        wg_visf[li] = vis;
         if valid {
             quad_rate = max(quad_rate, rate);
         }
@@ -212,7 +216,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
                         let sl = local_index(sx, sy);
                         if traced_bit(sl) {
                             let w = (1.0 - abs(f32(sx) - f32(lid.x)) * 0.5) * (1.0 - abs(f32(sy) - f32(lid.y)) * 0.5) * depth_weight(z, wg_depth[sl]);
-                            sum += w * f32(vis_bit(sl));
+                            sum += w * wg_visf[sl];
                             wsum += w;
                         }
                     }
@@ -223,7 +227,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
                     let sl = local_index(2u * qx + k, 2u * qy + k);
                     if traced_bit(sl) {
                         let w = depth_weight(z, wg_depth[sl]);
-                        sum += w * f32(vis_bit(sl));
+                        sum += w * wg_visf[sl];
                         wsum += w;
                     }
                 }
@@ -237,7 +241,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
                     let dz = abs(wg_depth[sl] - z);
                     if traced_bit(sl) && dz < best {
                         best = dz;
-                        sum = f32(vis_bit(sl));
+                        sum = wg_visf[sl];
                         wsum = 1.0;
                     }
                 }
@@ -246,8 +250,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
                 vis = sum / wsum;
             } else {
                 // No traced neighbour saw the light: trace this pixel itself.
-                rays += 1u;
-                vis = select(0.0, 1.0, unoccluded(light_shadow_ray(p, ng, ls)));
+                vis = split_visibility(light, light_shadow_ray(p, ng, ls), p, ng, z, moves, &rays);
             }
         }
         if ls.is_delta {
@@ -325,10 +328,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
             let e = bsdf_eval(material, n, wo, ls.wi);
             let c = e.f * max(dot(n, ls.wi), 0.0) * ls.radiance * ls.geom / (ls.area_pdf * f32(params.tail_samples));
             if any(c > vec3<f32>(0.0)) {
-                rays += 1u;
-                if unoccluded(light_shadow_ray(p, ng, ls)) {
-                    sampled += c;
-                }
+                sampled += c * split_visibility(light, light_shadow_ray(p, ng, ls), p, ng, z, moves, &rays);
             }
         }
     }

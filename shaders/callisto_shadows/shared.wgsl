@@ -43,6 +43,23 @@ struct CallistoParams {
     // reflection_max_roughness, and resolve adds its specular light (binding 8).
     reflections: u32,
     reflection_max_roughness: f32,
+    // The static/dynamic split (static_cache.wgsl): on, rays a cell takes, cell edge in pixel
+    // footprints, hash slots (a power of two).
+    shadow_cache: u32,
+    cache_samples: u32,
+    cache_cell: f32,
+    cache_slots: u32,
+    // First motion record in bvh_nodes (TriAttr.pad.x - 1 - motion_base = 2 x entry).
+    motion_base: u32,
+    // First instance record in bvh_nodes (a top-level leaf's record - records_at = 2 x entry).
+    records_at: u32,
+    dynamic_count: u32,
+    // Word offsets in shadow_cache: the light mask, the dynamic entries, the hash grid.
+    light_mask_base: u32,
+    dynamic_base: u32,
+    hash_base: u32,
+    pad_a: u32,
+    pad_b: u32,
 }
 
 const TILE: u32 = 16u;
@@ -79,6 +96,10 @@ const NO_SLOT: u32 = 0xffffffffu;
 // The reflections part's output (`reflections = "traced"`): per pixel the traced specular
 // radiance, then a second plane (rough albedo, hit kind).
 @group(3) @binding(8) var<storage, read_write> pixel_specular: array<vec4<f32>>;
+// The static/dynamic split (src/techniques/callisto_shadows/split.rs): a bit per top-level
+// entry that moved, a bit per light that moved, 8 words per moving entry (world box, instance
+// record), then the hash grid of static visibility (2 words a slot: key, rays << 16 | unoccluded).
+@group(3) @binding(9) var<storage, read_write> shadow_cache: array<atomic<u32>>;
 
 fn parity() -> u32 {
     return frame.frame_index & 1u;

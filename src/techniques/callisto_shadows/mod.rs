@@ -17,6 +17,9 @@
 //!    rates for next frame from the shadow variance weighted by perceptual importance; then
 //!    `tail_samples` power-sampled shadow rays for the lights outside the list (list + tail is
 //!    unbiased whatever the ranges).
+//!    With `static_shadow_cache`, a light that has not moved takes static geometry's
+//!    visibility from a world-space hash grid (filled by rays that skip the moving instances) and
+//!    traces only the moving instances each frame (`split.rs`, static_cache.wgsl).
 //! 3. `luminance_mean`: the mean scene luminance the next frame's weighting uses.
 //! 4. `resolve` (per pixel): the punctual lights' shadow mask, the ratio of their shadowed and
 //!    unshadowed direct light each averaged over frames, with a disocclusion blur that shrinks
@@ -28,6 +31,7 @@
 //! ReSTIR's for `resolve`, empty for the others).
 
 mod params;
+mod split;
 
 pub use params::{CallistoParamsGpu, CallistoSettings, MAX_LIGHTS_PER_TILE, PARAMS, RATES};
 
@@ -64,6 +68,10 @@ struct Resources {
     clear_on_reset: Vec<wgpu::Buffer>,
     debug: wgpu::Buffer,
     tiles: [u32; 2],
+    uniform: wgpu::Buffer,
+    /// The static/dynamic split's buffer (binding 9): masks, dynamic entries, the hash grid.
+    cache: wgpu::Buffer,
+    cache_layout: split::CacheLayout,
 }
 
 pub struct CallistoShadows {
@@ -89,6 +97,8 @@ pub struct CallistoShadows {
     res: Option<Resources>,
     /// Lights in the scene's pool, for the pass list.
     lights: usize,
+    /// Which entries and lights have moved (`static_shadow_cache`).
+    split: split::Split,
 }
 
 impl Default for CallistoShadows {
@@ -112,6 +122,7 @@ impl Default for CallistoShadows {
             pipelines: None,
             res: None,
             lights: 0,
+            split: split::Split::default(),
         }
     }
 }
@@ -151,7 +162,7 @@ impl CallistoShadows {
         self.layout
             .get_or_insert_with(|| {
                 let mut entries = vec![pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE)];
-                for b in 1..=8 {
+                for b in 1..=9 {
                     entries.push(pipelines::storage_entry(b, false));
                 }
                 pipelines::layout(gpu, "callisto", &entries)
@@ -235,9 +246,27 @@ impl CallistoShadows {
         (self.settings.max_lights_per_tile as u64).min(fit).max(1) as u32
     }
 
-    fn gpu_params(&self, tiles: [u32; 2], pixels: u32) -> CallistoParamsGpu {
+    fn gpu_params(
+        &self,
+        tiles: [u32; 2],
+        pixels: u32,
+        data: &crate::scene::gpu_scene::SceneData,
+        cache: &split::CacheLayout,
+    ) -> CallistoParamsGpu {
         let s = &self.settings;
+        let top = data.bvh.top.as_ref();
         CallistoParamsGpu {
+            shadow_cache: s.static_shadow_cache as u32,
+            cache_samples: s.shadow_cache_samples,
+            cache_cell: s.shadow_cache_cell,
+            cache_slots: cache.slots,
+            motion_base: data.bvh.nodes.len() as u32,
+            records_at: top.map_or(0, |t| t.records_at as u32),
+            dynamic_count: self.split.dynamic_count(),
+            light_mask_base: cache.light_mask_base,
+            dynamic_base: cache.dynamic_base,
+            hash_base: cache.hash_base,
+            pad: [0; 2],
             tiles_x: tiles[0],
             tiles_y: tiles[1],
             max_lights: self.slots(tiles),
@@ -279,12 +308,27 @@ impl CallistoShadows {
         let debug = buf("callisto debug", 3 * px * 16);
         let pixel_direct = buf("callisto pixel direct", px * 16);
         let pixel_specular = buf("callisto pixel specular", 2 * px * 16);
+        self.split.observe(&ctx.scene.data);
+        let cache_layout =
+            split::CacheLayout::new(&ctx.scene.data, px, self.settings.static_shadow_cache);
+        // Zeroed: an empty hash grid.
+        let cache = buf("callisto shadow cache", cache_layout.words() * 4);
+        gpu.queue.write_buffer(
+            &cache,
+            0,
+            bytemuck::cast_slice(&self.split.head(&ctx.scene.data, &cache_layout)),
+        );
         let uniform = wgpu::util::DeviceExt::create_buffer_init(
             &gpu.device,
             &wgpu::util::BufferInitDescriptor {
                 label: Some("callisto params"),
-                contents: bytemuck::bytes_of(&self.gpu_params(tiles, px as u32)),
-                usage: wgpu::BufferUsages::UNIFORM,
+                contents: bytemuck::bytes_of(&self.gpu_params(
+                    tiles,
+                    px as u32,
+                    &ctx.scene.data,
+                    &cache_layout,
+                )),
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             },
         );
         let layout = self.layout(gpu);
@@ -302,6 +346,7 @@ impl CallistoShadows {
                 &debug,
                 &pixel_direct,
                 &pixel_specular,
+                &cache,
             ],
         );
         let output = self.restir_direct.output_layout(gpu).clone();
@@ -321,7 +366,17 @@ impl CallistoShadows {
             clear_on_reset: vec![lists, rates, stats, history],
             debug,
             tiles,
+            uniform,
+            cache,
+            cache_layout,
         });
+    }
+
+    /// Clears the hash grid of the static/dynamic split (every light's cached visibility).
+    fn clear_cache(&self, enc: &mut wgpu::CommandEncoder) {
+        if let Some(r) = &self.res {
+            enc.clear_buffer(&r.cache, r.cache_layout.hash_base as u64 * 4, None);
+        }
     }
 
     /// Whether next frame's rates use the mean scene luminance (the `luminance_mean` pass).
@@ -381,8 +436,13 @@ impl Technique for CallistoShadows {
                     "direct = \"restir\": the direct-light part replaces the tile shadows".into()
                 } else if lights > 0 {
                     format!(
-                        "one shadow ray per light per traced pixel, rate {} per 2x2 quad, bilateral reconstruction",
-                        RATES[s.rate as usize]
+                        "one shadow ray per light per traced pixel, rate {} per 2x2 quad, bilateral reconstruction{}",
+                        RATES[s.rate as usize],
+                        if s.static_shadow_cache {
+                            "; static lights over static receivers: cached static visibility x the moving instances traced"
+                        } else {
+                            ""
+                        }
                     )
                 } else {
                     no_lights()
@@ -479,11 +539,39 @@ impl Technique for CallistoShadows {
         for b in &r.clear_on_reset {
             enc.clear_buffer(b, 0, None);
         }
+        self.clear_cache(&mut enc);
         gpu.submit("callisto-shadows: history reset", enc.finish());
     }
 
-    /// Tile lists, rates and the shadow mask carry over, as they would in a game.
+    /// Tile lists, rates and the shadow mask carry over, as they would in a game. (A scene
+    /// edit has just rebuilt the resources, so the shadow cache starts empty.)
     fn on_scene_change(&mut self, _gpu: &Gpu) {}
+
+    /// The static/dynamic split: entries and lights that moved become dynamic (clearing the
+    /// cache when one does); the dynamic entries' boxes and the uniform follow the new pose.
+    fn on_geometry_moved(&mut self, ctx: &RenderContext) -> Result<()> {
+        let Some(r) = &self.res else {
+            return Ok(());
+        };
+        let newly_dynamic = self.split.observe(&ctx.scene.data);
+        let px = ctx.extent[0] * ctx.extent[1];
+        let layout = r.cache_layout;
+        let q = &ctx.gpu.queue;
+        q.write_buffer(
+            &r.cache,
+            0,
+            bytemuck::cast_slice(&self.split.head(&ctx.scene.data, &layout)),
+        );
+        let params = self.gpu_params(r.tiles, px, &ctx.scene.data, &layout);
+        q.write_buffer(&r.uniform, 0, bytemuck::bytes_of(&params));
+        if newly_dynamic {
+            let mut enc = ctx.gpu.device.create_command_encoder(&Default::default());
+            self.clear_cache(&mut enc);
+            ctx.gpu
+                .submit("callisto-shadows: shadow cache cleared", enc.finish());
+        }
+        Ok(())
+    }
 
     fn render(
         &mut self,

@@ -30,6 +30,20 @@ pub struct CallistoParamsGpu {
     pub direct_restir: u32,
     pub reflections: u32,
     pub reflection_max_roughness: f32,
+    /// The static/dynamic split (`static_shadow_cache`); layout of the cache buffer in words.
+    pub shadow_cache: u32,
+    pub cache_samples: u32,
+    pub cache_cell: f32,
+    pub cache_slots: u32,
+    /// First motion record in the BVH nodes buffer (`bvh.nodes.len()`).
+    pub motion_base: u32,
+    /// First instance record (`TopLevel::records_at`).
+    pub records_at: u32,
+    pub dynamic_count: u32,
+    pub light_mask_base: u32,
+    pub dynamic_base: u32,
+    pub hash_base: u32,
+    pub pad: [u32; 2],
 }
 
 /// Rate choices, in the order of `rate_mode` on the GPU.
@@ -37,7 +51,7 @@ pub const RATES: &[&str] = &["variable", "full", "half", "quarter"];
 
 /// Callisto's own parameters; [`PARAMS`] adds the reflections part's and the caches' light
 /// sampling (`cache_direct`, for the cache ReSTIR GI's paths end in).
-const OWN_PARAMS: [ParamSpec; 16] = [
+const OWN_PARAMS: [ParamSpec; 19] = [
     ParamSpec {
         name: "rate",
         what: "shadow-ray rate per light and 2x2 quad: variable (chosen from last frame's shadow variance, perceptually weighted) or forced everywhere",
@@ -166,16 +180,40 @@ const OWN_PARAMS: [ParamSpec; 16] = [
         kind: ParamKind::Choice(&["tiles", "restir"]),
         default: 0.0,
     },
+    ParamSpec {
+        name: "static_shadow_cache",
+        what: "the seed's static/dynamic split: a light that has not moved keeps the visibility of static geometry from static receivers in a world-space hash grid (cells of shadow_cache_cell pixel footprints, per light), filled by rays against static geometry only; each frame traces only the moving instances (those whose transform has changed) and multiplies. Lights that moved and receivers on moving instances trace the whole scene",
+        higher: "on: a cell stops tracing static geometry after shadow_cache_samples rays; shadow edges of static casters are averaged over a cell",
+        lower: "off: every shadow ray traverses the whole scene every frame",
+        kind: ParamKind::Bool,
+        default: 1.0,
+    },
+    ParamSpec {
+        name: "shadow_cache_samples",
+        what: "static-only shadow rays a cache cell (per light) takes before its visibility is final",
+        higher: "smoother cached soft shadows, more rays before a cell is filled",
+        lower: "fewer rays, noisier cached visibility (1: a point light's cell keeps its first ray)",
+        kind: ParamKind::Int { min: 1, max: 1024 },
+        default: 16.0,
+    },
+    ParamSpec {
+        name: "shadow_cache_cell",
+        what: "edge of a cache cell in pixel footprints at the cell's distance (rounded to a power of two metres, so cells survive camera motion); the normal's dominant axis is part of the key",
+        higher: "fewer cells, faster filling, blurrier and blockier static shadow edges",
+        lower: "sharper cached edges, more cells to fill (more rays after camera motion)",
+        kind: ParamKind::Float { min: 0.25, max: 64.0 },
+        default: 2.0,
+    },
 ];
 
-const WITH_REFLECTIONS: [ParamSpec; 22] = crate::render::params::concat_params::<16, 6, 22>(
+const WITH_REFLECTIONS: [ParamSpec; 25] = crate::render::params::concat_params::<19, 6, 25>(
     OWN_PARAMS,
     // Off by default: Callisto alone is direct light (`gi = false`), which its tests compare
     // with the reference's direct light.
     crate::parts::reflections::params_off_by_default(),
 );
 
-pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<22, 3, 25>(
+pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<25, 3, 28>(
     WITH_REFLECTIONS,
     crate::parts::world_regir::PARAMS,
 );
@@ -206,6 +244,9 @@ pub struct CallistoSettings {
     pub reflections: bool,
     /// The reflections part's settings.
     pub reflection: crate::parts::reflections::ReflectionSettings,
+    pub static_shadow_cache: bool,
+    pub shadow_cache_samples: u32,
+    pub shadow_cache_cell: f32,
 }
 
 impl CallistoSettings {
@@ -230,6 +271,9 @@ impl CallistoSettings {
             cache_light: crate::parts::world_regir::WorldRegirSettings::from_params(p),
             reflections: crate::parts::reflections::ReflectionSettings::from_params(p).0,
             reflection: crate::parts::reflections::ReflectionSettings::from_params(p).1,
+            static_shadow_cache: p.bool("static_shadow_cache"),
+            shadow_cache_samples: p.u32("shadow_cache_samples"),
+            shadow_cache_cell: p.f32("shadow_cache_cell"),
         }
     }
 }

@@ -1,0 +1,242 @@
+// The seed's static/dynamic shadow split (shared/seeds/002, RAYTRACED SHADOWS: static-on-static
+// shadows cached, "Dynamic TLAS for dynamic-on-static shadowing"), in world space: the seed
+// keeps static shadows in lightmaps baked offline; gilab has no lightmaps, so a light that has
+// not moved keeps the visibility of static geometry in a hash grid of cells (per light, cell
+// edge a power of two near `cache_cell` pixel footprints, the normal's dominant axis), filled at
+// run time by rays that skip the moving instances. Each frame a static receiver then traces only
+// the moving instances (a ray that enters none of their boxes traces nothing), and its
+// visibility is the cell's static visibility times that. Lights that moved and receivers on
+// moving instances trace the whole scene.
+#define_import_path gilab::callisto_cache
+
+#import gilab::frame::frame
+#import gilab::scene::{bvh_nodes, tri_attr, alpha_hole}
+#import gilab::bvh::{hits_aabb, intersect_tri, safe_inv_dir, instance_at, to_object_vector, INSTANCE_LEAF}
+#import gilab::ray::{RaySegment, unoccluded}
+#import gilab::callisto::{params, shadow_cache}
+
+const CACHE_PROBES: u32 = 8u;
+const CACHE_NONE: u32 = 0xffffffffu;
+
+fn cache_word(i: u32) -> u32 {
+    return atomicLoad(&shadow_cache[i]);
+}
+
+fn entry_dynamic(e: u32) -> bool {
+    return ((cache_word(e / 32u) >> (e % 32u)) & 1u) != 0u;
+}
+
+fn light_dynamic(light: u32) -> bool {
+    return ((cache_word(params.light_mask_base + light / 32u) >> (light % 32u)) & 1u) != 0u;
+}
+
+// Whether a receiver (GSurface.prev_pos.w: BVH-order triangle + 1) lies on a moving instance.
+fn receiver_dynamic(tri_plus_one: u32) -> bool {
+    if tri_plus_one == 0u {
+        return false;
+    }
+    let record = tri_attr[tri_plus_one - 1u].pad.x;
+    if record == 0u || record - 1u < params.motion_base {
+        return false;
+    }
+    return entry_dynamic((record - 1u - params.motion_base) / 2u);
+}
+
+// Any hit against static geometry only: the whole BVH, moving instances' leaves skipped.
+fn occluded_static(s: RaySegment) -> bool {
+#ifdef INSTANCES
+    let inv_dir = safe_inv_dir(s.dir);
+    var top_end = 0u;
+    if arrayLength(&bvh_nodes) > 0u {
+        top_end = bvh_nodes[0].skip;
+    }
+    var o = s.origin;
+    var inv = inv_dir;
+    var end = top_end;
+    var resume = 0u;
+    var tri_base = 0u;
+    var inside = false;
+    var i = 0u;
+    loop {
+        if i >= end {
+            if inside {
+                i = resume;
+                end = top_end;
+                o = s.origin;
+                inv = inv_dir;
+                tri_base = 0u;
+                inside = false;
+                continue;
+            }
+            break;
+        }
+        let node = bvh_nodes[i];
+        if !hits_aabb(o, inv, node.bounds_min, node.bounds_max, s.t_max) {
+            i = node.skip;
+            continue;
+        }
+        let count = node.tris & 0xffu;
+        if count == 0u {
+            i++;
+            continue;
+        }
+        if count == INSTANCE_LEAF {
+            let at = node.tris >> 8u;
+            if entry_dynamic((at - params.records_at) / 2u) {
+                i = node.skip;
+                continue;
+            }
+            let inst = instance_at(at);
+            o = to_object_vector(inst, s.origin) + inst.translation;
+            inv = safe_inv_dir(to_object_vector(inst, s.dir));
+            resume = node.skip;
+            i = inst.root;
+            end = inst.end;
+            tri_base = inst.tri_offset;
+            inside = true;
+            continue;
+        }
+        let first = tri_base + (node.tris >> 8u);
+        for (var k = 0u; k < count; k++) {
+            let r = intersect_tri(s.origin, s.dir, first + k);
+#ifdef ALPHA_TEST
+            if r.x > 0.0 && r.x < s.t_max && !alpha_hole(first + k, r.yz) {
+#else
+            if r.x > 0.0 && r.x < s.t_max {
+#endif
+                return true;
+            }
+        }
+        i = node.skip;
+    }
+    return false;
+#else
+    // A flat BVH has no instances, so nothing moves.
+    return !unoccluded(s);
+#endif
+}
+
+struct DynamicHit {
+    // The ray entered a moving instance's box (it was traced).
+    entered: bool,
+    hit: bool,
+}
+
+// Any hit against the moving instances only: their world boxes (the caster-box culling), then
+// each entered instance's own tree in object space.
+fn occluded_dynamic(s: RaySegment) -> DynamicHit {
+    var out = DynamicHit(false, false);
+    let inv_dir = safe_inv_dir(s.dir);
+    for (var d = 0u; d < params.dynamic_count; d++) {
+        let b = params.dynamic_base + d * 8u;
+        let bmin = vec3<f32>(bitcast<f32>(cache_word(b)), bitcast<f32>(cache_word(b + 1u)), bitcast<f32>(cache_word(b + 2u)));
+        let bmax = vec3<f32>(bitcast<f32>(cache_word(b + 4u)), bitcast<f32>(cache_word(b + 5u)), bitcast<f32>(cache_word(b + 6u)));
+        if !hits_aabb(s.origin, inv_dir, bmin, bmax, s.t_max) {
+            continue;
+        }
+        out.entered = true;
+        let inst = instance_at(cache_word(b + 3u));
+        let o = to_object_vector(inst, s.origin) + inst.translation;
+        let inv = safe_inv_dir(to_object_vector(inst, s.dir));
+        var i = inst.root;
+        loop {
+            if i >= inst.end {
+                break;
+            }
+            let node = bvh_nodes[i];
+            if !hits_aabb(o, inv, node.bounds_min, node.bounds_max, s.t_max) {
+                i = node.skip;
+                continue;
+            }
+            let count = node.tris & 0xffu;
+            if count == 0u {
+                i++;
+                continue;
+            }
+            let first = inst.tri_offset + (node.tris >> 8u);
+            for (var k = 0u; k < count; k++) {
+                let r = intersect_tri(s.origin, s.dir, first + k);
+#ifdef ALPHA_TEST
+                if r.x > 0.0 && r.x < s.t_max && !alpha_hole(first + k, r.yz) {
+#else
+                if r.x > 0.0 && r.x < s.t_max {
+#endif
+                    out.hit = true;
+                    return out;
+                }
+            }
+            i = node.skip;
+        }
+    }
+    return out;
+}
+
+fn hash_u(v: u32) -> u32 {
+    // PCG (Jarzynski & Olano 2020).
+    let state = v * 747796405u + 2891336453u;
+    let word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
+    return (word >> 22u) ^ word;
+}
+
+// The cache slot of (light, the cell around p with normal n at distance dist from the camera),
+// found or claimed; CACHE_NONE when its probes are full of other keys.
+fn cache_slot(light: u32, p: vec3<f32>, n: vec3<f32>, dist: f32) -> u32 {
+    // Camera up is scaled by tan(fov/2): a pixel spans 2 |up| / height per unit of distance.
+    let footprint = dist * 2.0 * length(frame.camera_up.xyz) / f32(frame.size.y);
+    let level = i32(ceil(log2(max(footprint * params.cache_cell, 1e-6))));
+    let c = vec3<i32>(floor(p * exp2(f32(-level))));
+    let a = abs(n);
+    let axis = select(select(2u, 1u, a.y >= a.z), 0u, a.x >= a.y && a.x >= a.z);
+    let side = select(0u, 1u, n[axis] < 0.0);
+    let tag = (u32(level + 64) << 3u) | (axis << 1u) | side;
+    let h = hash_u(hash_u(hash_u(hash_u(hash_u(u32(c.x)) + u32(c.y)) + u32(c.z)) + tag) + light);
+    // An independent checksum (nonzero: 0 marks an empty slot).
+    let key = max(hash_u(u32(c.x) ^ hash_u(u32(c.y) ^ 0x9e3779b9u ^ hash_u(u32(c.z) ^ hash_u(tag ^ hash_u(light + 0x68bc21ebu))))), 1u);
+    var probe = 0u;
+    for (var tries = 0u; tries < 2u * CACHE_PROBES && probe < CACHE_PROBES; tries++) {
+        let slot = (h + probe) & (params.cache_slots - 1u);
+        let r = atomicCompareExchangeWeak(&shadow_cache[params.hash_base + 2u * slot], 0u, key);
+        if r.exchanged || r.old_value == key {
+            return slot;
+        }
+        if r.old_value != 0u {
+            // Another key: next slot (a spurious failure retries this one).
+            probe++;
+        }
+    }
+    return CACHE_NONE;
+}
+
+// Visibility of a shadow ray from receiver p (geometric normal ng, distance dist from the
+// camera; `receiver_moves`: on a moving instance) towards light `light`, counting traversals in
+// `rays`. Without the split, one ray against the whole scene.
+fn split_visibility(light: u32, seg: RaySegment, p: vec3<f32>, ng: vec3<f32>, dist: f32, receiver_moves: bool, rays: ptr<function, u32>) -> f32 {
+    var slot = CACHE_NONE;
+    if params.shadow_cache != 0u && !receiver_moves && !light_dynamic(light) {
+        slot = cache_slot(light, p, ng, dist);
+    }
+    if slot == CACHE_NONE {
+        *rays += 1u;
+        return select(0.0, 1.0, unoccluded(seg));
+    }
+    let value = params.hash_base + 2u * slot + 1u;
+    let v = atomicLoad(&shadow_cache[value]);
+    var vis = 0.0;
+    if (v >> 16u) >= params.cache_samples {
+        vis = f32(v & 0xffffu) / f32(v >> 16u);
+    } else {
+        // Filling: this ray's own static visibility, added to the cell.
+        *rays += 1u;
+        let open = !occluded_static(seg);
+        atomicAdd(&shadow_cache[value], 0x10000u | u32(open));
+        vis = f32(open);
+    }
+    if vis <= 0.0 || params.dynamic_count == 0u {
+        return vis;
+    }
+    let d = occluded_dynamic(seg);
+    if d.entered {
+        *rays += 1u;
+    }
+    return select(vis, 0.0, d.hit);
+}
