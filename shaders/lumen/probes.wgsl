@@ -23,6 +23,7 @@ const PROBES_SPATIAL: u32 = 16u;
 const PROBES_TEMPORAL: u32 = 32u;
 const PROBES_CONTACT_AO: u32 = 64u;
 const PROBES_ACTIVE: u32 = 128u;
+const PROBES_REASSIGN: u32 = 256u;
 
 // Words of `probe_state`.
 const STATE_PROBE_COUNT: u32 = 0u;

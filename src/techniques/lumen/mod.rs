@@ -858,7 +858,9 @@ impl Lumen {
             pass(
                 "probe sample",
                 true,
-                if s.product_sampling {
+                if s.product_sampling && s.ray_reassignment {
+                    "64 rays per probe: one per cell, dim cells (BRDF x last frame's radiance) culled by roulette, their rays supersample the brightest 2x2".into()
+                } else if s.product_sampling {
                     "64 directions per probe from BRDF x last frame's radiance (world cache where reprojection fails)".into()
                 } else {
                     "64 stratified uniform directions per probe".into()

@@ -3,7 +3,7 @@
 use crate::render::params::{ParamKind, ParamSpec, Params};
 
 /// Lumen's own parameters; [`PARAMS`] adds the reflections part's.
-const OWN_PARAMS: [ParamSpec; 27] = [
+const OWN_PARAMS: [ParamSpec; 28] = [
     ParamSpec {
         name: "tracing",
         what: "what rays trace: the global distance field (the seed's software ray tracing) or the scene's triangles through the BVH (its hardware ray tracing); both read the same surface cache",
@@ -75,6 +75,14 @@ const OWN_PARAMS: [ParamSpec; 27] = [
         lower: "product: rays go where the light and the BRDF are",
         kind: ParamKind::Choice(&["product", "uniform"]),
         default: 0.0,
+    },
+    ParamSpec {
+        name: "probe_ray_reassignment",
+        what: "with product sampling, the seed's ray reassignment instead of a CDF draw: one ray per seen cell, cells below half the uniform pdf keep theirs with probability 2 C p (Russian roulette, unbiased), the freed rays supersample the highest-pdf cells 2x2",
+        higher: "on: bright cells are traced 4 times, dim cells sometimes not at all",
+        lower: "off: each cell gets about 64 p rays from a stratified CDF draw",
+        kind: ParamKind::Bool,
+        default: 1.0,
     },
     ParamSpec {
         name: "adaptive_probes",
@@ -223,13 +231,13 @@ const OWN_PARAMS: [ParamSpec; 27] = [
 ];
 
 /// Lumen's parameters and its reflections part's.
-const WITH_REFLECTIONS: [ParamSpec; 33] = crate::render::params::concat_params::<27, 6, 33>(
+const WITH_REFLECTIONS: [ParamSpec; 34] = crate::render::params::concat_params::<28, 6, 34>(
     OWN_PARAMS,
     crate::parts::reflections::PARAMS,
 );
 
 /// Lumen's parameters and its parts' (reflections, the cache's light sampling).
-pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<33, 3, 36>(
+pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<34, 3, 37>(
     WITH_REFLECTIONS,
     crate::parts::world_regir::PARAMS,
 );
@@ -253,6 +261,8 @@ pub struct LumenSettings {
     pub screen_probes: bool,
     pub probe_spacing: u32,
     pub product_sampling: bool,
+    /// `probe_ray_reassignment` (with product sampling).
+    pub ray_reassignment: bool,
     pub adaptive_probes: bool,
     pub screen_traces: bool,
     pub screen_trace_steps: u32,
@@ -312,6 +322,7 @@ impl LumenSettings {
             screen_probes: p.u32("final_gather") == 0,
             probe_spacing: p.u32("probe_spacing"),
             product_sampling: p.u32("probe_sampling") == 0,
+            ray_reassignment: p.bool("probe_ray_reassignment"),
             adaptive_probes: p.bool("adaptive_probes"),
             screen_traces: p.bool("screen_traces"),
             screen_trace_steps: p.u32("screen_trace_steps"),

@@ -46,6 +46,7 @@ pub const PROBES_SPATIAL: u32 = 16;
 pub const PROBES_TEMPORAL: u32 = 32;
 pub const PROBES_CONTACT_AO: u32 = 64;
 pub const PROBES_ACTIVE: u32 = 128;
+pub const PROBES_REASSIGN: u32 = 256;
 
 /// `ProbeParams` of shaders/lumen/probes.wgsl.
 #[repr(C)]
@@ -300,6 +301,7 @@ impl ScreenProbes {
         let mut flags = PROBES_ACTIVE;
         for (on, flag) in [
             (s.product_sampling, PROBES_PRODUCT),
+            (s.ray_reassignment, PROBES_REASSIGN),
             (s.screen_traces, PROBES_SCREEN_TRACES),
             (s.world_cache, PROBES_WORLD_CACHE),
             (s.adaptive_probes, PROBES_ADAPTIVE),
