@@ -88,6 +88,33 @@ fn specular_vertex(m: Surface, o: PathOptions) -> bool {
     return m.alpha < o.specular_max_roughness * o.specular_max_roughness;
 }
 
+// Probability that NEE samples the sky rather than the light pool (0: the pool only, as
+// without an environment map; 1: the map alone when the pool is empty).
+fn nee_sky_share() -> f32 {
+    if !sky_nee() {
+        return 0.0;
+    }
+    return select(1.0, SKY_NEE_SHARE, light_pool.count > 0u);
+}
+
+// One NEE light sample from three random numbers: the sky with probability p_sky (importance
+// sampled), else one light of the pool by its power; pdf and area_pdf include that choice. The
+// light point depends on the numbers only, never on p: ReSTIR PT's random replay relies on it.
+fn pick_nee_light(p: vec3<f32>, u_sel: f32, u_light: vec2<f32>, p_sky: f32) -> LightSample {
+    if u_sel < p_sky {
+        let ss = sample_sky(u_light);
+        let le_sky = sky_radiance(ss.dir);
+        return LightSample(ss.dir, INFINITE_DISTANCE, le_sky, p_sky * ss.pdf, p_sky * ss.pdf, 1.0, false, ss.pdf > 0.0 && any(le_sky > vec3<f32>(0.0)), vec3<f32>(0.0));
+    }
+    if light_pool.count == 0u {
+        return no_light_sample();
+    }
+    var ls = sample_light(p, (u_sel - p_sky) / (1.0 - p_sky), u_light);
+    ls.pdf *= 1.0 - p_sky;
+    ls.area_pdf *= 1.0 - p_sky;
+    return ls;
+}
+
 // Next-event estimation at a path vertex (a pure mirror evaluates to 0 and traces no shadow
 // ray): the sky with probability p_sky, else the light pool; ls.pdf includes that choice. With
 // `mis` the sample is weighted against BSDF sampling (power heuristic), which the path's
@@ -106,14 +133,8 @@ fn next_event(surf: HitSurface, wo: vec3<f32>, rng: ptr<function, Rng>, p_sky: f
     var ls = no_light_sample();
     // Contribution weight of `ls`: 1 / pdf for one sample, RIS's w_sum / (M target) otherwise.
     var big_w = 0.0;
-    if u_sel < p_sky {
-        let ss = sample_sky(u_light);
-        let le_sky = sky_radiance(ss.dir);
-        ls = LightSample(ss.dir, INFINITE_DISTANCE, le_sky, p_sky * ss.pdf, p_sky * ss.pdf, 1.0, false, ss.pdf > 0.0 && any(le_sky > vec3<f32>(0.0)), vec3<f32>(0.0));
-        big_w = 1.0 / max(ls.pdf, 1e-30);
-    } else if light_pool.count > 0u && candidates <= 1u {
-        ls = sample_light(surf.position, (u_sel - p_sky) / (1.0 - p_sky), u_light);
-        ls.pdf *= 1.0 - p_sky;
+    if u_sel < p_sky || (light_pool.count > 0u && candidates <= 1u) {
+        ls = pick_nee_light(surf.position, u_sel, u_light, p_sky);
         big_w = 1.0 / max(ls.pdf, 1e-30);
     } else if light_pool.count > 0u {
         var w_sum = 0.0;
@@ -195,10 +216,7 @@ fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, 
     end_offset = 1u;
 #endif
     // Probability that NEE samples the sky (0: light pool only, as without an environment map).
-    var p_sky = 0.0;
-    if sky_nee() {
-        p_sky = select(1.0, SKY_NEE_SHARE, light_pool.count > 0u);
-    }
+    let p_sky = nee_sky_share();
     for (var depth = 0u; depth <= max_bounces; depth++) {
         let hit = trace_closest(origin, dir, 0.0, 1e30);
         if depth == 0u {

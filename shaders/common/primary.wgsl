@@ -83,3 +83,28 @@ fn reproject(p: vec3<f32>) -> i32 {
 fn surface_material(s: GSurface) -> Surface {
     return Surface(s.base_metal.xyz, s.base_metal.w, s.normal_alpha.w, s.geo_specular.w, materials[s.material].shading);
 }
+
+// A random pixel in a disk of `radius` pixels around `pixel` (uniform in area), or -1 off
+// screen: where spatial reuse looks for neighbours.
+fn disk_neighbour(pixel: vec2<u32>, radius: f32, u: vec2<f32>) -> i32 {
+    let r = radius * sqrt(u.x);
+    let angle = 6.28318530717959 * u.y;
+    let px = i32(pixel.x) + i32(round(r * cos(angle)));
+    let py = i32(pixel.y) + i32(round(r * sin(angle)));
+    if px < 0 || py < 0 || px >= i32(frame.size.x) || py >= i32(frame.size.y) {
+        return -1;
+    }
+    return py * i32(frame.size.x) + px;
+}
+
+// Similar enough surfaces to share samples: normals within ~25 degrees, depths within 10%.
+fn similar(a: GSurface, b: GSurface) -> bool {
+    if a.pos.w < 0.5 || b.pos.w < 0.5 {
+        return false;
+    }
+    if dot(a.normal_alpha.xyz, b.normal_alpha.xyz) < 0.9 {
+        return false;
+    }
+    let plane = abs(dot(b.pos.xyz - a.pos.xyz, a.geo_specular.xyz));
+    return plane < 0.1 * a.wo_dist.w && abs(a.wo_dist.w - b.wo_dist.w) < 0.1 * a.wo_dist.w;
+}

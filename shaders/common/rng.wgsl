@@ -71,3 +71,8 @@ fn rand_pair(rng: ptr<function, Rng>) -> vec2<f32> {
     let b = rand(rng);
     return vec2<f32>(a, b);
 }
+// ReSTIR PT: each pixel's path seed and the choice among its path lengths; the temporal and the
+// spatial pass's resampling choices. The path's own numbers come from its seed (per vertex).
+const STREAM_PT_INITIAL: u32 = 41u;
+const STREAM_PT_TEMPORAL: u32 = 42u;
+const STREAM_PT_SPATIAL: u32 = 43u;

@@ -10,9 +10,9 @@
 #import gilab::sampling::sample_cosine_hemisphere
 #import gilab::brdf::{bsdf_eval, bsdf_sample, specular_eval, BsdfSample}
 #import gilab::path::{trace_path, PathOptions}
-#import gilab::primary::{reproject, current_surface, previous_surface, surface_material, at_last_frame}
+#import gilab::primary::{reproject, current_surface, previous_surface, surface_material, at_last_frame, similar}
 #import gilab::scene::{next_position, next_normal}
-#import gilab::restir::{params, gi_reservoirs, gi_sky, GiReservoir, reservoir_index, parity, empty_gi_reservoir, gi_contribution, gi_target, gi_update, gi_jacobian_ok, similar, TEMPORAL_SEGMENT}
+#import gilab::restir::{params, gi_reservoirs, gi_sky, GiReservoir, reservoir_index, parity, empty_gi_reservoir, gi_contribution, gi_target, gi_update, gi_jacobian_ok, TEMPORAL_SEGMENT}
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {

@@ -12,8 +12,8 @@
 #import gilab::sampling::{sample_triangle, sample_cosine_hemisphere}
 #import gilab::brdf::{bsdf_eval, bsdf_sample}
 #import gilab::sky::{sample_sky, sky_pdf, sky_importance}
-#import gilab::primary::{GSurface, reproject, current_surface, previous_surface, surface_material, at_last_frame}
-#import gilab::restir::{params, reservoirs, Reservoir, reservoir_index, parity, empty_reservoir, regir_cell, regir_slots, contribution, target_at, visible, update, similar, oct_encode, SKY_SAMPLE, VISIBILITY_PER_CLASS, VISIBILITY_MERGED, TEMPORAL_SEGMENT}
+#import gilab::primary::{GSurface, reproject, current_surface, previous_surface, surface_material, at_last_frame, similar}
+#import gilab::restir::{params, reservoirs, Reservoir, reservoir_index, parity, empty_reservoir, regir_cell, regir_slots, contribution, target_at, visible, update, oct_encode, SKY_SAMPLE, VISIBILITY_PER_CLASS, VISIBILITY_MERGED, TEMPORAL_SEGMENT}
 
 // W = w_sum / (M p-hat(y)) of a reservoir filled by RIS.
 fn finish_ris(s: GSurface, r_in: Reservoir) -> Reservoir {

@@ -5,7 +5,7 @@
 #define_import_path gilab::restir
 
 #import gilab::frame::frame
-#import gilab::primary::{GSurface, current_surface, surface_material}
+#import gilab::primary::{GSurface, current_surface, surface_material, disk_neighbour, similar}
 #import gilab::math::luminance
 #import gilab::brdf::{Surface, bsdf_eval}
 #import gilab::lights::{LightSample, eval_light_point, light_shadow_ray}
@@ -211,14 +211,7 @@ fn update(r: ptr<function, Reservoir>, candidate: Reservoir, w: f32, m: f32, u: 
 
 // A random pixel in the spatial-reuse disk around `pixel` (uniform in area), or -1 off screen.
 fn spatial_neighbour(pixel: vec2<u32>, u: vec2<f32>) -> i32 {
-    let radius = params.spatial_radius * sqrt(u.x);
-    let angle = 6.28318530717959 * u.y;
-    let px = i32(pixel.x) + i32(round(radius * cos(angle)));
-    let py = i32(pixel.y) + i32(round(radius * sin(angle)));
-    if px < 0 || py < 0 || px >= i32(frame.size.x) || py >= i32(frame.size.y) {
-        return -1;
-    }
-    return py * i32(frame.size.x) + px;
+    return disk_neighbour(pixel, params.spatial_radius, u);
 }
 
 // Spatial neighbours per pixel at most (MAX_SPATIAL in src/techniques/restir/params.rs).
@@ -248,18 +241,6 @@ fn similar_neighbour(pixel: vec2<u32>, idx: u32, s: GSurface, u: vec2<f32>) -> i
         return -1;
     }
     return n;
-}
-
-// Similar enough surfaces to share samples: normals within ~25 degrees, depths within 10%.
-fn similar(a: GSurface, b: GSurface) -> bool {
-    if a.pos.w < 0.5 || b.pos.w < 0.5 {
-        return false;
-    }
-    if dot(a.normal_alpha.xyz, b.normal_alpha.xyz) < 0.9 {
-        return false;
-    }
-    let plane = abs(dot(b.pos.xyz - a.pos.xyz, a.geo_specular.xyz));
-    return plane < 0.1 * a.wo_dist.w && abs(a.wo_dist.w - b.wo_dist.w) < 0.1 * a.wo_dist.w;
 }
 
 // ReSTIR GI (Ouyang et al. 2021): a reservoir holds a sample point x_s found by a sample path,

@@ -6,6 +6,7 @@ pub mod callisto_shadows;
 pub mod lumen;
 pub mod reference;
 pub mod restir;
+pub mod restir_pt;
 pub mod surfels;
 
 use crate::render::{params, Technique};
@@ -28,6 +29,11 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         id: "restir",
         what: "ReSTIR DI + GI: resampled direct light (light classes, ReGIR) and indirect light, with temporal and spatial reuse",
         create: || Box::new(restir::Restir::default()),
+    },
+    TechniqueInfo {
+        id: "restir-pt",
+        what: "ReSTIR PT (GRIS): whole paths resampled per pixel with the hybrid shift (random replay, then reconnection at the first rough, distant vertex pair), temporal and spatial reuse with pairwise MIS",
+        create: || Box::new(restir_pt::RestirPt::default()),
     },
     TechniqueInfo {
         id: "surfels",

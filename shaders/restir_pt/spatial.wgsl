@@ -1,0 +1,85 @@
+// ReSTIR PT pass 3: spatial reuse with pairwise MIS (GRIS's generalised balance heuristic in
+// its pairwise form, with the canonical sample). Up to `spatial_count` neighbours in a disk of
+// `spatial_radius` pixels on similar surfaces; each neighbour's path is shifted to this pixel,
+// and this pixel's path to each neighbour to weigh it: two shifts per neighbour. The kept path
+// goes to this frame's final reservoir.
+#import gilab::rng::{rng_init, rand, rand_pair, STREAM_PT_SPATIAL}
+#import gilab::frame::frame
+#import gilab::counters::{flush_counts, no_counts, RAY_REUSE}
+#import gilab::math::luminance
+#import gilab::primary::{current_surface, disk_neighbour, similar}
+#import gilab::restir_pt::{params, reservoirs, reservoir_index, parity, TEMPORAL_SEGMENT, shift_path, adopt, empty_stream, stream_add, stream_result, pair_share, pair_balance, write_debug}
+
+// Neighbours per pixel at most (MAX_SPATIAL in src/techniques/restir_pt/params.rs).
+const MAX_NEIGHBOURS: u32 = 8u;
+
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
+    var counts = no_counts();
+    if gid.x < frame.size.x && gid.y < frame.size.y {
+        let idx = gid.y * frame.size.x + gid.x;
+        var rng = rng_init(gid.xy, frame.sample_offset, STREAM_PT_SPATIAL, frame.seed);
+        let s = current_surface(idx);
+        let c = reservoirs[reservoir_index(TEMPORAL_SEGMENT, idx)];
+        var ids = array<u32, 8>(0u, 0u, 0u, 0u, 0u, 0u, 0u, 0u);
+        var n = 0u;
+        if s.pos.w > 0.5 {
+            for (var j = 0u; j < min(params.spatial_count, MAX_NEIGHBOURS); j++) {
+                let q = disk_neighbour(gid.xy, params.spatial_radius, rand_pair(&rng));
+                if q >= 0 && u32(q) != idx && similar(s, current_surface(u32(q))) {
+                    ids[n] = u32(q);
+                    n += 1u;
+                }
+            }
+        }
+        var out = c;
+        var shifts = 0u;
+        var failures = 0u;
+        var jacobian = 1.0;
+        if n > 0u {
+            var m_total = c.m;
+            for (var j = 0u; j < n; j++) {
+                m_total += reservoirs[reservoir_index(TEMPORAL_SEGMENT, ids[j])].m;
+            }
+            let nf = f32(n);
+            var st = empty_stream();
+            var mis_c = 0.0;
+            for (var j = 0u; j < n; j++) {
+                let q = reservoirs[reservoir_index(TEMPORAL_SEGMENT, ids[j])];
+                let share = pair_share(c.m, q.m, nf, m_total);
+                // Neighbour j's path, shifted here.
+                if q.big_w > 0.0 {
+                    let sq = shift_path(q, s);
+                    counts[RAY_REUSE] += sq.rays;
+                    shifts += 1u;
+                    failures += u32(sq.failed);
+                    let target_q = luminance(sq.contrib);
+                    if sq.jacobian > 0.0 {
+                        let mis_q = share * pair_balance(q.m, q.contrib.w / sq.jacobian, c.m / nf, target_q);
+                        stream_add(&st, adopt(q, sq), mis_q * target_q * q.big_w * sq.jacobian, sq.jacobian, rand(&rng));
+                    }
+                }
+                // This pixel's path at neighbour j, for the canonical weight.
+                if c.big_w > 0.0 {
+                    let sc = shift_path(c, current_surface(ids[j]));
+                    counts[RAY_REUSE] += sc.rays;
+                    shifts += 1u;
+                    failures += u32(sc.failed);
+                    mis_c += share * pair_balance(c.m / nf, c.contrib.w, q.m, luminance(sc.contrib) * sc.jacobian);
+                } else {
+                    mis_c += share;
+                }
+            }
+            stream_add(&st, c, mis_c * c.contrib.w * c.big_w, 1.0, rand(&rng));
+            out = stream_result(st, m_total);
+            jacobian = st.jacobian;
+        }
+        reservoirs[reservoir_index(parity(), idx)] = out;
+        var rate = 0.0;
+        if shifts > 0u {
+            rate = f32(failures) / f32(shifts);
+        }
+        write_debug(idx, out, rate, jacobian);
+    }
+    flush_counts(local_index, counts);
+}

@@ -1,0 +1,364 @@
+//! # ReSTIR PT (`restir-pt`)
+//!
+//! Resampled whole paths with the hybrid shift of Lin et al. 2022 ("Generalized Resampled
+//! Importance Sampling: Foundations of ReSTIR", SIGGRAPH; the shift RTXDI 3.0 ships). Per pixel
+//! and frame, on the engine's primary surfaces:
+//!
+//! 1. `initial`: one path traced as the reference traces it (NEE with MIS at every vertex,
+//!    bounded by `max_bounces`, no Russian roulette); its contributions (one per length and
+//!    end) are candidates resampled by luminance into the pixel's path reservoir. The reservoir
+//!    keeps the reconnection vertex (triangle + barycentrics, so it follows moving objects),
+//!    the suffix radiance there, the path's seed, length and end.
+//! 2. `temporal`: last frame's reservoir at the reprojected pixel, pairwise MIS (two shifts).
+//! 3. `spatial`: `spatial_count` neighbours, pairwise MIS with the canonical sample (two
+//!    shifts per neighbour: GRIS's generalised balance heuristic in its pairwise form).
+//! 4. `shade`: F × W of the kept path, emission, accumulation.
+//!
+//! The shift (hybrid, or reconnection / replay only) and its Jacobians are described in
+//! shaders/restir_pt/shared.wgsl; tests/restir_pt.rs checks the Jacobians against finite
+//! differences on the CPU ([`shift_math`]). Direct light is either in the same reservoirs
+//! (`direct = "unified"`) or ReSTIR DI's through the direct-light part (`"restir"`).
+
+mod params;
+pub mod shift_math;
+
+pub use params::{PtParamsGpu, PtSettings, MAX_SPATIAL, PARAMS};
+
+use crate::gpu::{timing::PassTimer, Gpu};
+use crate::parts::RestirDirect;
+use crate::render::params::Params;
+use crate::render::primary::FrameInputs;
+use crate::render::{pipelines, DebugView, PassInfo, RenderContext, Technique};
+use crate::scene::features::SceneFeatures;
+use anyhow::Result;
+
+/// Bytes of `PathReservoir` in shaders/restir_pt/shared.wgsl.
+pub const PATH_RESERVOIR_BYTES: u64 = 80;
+/// Reservoir segments: final of even frames, final of odd frames, this frame's working copy.
+const SEGMENTS: u64 = 3;
+
+const OWN_SHADER_FILES: [&str; 4] = [
+    "restir_pt/initial.wgsl",
+    "restir_pt/temporal.wgsl",
+    "restir_pt/spatial.wgsl",
+    "restir_pt/shade.wgsl",
+];
+const SHADER_FILES: [&str; 9] = crate::render::concat_files(
+    OWN_SHADER_FILES,
+    crate::parts::restir_direct::SHADER_FILES,
+);
+
+#[derive(Default)]
+struct Pipelines {
+    initial: Option<wgpu::ComputePipeline>,
+    temporal: Option<wgpu::ComputePipeline>,
+    spatial: Option<wgpu::ComputePipeline>,
+    shade: Option<wgpu::ComputePipeline>,
+}
+
+/// Buffers sized by the image, and the bind groups over them.
+struct Resources {
+    extent: [u32; 2],
+    params: wgpu::Buffer,
+    reservoirs: wgpu::Buffer,
+    bind_group: wgpu::BindGroup,
+    /// The direct-light part's output, over the `direct_light` buffer the shading pass reads.
+    direct_bind_group: wgpu::BindGroup,
+    debug: wgpu::Buffer,
+}
+
+pub struct RestirPt {
+    params: Params,
+    pub settings: PtSettings,
+    layout: Option<wgpu::BindGroupLayout>,
+    pipelines: Pipelines,
+    resources: Option<Resources>,
+    restir_direct: RestirDirect,
+    scene_diagonal: f32,
+}
+
+impl Default for RestirPt {
+    fn default() -> Self {
+        let params = Params::new("restir-pt", PARAMS);
+        RestirPt {
+            settings: PtSettings::from_params(&params),
+            params,
+            layout: None,
+            pipelines: Pipelines::default(),
+            resources: None,
+            restir_direct: RestirDirect::default(),
+            scene_diagonal: 1.0,
+        }
+    }
+}
+
+impl RestirPt {
+    fn layout(&mut self, gpu: &Gpu) -> wgpu::BindGroupLayout {
+        self.layout
+            .get_or_insert_with(|| {
+                pipelines::layout(
+                    gpu,
+                    "restir-pt",
+                    &[
+                        pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE),
+                        pipelines::storage_entry(1, false),
+                        pipelines::storage_entry(2, false),
+                        pipelines::storage_entry(3, false),
+                    ],
+                )
+            })
+            .clone()
+    }
+
+    /// Reservoir memory per pixel (bytes): three segments of one path reservoir.
+    pub fn reservoir_bytes_per_pixel() -> u64 {
+        SEGMENTS * PATH_RESERVOIR_BYTES
+    }
+
+    fn write_params(&self, gpu: &Gpu) {
+        if let Some(r) = &self.resources {
+            let pixels = r.extent[0] * r.extent[1];
+            let p = self.settings.gpu(pixels, self.scene_diagonal);
+            gpu.queue
+                .write_buffer(&r.params, 0, bytemuck::bytes_of(&p));
+        }
+    }
+
+    fn build_resources(&mut self, ctx: &RenderContext) {
+        let gpu = ctx.gpu;
+        let f = &ctx.scene.data.features;
+        let lo = glam::Vec3::from(f.bounds_min);
+        let hi = glam::Vec3::from(f.bounds_max);
+        self.scene_diagonal = (hi - lo).length().max(1e-6);
+        if self.resources.as_ref().map(|r| r.extent) != Some(ctx.extent) {
+            let pixels = ctx.extent[0] as u64 * ctx.extent[1] as u64;
+            let layout = self.layout(gpu);
+            let params = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("restir-pt params"),
+                size: std::mem::size_of::<PtParamsGpu>() as u64,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            let reservoirs = pipelines::storage_buffer(
+                gpu,
+                "restir-pt reservoirs",
+                SEGMENTS * pixels * PATH_RESERVOIR_BYTES,
+            );
+            let debug = pipelines::storage_buffer(gpu, "restir-pt debug", 2 * pixels * 16);
+            let direct = pipelines::storage_buffer(gpu, "restir-pt direct light", pixels * 16);
+            let bind_group = pipelines::buffers_bind_group(
+                gpu,
+                "restir-pt",
+                &layout,
+                &[&params, &reservoirs, &debug, &direct],
+            );
+            let direct_layout = self.restir_direct.output_layout(gpu).clone();
+            let direct_bind_group = pipelines::buffers_bind_group(
+                gpu,
+                "restir-pt direct output",
+                &direct_layout,
+                &[&direct],
+            );
+            self.resources = Some(Resources {
+                extent: ctx.extent,
+                params,
+                reservoirs,
+                bind_group,
+                direct_bind_group,
+                debug,
+            });
+        }
+        self.write_params(gpu);
+    }
+
+    fn prepare_direct(&mut self, ctx: &RenderContext, rebuild: bool) -> Result<()> {
+        if self.settings.direct_restir && (rebuild || !self.restir_direct.is_built()) {
+            self.restir_direct.build(ctx)?;
+        }
+        if self.restir_direct.is_built() {
+            self.restir_direct.build_resources(ctx);
+        }
+        Ok(())
+    }
+}
+
+impl Technique for RestirPt {
+    fn id(&self) -> &'static str {
+        "restir-pt"
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+
+    fn inputs(&self) -> FrameInputs {
+        FrameInputs {
+            primary_surfaces: true,
+        }
+    }
+
+    fn passes(&self, f: &SceneFeatures) -> Vec<PassInfo> {
+        let s = &self.settings;
+        let mut v = Vec::new();
+        if s.direct_restir {
+            v.extend(self.restir_direct.passes(f));
+            v.push(PassInfo {
+                name: "direct",
+                runs: true,
+                why: RestirDirect::describe(),
+            });
+        }
+        v.push(PassInfo {
+            name: "initial",
+            runs: true,
+            why: format!(
+                "one path per pixel (NEE + MIS, up to {} bounces), its contributions resampled into a path reservoir{}",
+                s.max_bounces,
+                if s.direct_restir {
+                    " (length 2 left to ReSTIR DI)"
+                } else {
+                    ""
+                }
+            ),
+        });
+        v.push(PassInfo {
+            name: "temporal",
+            runs: s.temporal,
+            why: if s.temporal {
+                format!(
+                    "last frame's path shifted here ({} shift), pairwise MIS",
+                    params::SHIFTS[s.shift]
+                )
+            } else {
+                "temporal = false".into()
+            },
+        });
+        v.push(PassInfo {
+            name: "spatial",
+            runs: true,
+            why: if s.spatial_count > 0 {
+                format!(
+                    "{} neighbours within {} px, two shifts each (pairwise MIS)",
+                    s.spatial_count, s.spatial_radius
+                )
+            } else {
+                "spatial_count = 0: copies the reservoir".into()
+            },
+        });
+        v.push(PassInfo {
+            name: "shade",
+            runs: true,
+            why: "F x W of the kept path (its shifts traced the visibility), emission, accumulation"
+                .into(),
+        });
+        v
+    }
+
+    fn build(&mut self, ctx: &RenderContext) -> Result<()> {
+        let layout = self.layout(ctx.gpu);
+        // Everything first: a failure leaves the previous pipelines in place.
+        let initial = ctx.pipeline(OWN_SHADER_FILES[0], &layout)?;
+        let temporal = ctx.pipeline(OWN_SHADER_FILES[1], &layout)?;
+        let spatial = ctx.pipeline(OWN_SHADER_FILES[2], &layout)?;
+        let shade = ctx.pipeline(OWN_SHADER_FILES[3], &layout)?;
+        self.prepare_direct(ctx, true)?;
+        self.pipelines = Pipelines {
+            initial: Some(initial),
+            temporal: Some(temporal),
+            spatial: Some(spatial),
+            shade: Some(shade),
+        };
+        self.build_resources(ctx);
+        Ok(())
+    }
+
+    fn apply_params(&mut self, ctx: &RenderContext) -> Result<()> {
+        self.prepare_direct(ctx, false)?;
+        self.build_resources(ctx);
+        Ok(())
+    }
+
+    fn reset_history(&mut self, gpu: &Gpu) {
+        if let Some(r) = &self.resources {
+            let mut enc = gpu.device.create_command_encoder(&Default::default());
+            enc.clear_buffer(&r.reservoirs, 0, None);
+            gpu.submit("restir-pt: reservoir reset", enc.finish());
+        }
+        self.restir_direct.reset(gpu);
+    }
+
+    /// The reservoirs carry over, as they would in a game (the engine restarts the average).
+    fn on_scene_change(&mut self, _gpu: &Gpu) {}
+
+    /// Reconnection vertices are triangle points: they follow their objects, and every shift
+    /// traces this frame's geometry, so nothing needs forgetting.
+    fn on_geometry_moved(&mut self, _ctx: &RenderContext) -> Result<()> {
+        Ok(())
+    }
+
+    fn render(
+        &mut self,
+        ctx: &RenderContext,
+        enc: &mut wgpu::CommandEncoder,
+        timer: &mut PassTimer,
+    ) {
+        let (Some(initial), Some(temporal), Some(spatial), Some(shade)) = (
+            &self.pipelines.initial,
+            &self.pipelines.temporal,
+            &self.pipelines.spatial,
+            &self.pipelines.shade,
+        ) else {
+            return;
+        };
+        let Some(r) = &self.resources else {
+            return;
+        };
+        if self.settings.direct_restir && self.restir_direct.is_built() {
+            self.restir_direct
+                .record(ctx, enc, timer, &r.direct_bind_group);
+        }
+        let bg = &r.bind_group;
+        pipelines::image_pass(ctx, enc, timer, "initial", initial, bg);
+        if self.settings.temporal {
+            pipelines::image_pass(ctx, enc, timer, "temporal", temporal, bg);
+        }
+        pipelines::image_pass(ctx, enc, timer, "spatial", spatial, bg);
+        pipelines::image_pass(ctx, enc, timer, "shade", shade, bg);
+    }
+
+    fn debug_views(&self) -> Vec<DebugView> {
+        let view = |name, channel, is_id| DebugView {
+            name,
+            channel,
+            is_id,
+        };
+        vec![
+            view("reconnection vertex r (0 = replay)", 0, true),
+            view("shift kind (0 replay, 1 reconnection, 2 hybrid)", 1, true),
+            view("shift failure rate", 2, false),
+            view("|log10 Jacobian| of the kept shift", 3, false),
+            view("path length k", 4, true),
+            view("reservoir M", 5, false),
+            view("reservoir weight W", 6, false),
+            view("target luminance(F)", 7, false),
+        ]
+    }
+
+    fn debug_buffer(&self) -> Option<&wgpu::Buffer> {
+        self.resources.as_ref().map(|r| &r.debug)
+    }
+
+    fn param_set(&self) -> &Params {
+        &self.params
+    }
+
+    fn set_params(&mut self, params: &toml::Table) -> Result<()> {
+        self.params.set("restir-pt", params)?;
+        self.settings = PtSettings::from_params(&self.params);
+        Ok(())
+    }
+
+    fn shader_files(&self) -> &'static [&'static str] {
+        &SHADER_FILES
+    }
+}
