@@ -27,9 +27,16 @@
 #import gilab::primary::{current_surface, surface_material}
 #import gilab::brdf::bsdf_eval
 #import gilab::lights::{eval_light_point, light_shadow_ray, select_light}
-#import gilab::callisto_cache::{split_visibility, receiver_dynamic}
+#import gilab::callisto_cache::{split_visibility, receiver_dynamic, record_dynamic}
 #import gilab::scene::light_pool
 #import gilab::callisto::{params, tile_lists, rates, stats, current, debug_out, list_base, list_count, rate_base, get_rate, find_slot, parity, TILE, RATE_NONE, RATE_QUARTER, RATE_HALF, RATE_FULL, NO_SLOT}
+
+// The shared traversal's instance filters (the static cache's static-only and moving-only rays)
+// ask the split what moved. naga_oil applies an override only from the entry shader (or an
+// additional import), so it is here rather than in static_cache.wgsl.
+override fn gilab::bvh::instance_moves(at: u32) -> bool {
+    return record_dynamic(at);
+}
 
 var<workgroup> wg_depth: array<f32, 256>;
 var<workgroup> wg_vis: array<atomic<u32>, 8>;

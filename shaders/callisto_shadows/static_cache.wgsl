@@ -6,13 +6,15 @@
 // run time by rays that skip the moving instances. Each frame a static receiver then traces only
 // the moving instances (a ray that enters none of their boxes traces nothing), and its
 // visibility is the cell's static visibility times that. Lights that moved and receivers on
-// moving instances trace the whole scene.
+// moving instances trace the whole scene. The static-only and moving-only rays are the shared
+// any-hit traversal (gilab::ray::occluded_filtered, gilab::bvh::traverse) with an instance
+// filter; what moves is `record_dynamic` below, which shadows.wgsl plugs into it.
 #define_import_path gilab::callisto_cache
 
 #import gilab::frame::frame
-#import gilab::scene::{bvh_nodes, tri_attr, alpha_hole}
-#import gilab::bvh::{hits_aabb, intersect_tri, safe_inv_dir, instance_at, to_object_vector, INSTANCE_LEAF}
-#import gilab::ray::{RaySegment, unoccluded}
+#import gilab::scene::tri_attr
+#import gilab::bvh::{hits_aabb, safe_inv_dir, INSTANCES_STATIC, INSTANCES_DYNAMIC}
+#import gilab::ray::{RaySegment, unoccluded, occluded_filtered}
 #import gilab::callisto::{params, shadow_cache}
 
 const CACHE_PROBES: u32 = 8u;
@@ -42,133 +44,26 @@ fn receiver_dynamic(tri_plus_one: u32) -> bool {
     return entry_dynamic((record - 1u - params.motion_base) / 2u);
 }
 
-// Any hit against static geometry only: the whole BVH, moving instances' leaves skipped.
-fn occluded_static(s: RaySegment) -> bool {
-#ifdef INSTANCES
-    let inv_dir = safe_inv_dir(s.dir);
-    var top_end = 0u;
-    if arrayLength(&bvh_nodes) > 0u {
-        top_end = bvh_nodes[0].skip;
-    }
-    var o = s.origin;
-    var inv = inv_dir;
-    var end = top_end;
-    var resume = 0u;
-    var tri_base = 0u;
-    var inside = false;
-    var i = 0u;
-    loop {
-        if i >= end {
-            if inside {
-                i = resume;
-                end = top_end;
-                o = s.origin;
-                inv = inv_dir;
-                tri_base = 0u;
-                inside = false;
-                continue;
-            }
-            break;
-        }
-        let node = bvh_nodes[i];
-        if !hits_aabb(o, inv, node.bounds_min, node.bounds_max, s.t_max) {
-            i = node.skip;
-            continue;
-        }
-        let count = node.tris & 0xffu;
-        if count == 0u {
-            i++;
-            continue;
-        }
-        if count == INSTANCE_LEAF {
-            let at = node.tris >> 8u;
-            if entry_dynamic((at - params.records_at) / 2u) {
-                i = node.skip;
-                continue;
-            }
-            let inst = instance_at(at);
-            o = to_object_vector(inst, s.origin) + inst.translation;
-            inv = safe_inv_dir(to_object_vector(inst, s.dir));
-            resume = node.skip;
-            i = inst.root;
-            end = inst.end;
-            tri_base = inst.tri_offset;
-            inside = true;
-            continue;
-        }
-        let first = tri_base + (node.tris >> 8u);
-        for (var k = 0u; k < count; k++) {
-            let r = intersect_tri(s.origin, s.dir, first + k);
-#ifdef ALPHA_TEST
-            if r.x > 0.0 && r.x < s.t_max && !alpha_hole(first + k, r.yz) {
-#else
-            if r.x > 0.0 && r.x < s.t_max {
-#endif
-                return true;
-            }
-        }
-        i = node.skip;
-    }
-    return false;
-#else
-    // A flat BVH has no instances, so nothing moves.
-    return !unoccluded(s);
-#endif
+// Whether the top-level entry whose instance record is at node `at` has moved: what the shared
+// traversal's instance filters (gilab::bvh::INSTANCES_STATIC / INSTANCES_DYNAMIC) ask, through
+// the override of gilab::bvh::instance_moves in the entry shader (shadows.wgsl).
+fn record_dynamic(at: u32) -> bool {
+    return entry_dynamic((at - params.records_at) / 2u);
 }
 
-struct DynamicHit {
-    // The ray entered a moving instance's box (it was traced).
-    entered: bool,
-    hit: bool,
-}
-
-// Any hit against the moving instances only: their world boxes (the caster-box culling), then
-// each entered instance's own tree in object space.
-fn occluded_dynamic(s: RaySegment) -> DynamicHit {
-    var out = DynamicHit(false, false);
+// Whether the segment enters a moving instance's world box (the caster-box culling: a ray that
+// enters none is not traced against them).
+fn enters_dynamic(s: RaySegment) -> bool {
     let inv_dir = safe_inv_dir(s.dir);
     for (var d = 0u; d < params.dynamic_count; d++) {
         let b = params.dynamic_base + d * 8u;
         let bmin = vec3<f32>(bitcast<f32>(cache_word(b)), bitcast<f32>(cache_word(b + 1u)), bitcast<f32>(cache_word(b + 2u)));
         let bmax = vec3<f32>(bitcast<f32>(cache_word(b + 4u)), bitcast<f32>(cache_word(b + 5u)), bitcast<f32>(cache_word(b + 6u)));
-        if !hits_aabb(s.origin, inv_dir, bmin, bmax, s.t_max) {
-            continue;
-        }
-        out.entered = true;
-        let inst = instance_at(cache_word(b + 3u));
-        let o = to_object_vector(inst, s.origin) + inst.translation;
-        let inv = safe_inv_dir(to_object_vector(inst, s.dir));
-        var i = inst.root;
-        loop {
-            if i >= inst.end {
-                break;
-            }
-            let node = bvh_nodes[i];
-            if !hits_aabb(o, inv, node.bounds_min, node.bounds_max, s.t_max) {
-                i = node.skip;
-                continue;
-            }
-            let count = node.tris & 0xffu;
-            if count == 0u {
-                i++;
-                continue;
-            }
-            let first = inst.tri_offset + (node.tris >> 8u);
-            for (var k = 0u; k < count; k++) {
-                let r = intersect_tri(s.origin, s.dir, first + k);
-#ifdef ALPHA_TEST
-                if r.x > 0.0 && r.x < s.t_max && !alpha_hole(first + k, r.yz) {
-#else
-                if r.x > 0.0 && r.x < s.t_max {
-#endif
-                    out.hit = true;
-                    return out;
-                }
-            }
-            i = node.skip;
+        if hits_aabb(s.origin, inv_dir, bmin, bmax, s.t_max) {
+            return true;
         }
     }
-    return out;
+    return false;
 }
 
 fn hash_u(v: u32) -> u32 {
@@ -227,16 +122,16 @@ fn split_visibility(light: u32, seg: RaySegment, p: vec3<f32>, ng: vec3<f32>, di
     } else {
         // Filling: this ray's own static visibility, added to the cell.
         *rays += 1u;
-        let open = !occluded_static(seg);
+        let open = !occluded_filtered(seg, INSTANCES_STATIC);
         atomicAdd(&shadow_cache[value], 0x10000u | u32(open));
         vis = f32(open);
     }
     if vis <= 0.0 || params.dynamic_count == 0u {
         return vis;
     }
-    let d = occluded_dynamic(seg);
-    if d.entered {
-        *rays += 1u;
+    if !enters_dynamic(seg) {
+        return vis;
     }
-    return select(vis, 0.0, d.hit);
+    *rays += 1u;
+    return select(vis, 0.0, occluded_filtered(seg, INSTANCES_DYNAMIC));
 }

@@ -82,14 +82,37 @@ fn to_object_vector(inst: Instance, v: vec3<f32>) -> vec3<f32> {
     return inst.to_object_x * v.x + inst.to_object_y * v.y + inst.to_object_z * v.z;
 }
 
+// Instance filters of `traverse`: which instances of a two-level BVH a ray sees. All; only
+// those that do not move (`instance_moves` false), with the flat rest of the scene; only those
+// that move. (`instance_moves` follows the last const with its comment inside it: naga_oil
+// turns `virtual fn` and the whitespace before it into spaces, joining it to the line above,
+// where a line comment would swallow the declaration.)
+const INSTANCES_ALL: u32 = 0u;
+const INSTANCES_STATIC: u32 = 1u;
+const INSTANCES_DYNAMIC: u32 = 2u;
+virtual fn instance_moves(at: u32) -> bool {
+    // Whether the instance whose record is at node `at` moves, for INSTANCES_STATIC and
+    // INSTANCES_DYNAMIC. The BVH does not know what moves: a pass that filters overrides this
+    // in its entry shader (naga_oil `override fn gilab::bvh::instance_moves`) with its own
+    // record, e.g. Callisto's static/dynamic split (shaders/callisto_shadows/static_cache.wgsl).
+    // Without an override nothing moves.
+    return false;
+}
+
 // Walks the BVH for hits in (t_min, t_max): the closest one, or with `any_hit` the first one
 // found (shadow rays need no more). hit.tri == NO_HIT on a miss.
 // With INSTANCES (a two-level BVH, src/scene/instancing.rs) a top-level leaf moves the ray into
 // its instance's object space for the node tests of the mesh's tree, then traversal returns to
 // the top level; triangles are always the flattened world-space ones, so `t` and the hit are
-// those of a flat tree.
-fn traverse(origin: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32, any_hit: bool) -> Hit {
+// those of a flat tree. `instances` (INSTANCES_*) skips the top-level leaves of the instances it
+// leaves out; a flat BVH has no instances, so nothing in it moves.
+fn traverse(origin: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32, any_hit: bool, instances: u32) -> Hit {
     var hit = Hit(t_max, NO_HIT, vec2<f32>(0.0));
+#ifndef INSTANCES
+    if instances == INSTANCES_DYNAMIC {
+        return hit;
+    }
+#endif
     let inv_dir = safe_inv_dir(dir);
     let node_count = arrayLength(&bvh_nodes);
 #ifdef INSTANCES
@@ -138,7 +161,12 @@ fn traverse(origin: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32, any_hit: 
         }
 #ifdef INSTANCES
         if count == INSTANCE_LEAF {
-            let inst = instance_at(node.tris >> 8u);
+            let at = node.tris >> 8u;
+            if instances != INSTANCES_ALL && instance_moves(at) == (instances == INSTANCES_STATIC) {
+                i = node.skip;
+                continue;
+            }
+            let inst = instance_at(at);
             o = to_object_vector(inst, origin) + inst.translation;
             inv = safe_inv_dir(to_object_vector(inst, dir));
             resume = node.skip;
@@ -172,10 +200,16 @@ fn traverse(origin: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32, any_hit: 
 
 // Closest hit in (t_min, t_max). hit.tri == NO_HIT (and hit.t == t_max) on a miss.
 fn trace_closest(origin: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32) -> Hit {
-    return traverse(origin, dir, t_min, t_max, false);
+    return traverse(origin, dir, t_min, t_max, false, INSTANCES_ALL);
+}
+
+// True if anything among the instances `instances` (INSTANCES_*) selects blocks the open segment
+// (t_min, t_max).
+fn trace_any_filtered(origin: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32, instances: u32) -> bool {
+    return traverse(origin, dir, t_min, t_max, true, instances).tri != NO_HIT;
 }
 
 // True if anything blocks the open segment (t_min, t_max): shadow and visibility rays.
 fn trace_any(origin: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32) -> bool {
-    return traverse(origin, dir, t_min, t_max, true).tri != NO_HIT;
+    return trace_any_filtered(origin, dir, t_min, t_max, INSTANCES_ALL);
 }

@@ -7,7 +7,7 @@
 #define_import_path gilab::ray
 
 #import gilab::math::max_component
-#import gilab::bvh::trace_any
+#import gilab::bvh::{trace_any_filtered, INSTANCES_ALL}
 
 // Shadow rays stop this fraction short of their (offset) end point.
 const SHADOW_EPSILON: f32 = 1e-4;
@@ -55,7 +55,13 @@ fn spawn_ray_to_infinity(p: vec3<f32>, n: vec3<f32>, dir: vec3<f32>) -> RaySegme
     return RaySegment(offset_point(p, n, dir), dir, INFINITE_DISTANCE);
 }
 
+// True if anything among the instances `instances` selects (gilab::bvh::INSTANCES_*: all, only
+// the static or only the moving ones) blocks the segment.
+fn occluded_filtered(s: RaySegment, instances: u32) -> bool {
+    return trace_any_filtered(s.origin, s.dir, 0.0, s.t_max, instances);
+}
+
 // True if nothing blocks the segment.
 fn unoccluded(s: RaySegment) -> bool {
-    return !trace_any(s.origin, s.dir, 0.0, s.t_max);
+    return !occluded_filtered(s, INSTANCES_ALL);
 }
