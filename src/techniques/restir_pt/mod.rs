@@ -43,10 +43,8 @@ const OWN_SHADER_FILES: [&str; 4] = [
     "restir_pt/spatial.wgsl",
     "restir_pt/shade.wgsl",
 ];
-const SHADER_FILES: [&str; 9] = crate::render::concat_files(
-    OWN_SHADER_FILES,
-    crate::parts::restir_direct::SHADER_FILES,
-);
+const SHADER_FILES: [&str; 9] =
+    crate::render::concat_files(OWN_SHADER_FILES, crate::parts::restir_direct::SHADER_FILES);
 
 #[derive(Default)]
 struct Pipelines {
@@ -119,8 +117,7 @@ impl RestirPt {
         if let Some(r) = &self.resources {
             let pixels = r.extent[0] * r.extent[1];
             let p = self.settings.gpu(pixels, self.scene_diagonal);
-            gpu.queue
-                .write_buffer(&r.params, 0, bytemuck::bytes_of(&p));
+            gpu.queue.write_buffer(&r.params, 0, bytemuck::bytes_of(&p));
         }
     }
 
@@ -248,8 +245,9 @@ impl Technique for RestirPt {
         v.push(PassInfo {
             name: "shade",
             runs: true,
-            why: "F x W of the kept path (its shifts traced the visibility), emission, accumulation"
-                .into(),
+            why:
+                "F x W of the kept path (its shifts traced the visibility), emission, accumulation"
+                    .into(),
         });
         v
     }
