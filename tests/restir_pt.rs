@@ -715,3 +715,21 @@ fn history_is_kept_while_objects_move() {
     assert_eq!(e.read_output().unwrap().non_finite_count(), 0);
     assert_eq!(e.ray_counts().unwrap().invalid_samples, 0);
 }
+
+#[test]
+fn ray_budget_sets_the_spatial_neighbours() {
+    use gilab::render::Technique;
+    let pt = gilab::techniques::restir_pt::RestirPt::default();
+    let count = |budget: f64| {
+        pt.params_for_ray_budget(budget, Some(16.0))
+            .and_then(|t| t.get("spatial_count").and_then(|v| v.as_integer()))
+            .unwrap_or(pt.settings.spatial_count as i64)
+    };
+    // 16 rays measured at 3 neighbours: a budget below the path and the temporal shifts leaves
+    // none, a large one the most there are, and the count grows with the budget.
+    assert_eq!(count(8.0), 0);
+    assert_eq!(count(1000.0), 8);
+    let counts: Vec<i64> = (8..40).map(|b| count(b as f64)).collect();
+    assert!(counts.windows(2).all(|w| w[0] <= w[1]), "{counts:?}");
+    assert_eq!(count(16.0), 3, "the measured budget keeps the setting");
+}

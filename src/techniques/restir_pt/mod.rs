@@ -359,4 +359,34 @@ impl Technique for RestirPt {
     fn shader_files(&self) -> &'static [&'static str] {
         &SHADER_FILES
     }
+
+    /// The budget knob is `spatial_count`: each neighbour costs two shifts, about one ray each
+    /// where paths reconnect at their first bounce (more where they replay), measured when a
+    /// measurement is given; the path and the temporal shifts are the fixed part.
+    fn params_for_ray_budget(
+        &self,
+        rays_per_pixel: f64,
+        measured: Option<f64>,
+    ) -> Option<toml::Table> {
+        let s = &self.settings;
+        let shifts = |n: u32| 2.0 * n as f64 + if s.temporal { 2.0 } else { 0.0 };
+        let assumed_path = 2.0 * s.max_bounces.min(3) as f64 + 1.0;
+        let (fixed, per_shift) = match measured {
+            Some(m) if m > 0.0 => {
+                let path = assumed_path.min(m);
+                let reuse = (m - path).max(0.0);
+                let n = shifts(s.spatial_count);
+                (path, if n > 0.0 { reuse / n } else { 1.0 }.max(0.25))
+            }
+            _ => (assumed_path, 1.0),
+        };
+        let temporal = shifts(0) * per_shift;
+        let left = rays_per_pixel - fixed - temporal;
+        let count = ((left / (2.0 * per_shift)).floor().max(0.0) as u32).min(MAX_SPATIAL);
+        (count != s.spatial_count).then(|| {
+            let mut t = toml::Table::new();
+            t.insert("spatial_count".into(), (count as i64).into());
+            t
+        })
+    }
 }
