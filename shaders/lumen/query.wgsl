@@ -61,7 +61,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
                 weight = s.weight;
                 card = select(f32(s.best_card), -1.0, s.best_card == EMPTY);
                 cards = luminance(s.albedo * (s.direct + s.indirect)) * INV_PI;
-                voxel = voxel_lighting(h.position, h.normal, h.level);
+                voxel = voxel_lighting(h.position, h.normal, h.level, h.object);
             }
             if h.hit {
                 light = hit_light(h);

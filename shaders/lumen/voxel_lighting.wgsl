@@ -3,7 +3,7 @@
 // object's cards facing that direction (the reflected light a ray arriving from that side
 // takes back); directions with no surface or no card answer store EMPTY (weight 0).
 #import gilab::math::INV_PI
-#import gilab::lumen::{params, brick_table, brick_coord, brick_pool, fill_list, sdf_state, lit_list_index, STATE_LIT, MAX_GROUPS, level_voxel, voxel_dir, voxel_word_index, pack_rgb9e5, BRICK, LIGHT_BRICK, VOXEL_DIRS, EMPTY}
+#import gilab::lumen::{params, brick_table, brick_coord, brick_pool, fill_list, sdf_state, lit_list_index, STATE_LIT, MAX_GROUPS, level_voxel, voxel_dir, voxel_word_index, seen_point, pack_rgb9e5, BRICK, LIGHT_BRICK, VOXEL_DIRS, EMPTY}
 #import gilab::surface_cache::{sample_cache}
 
 // One workgroup per allocated brick (the list sdf_allocate wrote), a thread per lighting voxel.
@@ -29,11 +29,8 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) l
         let seen = brick_pool[voxel_word_index(0u, entry, li, k)];
         var word = EMPTY;
         if seen != EMPTY {
-            let d = voxel_dir(k);
-            let t = f32(seen >> 16u) / 65535.0 * size;
-            let p = centre + (0.5 * size - t) * d;
             // The hit is exact (a BVH ray): half a field voxel of depth tolerance.
-            let s = sample_cache(p, d, seen & 0xffffu, 0.5 * voxel);
+            let s = sample_cache(seen_point(centre, size, k, seen), voxel_dir(k), seen & 0xffffu, 0.5 * voxel);
             if s.weight > 1e-4 {
                 word = pack_rgb9e5(s.albedo * (s.direct + s.indirect) * INV_PI);
             }
