@@ -1363,4 +1363,20 @@ fn playing_keeps_the_cache_and_rebuilds_the_sdf_where_objects_moved() {
         empty <= fresh_empty + hits / 100,
         "moved cards miss their surfaces: {empty} against {fresh_empty}"
     );
+    // The voxel lighting around the moved objects: its visibility is traced again with the
+    // bricks their motion rebuilt, so their new places light SDF hits as in a fresh build.
+    let voxel_lit = |e: &Engine| {
+        let out = query(e, QueryMode::VoxelRay, &inputs);
+        out.iter()
+            .filter(|o| o[0][1] > 0.5 && o[0][2] < 0.5 && o[0][3] > 0.0)
+            .count()
+    };
+    let (played, fresh_lit) = (voxel_lit(&e), voxel_lit(&fresh));
+    eprintln!(
+        "rays at the moved objects: the voxel lighting answers {played} of {hits} front hits played, {fresh_lit} of {fresh_hits} fresh"
+    );
+    assert!(
+        played + hits / 100 >= fresh_lit,
+        "moved objects' voxels not refreshed: {played} against {fresh_lit}"
+    );
 }

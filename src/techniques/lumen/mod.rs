@@ -8,7 +8,9 @@
 //!    empty-space skipping. `sdf_release` frees the bricks a scroll or a scene edit made stale,
 //!    `sdf_allocate` gives a pool brick to each slot near a triangle, `sdf_fill` computes each
 //!    voxel's distance (BVH point query) and sign (back-face ray counts), one timed dispatch per
-//!    level, and `sdf_coarse` rebuilds the coarse volume of updated levels.
+//!    level, and `sdf_coarse` rebuilds the coarse volume of updated levels. `voxel_visibility`
+//!    runs with each level's fill: per lighting voxel (4^3 per brick) and axis direction, the
+//!    surface BVH rays across the voxel meet (the seed's voxel lighting visibility buffer).
 //! 2. The surface cache, a part Lumen holds (`crate::parts::surface_cache`, like the world
 //!    cache): `capture`: this frame's cards (closest first, 512^2 texels per frame) are
 //!    rasterised with their orthographic cameras into the atlas: albedo, normal, emission, depth.
@@ -16,6 +18,8 @@
 //!    frame's 8x8 tiles), `cache probes` (a 16-ray hemisphere probe per 4x4 tile, hits read the
 //!    cache itself: multi-bounce through feedback) and `cache indirect` (texels interpolate
 //!    their four probes with plane and hit-distance weights, blended over at most 4 frames).
+//!    Then `voxel lighting` (SDF tracing): the visibility hits shaded from their cards, which
+//!    SDF hits whose own cards give no answer read instead (the seed's voxel lighting).
 //! 4. The final gather, `final_gather = screen_probes` (the seed's Screen Space Radiance Cache,
 //!    `screen_probes.rs`): world radiance cache probes selected and traced (`world select`,
 //!    `world update`), last frame's closest-depth mips (`hzb`), probes placed on a jittered
