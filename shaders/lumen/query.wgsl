@@ -15,9 +15,10 @@
 //    weight), queries[2i + 1] = (luminance of the voxel lighting, of the cards, card weight, 0).
 #import gilab::bvh::{trace_closest, NO_HIT}
 #import gilab::scene::tri_geom
-#import gilab::math::{to_world, luminance, INV_PI}
+#import gilab::math::{to_world, luminance}
 #import gilab::sampling::sample_cosine_hemisphere
 #import gilab::rng::{rng_init, rand_pair, STREAM_LUMEN_QUERY}
+#import gilab::surface_cache::cache_reflected
 #import gilab::lumen::{params, sdf_distance, sdf_object, sdf_trace, finest_level, trace_scene, hit_cache_sample, hit_light, voxel_lighting, EMPTY}
 
 // Group 1 of the query pipeline only (it has no frame group): inputs in, answers out.
@@ -60,7 +61,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
                 let s = hit_cache_sample(h);
                 weight = s.weight;
                 card = select(f32(s.best_card), -1.0, s.best_card == EMPTY);
-                cards = luminance(s.albedo * (s.direct + s.indirect)) * INV_PI;
+                cards = luminance(cache_reflected(s));
                 voxel = voxel_lighting(h.position, h.normal, h.level, h.object);
             }
             if h.hit {

@@ -2,11 +2,11 @@
 // distance field (re)built this frame (scrolled, edited, moved objects, first build), one thread
 // per lighting voxel (4^3 per brick, twice the field's voxel) traces BVH rays per axis
 // direction across the voxel, from the face that direction points out of, and stores the
-// nearest front face they meet: its object and the distance. Geometry is cached, lighting is not: the
-// radiance is shaded every frame (voxel_lighting.wgsl).
+// nearest front face they meet: its object and the distance. Geometry is cached, lighting is
+// not: the radiance is shaded every frame (voxel_lighting.wgsl).
 #import gilab::scene::{tri_geom, tri_material, materials, scene_triangle}
 #import gilab::bvh::{trace_closest, NO_HIT}
-#import gilab::lumen::{params, brick_table, brick_coord, brick_pool, fill_list, level_voxel, sdf_distance, voxel_dir, voxel_word_index, voxel_ray_start, voxel_ray_length, encode_seen, BRICK, LIGHT_BRICK, VOXEL_DIRS, EMPTY}
+#import gilab::lumen::{params, brick_table, brick_coord, brick_pool, fill_list, lighting_voxel_size, sdf_distance, voxel_dir, voxel_word_index, lighting_voxel_centre, voxel_ray_start, voxel_ray_length, encode_seen, VOXEL_DIRS, EMPTY}
 #import gilab::surface_cache::{tri_object}
 
 // The level this dispatch fills (one dispatch per level, as the fill).
@@ -21,9 +21,8 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) l
     let slot = fill_list[l * n * n * n + wg.x];
     let entry = brick_table[slot];
     let b = brick_coord[slot].xyz;
-    let size = f32(BRICK / LIGHT_BRICK) * level_voxel(l);
-    let local = vec3<i32>(i32(li % LIGHT_BRICK), i32((li / LIGHT_BRICK) % LIGHT_BRICK), i32(li / (LIGHT_BRICK * LIGHT_BRICK)));
-    let centre = (vec3<f32>(b * i32(LIGHT_BRICK) + local) + 0.5) * size;
+    let size = lighting_voxel_size(l);
+    let centre = lighting_voxel_centre(b, li, size);
     for (var k = 0u; k < VOXEL_DIRS; k++) {
         let d = voxel_dir(k);
         // Rays through the centre and the four quarter points of the face: a surface covering
