@@ -423,13 +423,16 @@ fn cache_direct_light_matches_reference() {
 /// pixels): where a ray hits a front face, the surface cache must answer (a card covers the hit
 /// and its depth matches). Failed lookups lose that ray's energy; the seed accepts that for
 /// coverage holes, but every surface of these scenes has cards. Counted in both tracing modes.
+/// SDF hits whose card lookup fails (7.0% on the Cornell box: back faces where a probe sits in a
+/// concave corner or a ray grazes an edge, hits given a neighbour's object) read the voxel
+/// lighting, as in the seed (issue 38 item 2: under 1% left unlit, measured 0.77%), which where
+/// both answer agrees with the cards.
 #[test]
 fn cache_lookups_at_hits_find_the_surface() {
-    // Lost share allowed per (scene, mode): SDF hits on the Cornell box measured 7.0% (back faces
-    // where a probe sits in a concave corner, stops beside a grazed edge): docs/lumen.md, Known gaps.
+    // Unlit share allowed per (scene, mode).
     let cases = [
         (builtin::furnace(0.8, 1.0, 2), [0.01, 0.01]),
-        (builtin::cornell(), [0.08, 0.01]),
+        (builtin::cornell(), [0.01, 0.01]),
     ];
     for (scene, bounds) in cases {
         let name = scene.name.clone();
@@ -457,18 +460,67 @@ fn cache_lookups_at_hits_find_the_surface() {
                 .iter()
                 .filter(|o| o[0][1] > 0.5 && o[0][2] < 0.5 && o[0][3] <= 1e-4)
                 .count();
+            // Answered by neither the cards (1) nor the voxel lighting (2), which also lights SDF
+            // hits whose gradient runs along the ray (grazed edges, concave corners).
+            let dark = out
+                .iter()
+                .filter(|o| o[0][1] > 0.5 && o[1][3] != 1.0 && o[1][3] != 2.0)
+                .count();
             eprintln!(
-                "{name} ({mode}): {hits} of {} rays hit; {back} on a back face, {empty} with no cache answer",
+                "{name} ({mode}): {hits} of {} rays hit; {back} on a back face, {empty} with no card answer; {dark} lit by neither the cards nor the voxel lighting",
                 inputs.len()
             );
             assert!(hits > 1000, "{name} ({mode}): {hits}");
-            let lost = (back + empty) as f64 / hits as f64;
+            let missed = (back + empty) as f64 / hits as f64;
+            let lost = dark as f64 / hits as f64;
+            eprintln!(
+                "{name} ({mode}): {:.2}% of hits miss their card, {:.2}% lost",
+                100.0 * missed,
+                100.0 * lost
+            );
             assert!(
                 lost <= bound,
                 "{name} ({mode}): {:.2}% of hits lost",
                 100.0 * lost
             );
+            if mode == "sdf" {
+                voxel_lighting_against_cards(&name, &query(&e, QueryMode::VoxelRay, &inputs));
+            }
         }
+    }
+}
+
+/// Where both answer (front SDF hits, the same rays), the voxel lighting's luminance against the
+/// cards' and the share of hits the voxels cover (over 90%). In the furnace (uniform light) the
+/// means agree within 5% (measured -0.1%); on the Cornell box at these 64³ clipmaps the box lies
+/// in the coarsest level (lighting voxels 1.2 units, under 5 across the box) and the voxels read
+/// about a third darker than the cards (printed: docs/lumen.md).
+fn voxel_lighting_against_cards(name: &str, out: &[[[f32; 4]; 2]]) {
+    let front = out.iter().filter(|o| o[0][1] > 0.5 && o[0][2] < 0.5);
+    let both: Vec<_> = front
+        .clone()
+        .filter(|o| o[0][3] > 0.0 && o[1][2] > 1e-4)
+        .map(|o| (o[1][0] as f64, o[1][1] as f64))
+        .collect();
+    let (voxels, cards) = both
+        .iter()
+        .fold((0.0, 0.0), |(a, b), (v, c)| (a + v, b + c));
+    let covered = both.len() as f64 / front.count().max(1) as f64;
+    let spread = both.iter().map(|(v, c)| (v - c).abs()).sum::<f64>() / cards.max(1e-12);
+    eprintln!(
+        "{name}: voxel lighting answers {:.1}% of front SDF hits; where the cards answer too, its mean luminance {:.4} against theirs {:.4} ({:+.1}%), mean |difference| {:.1}% of theirs",
+        100.0 * covered,
+        voxels / both.len().max(1) as f64,
+        cards / both.len().max(1) as f64,
+        100.0 * (voxels / cards - 1.0),
+        100.0 * spread
+    );
+    assert!(covered > 0.9, "{name}: voxel lighting covers {covered:.3}");
+    if name == "furnace" {
+        assert!(
+            (voxels / cards - 1.0).abs() < 0.05,
+            "{name}: voxel lighting {voxels:.3} against the cards' {cards:.3}"
+        );
     }
 }
 
@@ -1310,5 +1362,21 @@ fn playing_keeps_the_cache_and_rebuilds_the_sdf_where_objects_moved() {
     assert!(
         empty <= fresh_empty + hits / 100,
         "moved cards miss their surfaces: {empty} against {fresh_empty}"
+    );
+    // The voxel lighting around the moved objects: its visibility is traced again with the
+    // bricks their motion rebuilt, so their new places light SDF hits as in a fresh build.
+    let voxel_lit = |e: &Engine| {
+        let out = query(e, QueryMode::VoxelRay, &inputs);
+        out.iter()
+            .filter(|o| o[0][1] > 0.5 && o[0][2] < 0.5 && o[0][3] > 0.0)
+            .count()
+    };
+    let (played, fresh_lit) = (voxel_lit(&e), voxel_lit(&fresh));
+    eprintln!(
+        "rays at the moved objects: the voxel lighting answers {played} of {hits} front hits played, {fresh_lit} of {fresh_hits} fresh"
+    );
+    assert!(
+        played + hits / 100 >= fresh_lit,
+        "moved objects' voxels not refreshed: {played} against {fresh_lit}"
     );
 }

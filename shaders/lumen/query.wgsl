@@ -8,14 +8,18 @@
 //    triangle's normal;
 // 3: a ray as the cache probes and the gather trace it, in the `tracing` mode, from surface
 //    point queries[2i].xyz with normal queries[2i + 1].xyz, cosine direction hashed from i:
-//    out queries[2i] = (t, hit, back face, cache weight), queries[2i + 1] = (luminance of the
-//    cache's reflected radiance, best card or -1, object, steps).
+//    out queries[2i] = (t, hit, back face, card weight), queries[2i + 1] = (luminance of the
+//    reflected radiance the hit brings back, best card or -1, object, answered by: 0 nothing,
+//    1 cards, 2 voxel lighting);
+// 5: the same rays, both answers apart: out queries[2i] = (t, hit, back face, voxel lighting
+//    weight), queries[2i + 1] = (luminance of the voxel lighting, of the cards, card weight, 0).
 #import gilab::bvh::{trace_closest, NO_HIT}
 #import gilab::scene::tri_geom
-#import gilab::math::{to_world, luminance, INV_PI}
+#import gilab::math::{to_world, luminance}
 #import gilab::sampling::sample_cosine_hemisphere
 #import gilab::rng::{rng_init, rand_pair, STREAM_LUMEN_QUERY}
-#import gilab::lumen::{params, sdf_distance, sdf_object, sdf_trace, finest_level, trace_scene, hit_cache_sample, EMPTY}
+#import gilab::surface_cache::cache_reflected
+#import gilab::lumen::{params, sdf_distance, sdf_object, sdf_trace, finest_level, trace_scene, hit_cache_sample, hit_light, voxel_lighting, EMPTY}
 
 // Group 1 of the query pipeline only (it has no frame group): inputs in, answers out.
 @group(1) @binding(0) var<storage, read_write> queries: array<vec4<f32>>;
@@ -44,21 +48,33 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             let h = sdf_trace(a, b, 1e30, false, params.query_mode == 4u, 0.0);
             queries[2u * i] = vec4<f32>(h.t, select(0.0, 1.0, h.hit), f32(h.steps), f32(h.level));
         }
-        case 3u: {
+        case 3u, 5u: {
             var rng = rng_init(vec2<u32>(i, 0u), 0u, STREAM_LUMEN_QUERY, 1u);
             let dir = to_world(sample_cosine_hemisphere(rand_pair(&rng)), b);
             let h = trace_scene(a, b, dir, 1e30);
             var weight = 0.0;
-            var radiance = 0.0;
             var card = -1.0;
+            var light = vec4<f32>(0.0);
+            var voxel = vec4<f32>(0.0);
+            var cards = 0.0;
             if h.hit && !h.back_face {
                 let s = hit_cache_sample(h);
                 weight = s.weight;
-                radiance = luminance(s.albedo * (s.direct + s.indirect)) * INV_PI;
                 card = select(f32(s.best_card), -1.0, s.best_card == EMPTY);
+                cards = luminance(cache_reflected(s));
+                voxel = voxel_lighting(h.position, h.normal, h.level, h.object);
             }
-            queries[2u * i] = vec4<f32>(h.t, select(0.0, 1.0, h.hit), select(0.0, 1.0, h.back_face), weight);
-            queries[2u * i + 1u] = vec4<f32>(radiance, card, f32(h.object), f32(h.steps));
+            if h.hit {
+                light = hit_light(h);
+            }
+            let flags = vec3<f32>(h.t, select(0.0, 1.0, h.hit), select(0.0, 1.0, h.back_face));
+            if params.query_mode == 3u {
+                queries[2u * i] = vec4<f32>(flags, weight);
+                queries[2u * i + 1u] = vec4<f32>(luminance(light.xyz), card, f32(h.object), light.w);
+            } else {
+                queries[2u * i] = vec4<f32>(flags, voxel.w);
+                queries[2u * i + 1u] = vec4<f32>(luminance(voxel.xyz), cards, weight, 0.0);
+            }
         }
         default: {
             let h = trace_closest(a, b, 0.0, 1e30);

@@ -1,6 +1,7 @@
 // Global SDF update, step 3 (one invocation): takes the popped bricks off the free stack and
-// writes each level's fill dispatch (one workgroup per brick).
-#import gilab::lumen::sdf_state
+// writes each level's fill dispatch (one workgroup per brick), then the voxel lighting's (one
+// workgroup per allocated brick, rows of MAX_GROUPS).
+#import gilab::lumen::{sdf_state, STATE_LIT, MAX_GROUPS}
 
 struct Args {
     x: u32,
@@ -8,7 +9,7 @@ struct Args {
     z: u32,
 }
 
-@group(3) @binding(0) var<storage, read_write> fill_args: array<Args, 6>;
+@group(3) @binding(0) var<storage, read_write> fill_args: array<Args, 7>;
 
 @compute @workgroup_size(1, 1, 1)
 fn main() {
@@ -19,4 +20,6 @@ fn main() {
     for (var l = 0u; l < 6u; l++) {
         fill_args[l] = Args(atomicLoad(&sdf_state[4u + l]), 1u, 1u);
     }
+    let lit = atomicLoad(&sdf_state[STATE_LIT]);
+    fill_args[6] = Args(min(lit, MAX_GROUPS), (lit + MAX_GROUPS - 1u) / MAX_GROUPS, 1u);
 }

@@ -106,7 +106,12 @@ fn sample_cache(p: vec3<f32>, n: vec3<f32>, object: u32, tolerance_in: f32) -> C
 
 // Diffuse radiance leaving a cached surface: albedo x (direct + indirect irradiance) / pi + emission.
 fn cache_radiance(s: CacheSample) -> vec3<f32> {
-    return s.albedo * (s.direct + s.indirect) * INV_PI + s.emissive;
+    return cache_reflected(s) + s.emissive;
+}
+
+// Its reflected part alone (what a traced ray takes back where emitters are the light pool's).
+fn cache_reflected(s: CacheSample) -> vec3<f32> {
+    return s.albedo * (s.direct + s.indirect) * INV_PI;
 }
 
 struct CacheTexel {

@@ -8,7 +8,9 @@
 //!    empty-space skipping. `sdf_release` frees the bricks a scroll or a scene edit made stale,
 //!    `sdf_allocate` gives a pool brick to each slot near a triangle, `sdf_fill` computes each
 //!    voxel's distance (BVH point query) and sign (back-face ray counts), one timed dispatch per
-//!    level, and `sdf_coarse` rebuilds the coarse volume of updated levels.
+//!    level, and `sdf_coarse` rebuilds the coarse volume of updated levels. `voxel_visibility`
+//!    runs with each level's fill: per lighting voxel (4^3 per brick) and axis direction, the
+//!    surface BVH rays across the voxel meet (the seed's voxel lighting visibility buffer).
 //! 2. The surface cache, a part Lumen holds (`crate::parts::surface_cache`, like the world
 //!    cache): `capture`: this frame's cards (closest first, 512^2 texels per frame) are
 //!    rasterised with their orthographic cameras into the atlas: albedo, normal, emission, depth.
@@ -16,6 +18,8 @@
 //!    frame's 8x8 tiles), `cache probes` (a 16-ray hemisphere probe per 4x4 tile, hits read the
 //!    cache itself: multi-bounce through feedback) and `cache indirect` (texels interpolate
 //!    their four probes with plane and hit-distance weights, blended over at most 4 frames).
+//!    Then `voxel lighting` (SDF tracing): the visibility hits shaded from their cards, which
+//!    SDF hits whose own cards give no answer read instead (the seed's voxel lighting).
 //! 4. The final gather, `final_gather = screen_probes` (the seed's Screen Space Radiance Cache,
 //!    `screen_probes.rs`): world radiance cache probes selected and traced (`world select`,
 //!    `world update`), last frame's closest-depth mips (`hzb`), probes placed on a jittered
@@ -62,16 +66,19 @@ use glam::Vec3;
 use params::*;
 use sdf::{Clipmaps, MAX_LEVELS};
 
-const COMPUTE: [(&str, &str); 6] = [
+const COMPUTE: [(&str, &str); 7] = [
     ("sdf release", "lumen/sdf_release.wgsl"),
     ("sdf allocate", "lumen/sdf_allocate.wgsl"),
     ("sdf coarse", "lumen/sdf_coarse.wgsl"),
     ("gather", "lumen/gather.wgsl"),
     ("apply", "lumen/apply.wgsl"),
     ("query", "lumen/query.wgsl"),
+    ("voxel lighting", "lumen/voxel_lighting.wgsl"),
 ];
 const SDF_ARGS: &str = "lumen/sdf_args.wgsl";
 const SDF_FILL: &str = "lumen/sdf_fill.wgsl";
+/// Run with each level's fill, over the same bricks (and the fill's group 3).
+const VOXEL_VISIBILITY: &str = "lumen/voxel_visibility.wgsl";
 const FILL_PASS_NAMES: [&str; MAX_LEVELS] = [
     "sdf fill L0",
     "sdf fill L1",
@@ -83,6 +90,9 @@ const FILL_PASS_NAMES: [&str; MAX_LEVELS] = [
 /// Queries one call can answer.
 pub const QUERY_CAPACITY: usize = 1 << 16;
 const BRICK_BYTES: u64 = 512 * 4;
+/// A brick's voxel lighting behind the distances in the pool (shaders/lumen/shared.wgsl,
+/// `voxel_word_index`): 4^3 lighting voxels x 6 directions, visibility then radiance.
+const VOXEL_LIGHTING_BYTES: u64 = 2 * 64 * 6 * 4;
 
 /// What a query asks (shaders/lumen/query.wgsl).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -97,8 +107,12 @@ pub enum QueryMode {
     SdfTraceExpanded = 4,
     /// Rays as the technique traces them in its `tracing` mode from surface points (point,
     /// normal), a cosine direction hashed from the index: out (t, hit, back face, cache weight),
-    /// (reflected luminance, best card or -1, object, steps).
+    /// (reflected luminance, best card or -1, object, answered by: 0 nothing, 1 the cards,
+    /// 2 the voxel lighting).
     CacheRay = 3,
+    /// The same rays, the voxel lighting and the cards apart: out (t, hit, back face, voxel
+    /// lighting weight), (voxel lighting luminance, cards' luminance, card weight, 0).
+    VoxelRay = 5,
 }
 
 /// Global SDF counters read back for tests and the README.
@@ -131,6 +145,7 @@ struct Pipelines {
     compute: Vec<wgpu::ComputePipeline>,
     sdf_args: wgpu::ComputePipeline,
     sdf_fill: wgpu::ComputePipeline,
+    voxel_visibility: wgpu::ComputePipeline,
     query: wgpu::ComputePipeline,
     apply: wgpu::ComputePipeline,
     probes: ProbePipelines,
@@ -203,7 +218,7 @@ fn lumen_bind_group(
 }
 
 /// Lumen's own entry files.
-const OWN_SHADER_FILES: [&str; 21] = [
+const OWN_SHADER_FILES: [&str; 23] = [
     "lumen/sdf_release.wgsl",
     "lumen/sdf_allocate.wgsl",
     "lumen/sdf_args.wgsl",
@@ -225,13 +240,15 @@ const OWN_SHADER_FILES: [&str; 21] = [
     "lumen/probe_resolve.wgsl",
     "lumen/probe_filter.wgsl",
     "lumen/integrate.wgsl",
+    "lumen/voxel_visibility.wgsl",
+    "lumen/voxel_lighting.wgsl",
 ];
 
 /// Lumen's entry files and its parts' (surface cache, direct light, reflections, world ReGIR).
-const SHADER_FILES: [&str; 35] = crate::render::concat_files(
-    crate::render::concat_files::<30, 4, 34>(
-        crate::render::concat_files::<25, 5, 30>(
-            crate::render::concat_files::<21, 4, 25>(
+const SHADER_FILES: [&str; 37] = crate::render::concat_files(
+    crate::render::concat_files::<32, 4, 36>(
+        crate::render::concat_files::<27, 5, 32>(
+            crate::render::concat_files::<23, 4, 27>(
                 OWN_SHADER_FILES,
                 crate::parts::surface_cache::SHADER_FILES,
             ),
@@ -381,6 +398,7 @@ impl Lumen {
             (self.features.light_count() > 0, FLAG_LIGHTS),
             (self.direct_restir(), FLAG_DIRECT_RESTIR),
             (self.reflections_active(), FLAG_REFLECTIONS),
+            (self.voxel_lighting_active(), FLAG_VOXEL_LIGHTING),
         ] {
             if on {
                 flags |= flag;
@@ -421,7 +439,7 @@ impl Lumen {
         let clip = Clipmaps::new(s.clipmap_resolution, s.clipmap_levels, bounds);
         let nb = clip.bricks_per_axis() as u64;
         let slots = s.clipmap_levels as u64 * nb * nb * nb;
-        let pool_bricks = slots.min(max_binding / BRICK_BYTES) as u32;
+        let pool_bricks = slots.min(max_binding / (BRICK_BYTES + VOXEL_LIGHTING_BYTES)) as u32;
         let coarse_cells = s.clipmap_levels as u64 * (s.clipmap_resolution as u64 / 4).pow(3);
         let pixels = ctx.extent[0] as u64 * ctx.extent[1] as u64;
         // Screen probes integrate at full resolution into the gather buffer.
@@ -453,11 +471,18 @@ impl Lumen {
             (0, params_buffer.clone()),
             (4, buf("lumen brick table", slots * 4)),
             (5, buf("lumen brick coords", slots * 16)),
-            (6, buf("lumen brick pool", pool_bricks as u64 * BRICK_BYTES)),
+            (
+                6,
+                buf(
+                    "lumen brick pool",
+                    pool_bricks as u64 * (BRICK_BYTES + VOXEL_LIGHTING_BYTES),
+                ),
+            ),
             (7, buf("lumen coarse sdf", coarse_cells * 4)),
             (8, buf("lumen free bricks", pool_bricks as u64 * 4)),
             (9, buf("lumen sdf state", 64)),
-            (10, buf("lumen fill list", slots * 4)),
+            // Per level the bricks to fill, then every allocated brick (the voxel lighting's list).
+            (10, buf("lumen fill list", 2 * slots * 4)),
             (
                 11,
                 buf("lumen dirty boxes", (2 * sdf::MAX_DIRTY_BOXES as u64) * 16),
@@ -472,7 +497,8 @@ impl Lumen {
         ];
         let queries = buf("lumen queries", QUERY_CAPACITY as u64 * 32);
         let bind_group = lumen_bind_group(gpu, &layouts[0], &buffers, &self.cache);
-        let args = pipelines::indirect_args_buffer(gpu, "lumen fill args", MAX_LEVELS as u64);
+        // One fill dispatch per level, then the voxel lighting's.
+        let args = pipelines::indirect_args_buffer(gpu, "lumen fill args", MAX_LEVELS as u64 + 1);
         let args_bind_group =
             pipelines::buffers_bind_group(gpu, "lumen sdf args", &layouts[1], &[&args]);
         let fill_bind_groups = (0..MAX_LEVELS as u32)
@@ -739,6 +765,11 @@ impl Lumen {
         self.cache.cache_regir_coverage(gpu)
     }
 
+    /// SDF hits fall back on the voxel lighting (`voxel_lighting`, `tracing = "sdf"`).
+    fn voxel_lighting_active(&self) -> bool {
+        self.settings.voxel_lighting && !self.settings.bvh
+    }
+
     /// Pixels take their direct light from the ReSTIR DI part (`direct = "restir"`, lights).
     fn direct_restir(&self) -> bool {
         self.settings.direct_restir && self.features.light_count() > 0
@@ -798,6 +829,21 @@ impl Lumen {
                 timer,
                 name,
                 &p.sdf_fill,
+                &[
+                    &ctx.scene.bind_group,
+                    ctx.frame_bind_group,
+                    bg,
+                    &r.fill_bind_groups[l],
+                ],
+                &r.args,
+                12 * l as u64,
+            );
+            // Every mode: a later switch to SDF tracing or voxel lighting finds it built.
+            pipelines::list_pass(
+                enc,
+                timer,
+                "voxel visibility",
+                &p.voxel_visibility,
                 &[
                     &ctx.scene.bind_group,
                     ctx.frame_bind_group,
@@ -955,6 +1001,22 @@ impl Technique for Lumen {
         }
         v.extend(self.cache.cache_passes(f, s.bvh));
         v.push(pass(
+            "voxel visibility",
+            true,
+            "with each brick the distance field builds: one BVH ray per lighting voxel (4^3 per brick) and axis direction, the surface it meets".into(),
+        ));
+        v.push(pass(
+            "voxel lighting",
+            self.voxel_lighting_active(),
+            if self.voxel_lighting_active() {
+                "every frame: each voxel's surfaces shaded from their cards facing that direction; SDF hits without a card answer read it".into()
+            } else if s.bvh {
+                "tracing = bvh: every hit knows its object and reads its cards".into()
+            } else {
+                "voxel_lighting = false".into()
+            },
+        ));
+        v.push(pass(
             "sky",
             self.sky,
             if self.sky {
@@ -1040,13 +1102,27 @@ impl Technique for Lumen {
             SDF_FILL,
             &[&ctx.scene.layout, ctx.frame_layout, &lumen, &fill_level],
         )?;
+        let voxel_visibility = pipelines::compute_pipeline(
+            gpu,
+            ctx.shaders,
+            VOXEL_VISIBILITY,
+            &[&ctx.scene.layout, ctx.frame_layout, &lumen, &fill_level],
+        )?;
         let query = pipelines::compute_pipeline(
             gpu,
             ctx.shaders,
-            COMPUTE[5].1,
+            COMPUTE
+                .iter()
+                .find(|(n, _)| *n == "query")
+                .expect("query")
+                .1,
             &[&ctx.scene.layout, &query_layout, &lumen],
         )?;
-        compute.push(query.clone());
+        let query_at = COMPUTE
+            .iter()
+            .position(|(n, _)| *n == "query")
+            .expect("query");
+        compute.insert(query_at, query.clone());
         let apply = compute[COMPUTE
             .iter()
             .position(|(n, _)| *n == "apply")
@@ -1065,6 +1141,7 @@ impl Technique for Lumen {
             compute,
             sdf_args,
             sdf_fill,
+            voxel_visibility,
             query,
             apply,
             probes,
@@ -1235,6 +1312,18 @@ impl Technique for Lumen {
         let bg = &r.bind_group;
         let gp = &r.gpu_params;
         self.cache.record_passes(ctx, enc, timer, bg);
+        if gp.flags & FLAG_VOXEL_LIGHTING != 0 {
+            // After the cache's lighting of this frame, before anything traces.
+            pipelines::list_pass(
+                enc,
+                timer,
+                "voxel lighting",
+                p.get("voxel lighting"),
+                &[&ctx.scene.bind_group, ctx.frame_bind_group, bg],
+                &r.args,
+                12 * MAX_LEVELS as u64,
+            );
+        }
         // The world cache: its uniforms every frame (readers need them), its passes when on and
         // read by the screen probes.
         let world = self.settings.world_cache_settings();

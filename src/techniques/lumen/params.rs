@@ -3,7 +3,7 @@
 use crate::render::params::{ParamKind, ParamSpec, Params};
 
 /// Lumen's own parameters; [`PARAMS`] adds the reflections part's.
-const OWN_PARAMS: [ParamSpec; 28] = [
+const OWN_PARAMS: [ParamSpec; 29] = [
     ParamSpec {
         name: "tracing",
         what: "what rays trace: the global distance field (the seed's software ray tracing) or the scene's triangles through the BVH (its hardware ray tracing); both read the same surface cache",
@@ -197,6 +197,14 @@ const OWN_PARAMS: [ParamSpec; 28] = [
         default: 2.0,
     },
     ParamSpec {
+        name: "voxel_lighting",
+        what: "tracing = sdf: the seed's voxel lighting, the cards merged into clipmaps at half the distance field's resolution (radiance per voxel along 6 axis directions, shaded every frame), lights the hits whose own cards give no answer",
+        higher: "on: hits beside a card's coverage or on the wrong object still bring light back",
+        lower: "off: those hits are black (energy lost)",
+        kind: ParamKind::Bool,
+        default: 1.0,
+    },
+    ParamSpec {
         name: "sign_rays",
         what: "rays per narrow-band voxel that decide the distance field's sign by counting back faces (the seed casts 64)",
         higher: "a more reliable sign near open or messy geometry, slower SDF builds",
@@ -231,13 +239,13 @@ const OWN_PARAMS: [ParamSpec; 28] = [
 ];
 
 /// Lumen's parameters and its reflections part's.
-const WITH_REFLECTIONS: [ParamSpec; 34] = crate::render::params::concat_params::<28, 6, 34>(
+const WITH_REFLECTIONS: [ParamSpec; 35] = crate::render::params::concat_params::<29, 6, 35>(
     OWN_PARAMS,
     crate::parts::reflections::PARAMS,
 );
 
 /// Lumen's parameters and its parts' (reflections, the cache's light sampling).
-pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<34, 3, 37>(
+pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<35, 3, 38>(
     WITH_REFLECTIONS,
     crate::parts::world_regir::PARAMS,
 );
@@ -254,6 +262,7 @@ pub struct LumenSettings {
     pub gather_downsample: u32,
     pub rays_per_pixel: u32,
     pub sign_rays: u32,
+    pub voxel_lighting: bool,
     pub accumulate: bool,
     /// `direct = "restir"`: pixels take direct light from the ReSTIR DI part.
     pub direct_restir: bool,
@@ -316,6 +325,7 @@ impl LumenSettings {
             gather_downsample: p.u32("gather_downsample"),
             rays_per_pixel: p.u32("rays_per_pixel"),
             sign_rays: p.u32("sign_rays"),
+            voxel_lighting: p.bool("voxel_lighting"),
             accumulate: p.bool("accumulate"),
             direct_restir: p.u32("direct") == 1,
             debug_views: p.bool("debug_views"),
@@ -403,3 +413,5 @@ pub const FLAG_LIGHTS: u32 = 16;
 pub const FLAG_DIRECT_RESTIR: u32 = 32;
 /// Pixels add the reflections part's specular light.
 pub const FLAG_REFLECTIONS: u32 = 64;
+/// SDF hits without a card answer read the voxel lighting.
+pub const FLAG_VOXEL_LIGHTING: u32 = 128;
