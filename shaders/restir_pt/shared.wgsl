@@ -421,10 +421,11 @@ fn pair_share(m_c: f32, m_i: f32, n: f32, m_total: f32) -> f32 {
 fn pair_balance(weight_own: f32, own: f32, weight_other: f32, other: f32) -> f32 {
     let a = weight_own * own;
     let b = weight_other * other;
-    if a + b <= 0.0 {
+    if !(a > 0.0) {
         return 0.0;
     }
-    return a / (a + b);
+    // 1 / (1 + b / a): stays finite when a target over a tiny Jacobian overflows to infinity.
+    return 1.0 / (1.0 + b / a);
 }
 
 fn write_debug(idx: u32, r: PathReservoir, failure_rate: f32, jacobian: f32) {
