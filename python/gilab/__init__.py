@@ -433,7 +433,7 @@ def converge(
     else:
         path = os.fspath(experiment)
     with reporting(progress):
-        _, summary, rows = _gilab.converge(
+        out_dir, rows = _gilab.converge(
             path,
             table,
             None if out is None else os.fspath(out),
@@ -442,6 +442,8 @@ def converge(
             backend,
             not progress,
         )
+    with open(os.path.join(out_dir, "summary.json")) as f:
+        summary = json.load(f)
     rows_list = json.loads(rows)
     if as_frame is None or as_frame:
         try:
@@ -450,5 +452,5 @@ def converge(
             if as_frame:
                 raise
         else:
-            return json.loads(summary), pd.DataFrame(rows_list)
-    return json.loads(summary), rows_list
+            return summary, pd.DataFrame(rows_list)
+    return summary, rows_list

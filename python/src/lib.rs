@@ -27,24 +27,40 @@ create_exception!(
     "An error from the gilab library (its message is the CLI's)."
 );
 
-/// The library's error as a Python exception with the CLI's message: FileNotFoundError where
-/// a file is missing, GilabError otherwise.
-fn py_err(e: anyhow::Error) -> PyErr {
-    let message = format!("{e:#}");
-    let missing = e.chain().any(|c| {
+fn file_missing(e: &anyhow::Error) -> bool {
+    e.chain().any(|c| {
         c.downcast_ref::<std::io::Error>()
             .is_some_and(|io| io.kind() == std::io::ErrorKind::NotFound)
-    });
-    if missing {
-        PyFileNotFoundError::new_err(message)
+    })
+}
+
+/// The library's error as a Python exception with the CLI's message: FileNotFoundError where
+/// a file is missing, GilabError otherwise (no adapter, a GPU fault).
+fn py_err(e: anyhow::Error) -> PyErr {
+    if file_missing(&e) {
+        PyFileNotFoundError::new_err(format!("{e:#}"))
     } else {
-        GilabError::new_err(message)
+        GilabError::new_err(format!("{e:#}"))
     }
 }
 
-/// Bad input the library rejected before any GPU work (unknown technique, parameter out of range).
+/// Bad input the library rejected (unknown technique or scene, parameter out of range, bad
+/// preset): ValueError, or FileNotFoundError where a file is missing.
 fn value_err(e: anyhow::Error) -> PyErr {
-    PyValueError::new_err(format!("{e:#}"))
+    if file_missing(&e) {
+        PyFileNotFoundError::new_err(format!("{e:#}"))
+    } else {
+        PyValueError::new_err(format!("{e:#}"))
+    }
+}
+
+/// `value_err` for a file input whose reader does not keep the io::Error (EXR).
+fn file_err(path: &std::path::Path, e: anyhow::Error) -> PyErr {
+    if path.exists() {
+        value_err(e)
+    } else {
+        PyFileNotFoundError::new_err(format!("{e:#}"))
+    }
 }
 
 fn json_err(e: serde_json::Error) -> PyErr {
@@ -204,7 +220,7 @@ fn tonemap_srgb8<'py>(
 
 #[pyfunction]
 fn read_exr<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyArray3<f32>>> {
-    let image = io::read_exr(&path).map_err(py_err)?;
+    let image = io::read_exr(&path).map_err(|e| file_err(&path, e))?;
     image_to_array(py, image)
 }
 
@@ -240,14 +256,15 @@ fn load_preset(
                 .map_err(|e| PyValueError::new_err(format!("preset: {e}")))?;
             LoadedPreset::from_text(&text, None).map_err(value_err)?
         }
-        None => LoadedPreset::load_or_default(path.as_deref()).map_err(py_err)?,
+        None => LoadedPreset::load_or_default(path.as_deref()).map_err(value_err)?,
     };
     p.apply(overrides).map_err(value_err)?;
     Ok(p)
 }
 
-/// Runs a convergence experiment as `gilab converge` does; returns (out dir, summary JSON,
-/// rows JSON) read back from what it wrote.
+/// Runs a convergence experiment as `gilab converge` does; returns (out dir, rows JSON) read
+/// back from what it wrote (the Python side reads summary.json itself: Python's JSON parser
+/// keeps every digit, serde_json's default one may round the last).
 #[pyfunction]
 #[pyo3(signature = (path=None, preset_json=None, out=None, cache=PathBuf::from("cache/reference"), set=Vec::new(), backend=None, quiet=false))]
 #[allow(clippy::too_many_arguments)]
@@ -260,7 +277,7 @@ fn converge(
     set: Vec<String>,
     backend: Option<&str>,
     quiet: bool,
-) -> PyResult<(String, String, String)> {
+) -> PyResult<(String, String)> {
     let overrides = Overrides {
         set,
         ..Overrides::default()
@@ -268,7 +285,7 @@ fn converge(
     let p = load_preset(path, preset_json, &overrides)?;
     let backend = parse_backend(backend)?;
     let out = out.unwrap_or_else(|| PathBuf::from("out/converge").join(run::experiment_name(&p)));
-    let result = py.detach(|| -> anyhow::Result<(rows::Summary, Vec<rows::Row>)> {
+    let result = py.detach(|| -> anyhow::Result<Vec<rows::Row>> {
         let gpu = Arc::new(Gpu::new(backend)?);
         let opts = run::ConvergeOptions {
             out: out.clone(),
@@ -277,12 +294,10 @@ fn converge(
             quiet,
         };
         run::converge(gpu, &p, &opts)?;
-        rows::read_output_dir(&out)
+        Ok(rows::read_output_dir(&out)?.1)
     });
-    let (summary, rows) = result.map_err(py_err)?;
-    let summary = serde_json::to_string(&summary).map_err(json_err)?;
-    let rows = serde_json::to_string(&rows).map_err(json_err)?;
-    Ok((out.display().to_string(), summary, rows))
+    let rows = serde_json::to_string(&result.map_err(py_err)?).map_err(json_err)?;
+    Ok((out.display().to_string(), rows))
 }
 
 fn parse_backend(backend: Option<&str>) -> PyResult<BackendChoice> {
@@ -376,13 +391,13 @@ impl Session {
         };
         let mut p = load_preset(preset, preset_json, &overrides)?;
         let backend = parse_backend(backend)?;
-        let (gpu, scene) = py
-            .detach(|| -> anyhow::Result<(Arc<Gpu>, SceneOnGpu)> {
-                let gpu = Arc::new(Gpu::new(backend)?);
-                let scene = SceneOnGpu::load(&gpu, &p)?;
-                Ok((gpu, scene))
-            })
+        let gpu = py
+            .detach(|| Gpu::new(backend).map(Arc::new))
             .map_err(py_err)?;
+        // A bad scene (unknown name, missing or broken file) is the caller's input.
+        let scene = py
+            .detach(|| SceneOnGpu::load(&gpu, &p))
+            .map_err(value_err)?;
         // The camera is part of the preset from now on: references key on it as the CLI's do.
         p.preset.camera = Some(scene.camera);
         Ok(Session {
