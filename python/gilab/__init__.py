@@ -389,6 +389,32 @@ class Session:
             _debug=dict(out["debug"]),
         )
 
+    @property
+    def entries(self) -> List[Dict[str, Any]]:
+        """The preset's `[[techniques]]` entries (name, label, params, budget, denoise)."""
+        return self.preset["techniques"]
+
+    def render_entry(self, label: str, frames: Optional[int] = None, **kwargs: Any) -> Frame:
+        """Renders the preset's entry `label` (its label, else its technique name) with its
+        parameters, ray budget and denoiser, as `gilab shot PRESET` renders it; `frames`
+        defaults to the preset's `render.spp` over the technique's samples per frame."""
+        matches = [e for e in self.entries if e.get("label", e["name"]) == label]
+        if not matches:
+            known = ", ".join(e.get("label", e["name"]) for e in self.entries)
+            raise ValueError(f"the preset has no technique entry '{label}' (it has: {known})")
+        entry = matches[0]
+        if frames is None:
+            specs = {p["name"]: p for p in params(entry["name"])}
+            spf = entry.get("params", {}).get(
+                "samples_per_frame", specs.get("samples_per_frame", {}).get("default", 1)
+            )
+            spp = self.preset["render"]["spp"]
+            frames = max(1, -(-spp // max(1, int(spf))))
+        kwargs.setdefault("denoise", entry.get("denoise", False))
+        kwargs.setdefault("budget", entry.get("budget"))
+        kwargs.setdefault("params", entry.get("params", {}))
+        return self.render(entry["name"], frames=frames, **kwargs)
+
     def reference(
         self,
         spp: Optional[int] = None,

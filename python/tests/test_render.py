@@ -107,3 +107,15 @@ def test_scene_edits():
         assert s.render("reference", frames=2).image.mean() > base
         with pytest.raises(ValueError, match="no_such_param"):
             s.set_scene_param("no_such_param", 1)
+
+
+def test_render_entry_equals_shot_of_the_preset(run_cli, tmp_path):
+    """A preset's entry (its parameters, label) as `gilab shot PRESET` renders it."""
+    with gilab.Session("presets/cornell.toml", size=16, overrides={"render.spp": 3}) as s:
+        assert [e.get("label", e["name"]) for e in s.entries][:2] == ["reference", "restir"]
+        frame = s.render_entry("reference-2-bounces")
+        with pytest.raises(ValueError, match="no technique entry 'nope'"):
+            s.render_entry("nope")
+    run_cli("shot", "presets/cornell.toml", "--size", "16", "--spp", "3", "--out", str(tmp_path))
+    cli = gilab.read_exr(tmp_path / "cornell" / "reference-2-bounces.exr")
+    assert frame.frames == 3 and np.array_equal(frame.image, cli)
