@@ -102,7 +102,12 @@ impl SceneOnGpu {
     }
 
     /// An engine for `entry` on this scene: the preset's size and seed, this camera.
-    pub fn engine(&self, gpu: Arc<Gpu>, p: &LoadedPreset, entry: &TechniqueEntry) -> Result<Engine> {
+    pub fn engine(
+        &self,
+        gpu: Arc<Gpu>,
+        p: &LoadedPreset,
+        entry: &TechniqueEntry,
+    ) -> Result<Engine> {
         let settings = EngineSettings {
             extent: p.preset.render.size,
             seed: p.preset.render.seed,

@@ -453,14 +453,9 @@ impl Session {
     fn set_camera_json(&mut self, json: &str) -> PyResult<()> {
         let camera: Camera = serde_json::from_str(json)
             .map_err(|e| PyValueError::new_err(format!("camera: {e}")))?;
-        let finite = camera
-            .position
-            .is_finite()
-            .then_some(())
-            .and(camera.target.is_finite().then_some(()))
-            .and(camera.up.is_finite().then_some(()))
-            .is_some();
-        if !finite || !(camera.fov_y > 0.0 && camera.fov_y < 180.0) {
+        let finite =
+            camera.position.is_finite() && camera.target.is_finite() && camera.up.is_finite();
+        if !(finite && camera.fov_y > 0.0 && camera.fov_y < 180.0) {
             return Err(PyValueError::new_err(
                 "camera: position, target and up must be finite and fov in (0, 180) degrees",
             ));
