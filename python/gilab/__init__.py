@@ -28,6 +28,7 @@ from ._progress import reporting
 __all__ = [
     "Camera",
     "Frame",
+    "Run",
     "GilabError",
     "Session",
     "converge",
@@ -203,6 +204,85 @@ class Frame:
             raise ValueError(f"{path}: expected a .exr or .png file name")
 
 
+def _frame(out: Dict[str, Any]) -> Frame:
+    check = out["clock_check_json"]
+    return Frame(
+        image=out["image"],
+        variance=out["variance"],
+        meta=json.loads(out["meta_json"]),
+        clock_check=None if check is None else json.loads(check),
+        _debug=dict(out["debug"]),
+    )
+
+
+def _event(material=None, emissive=None, base_color=None, roughness=None, metallic=None,
+           light=None, position=None, intensity=None) -> Dict[str, Any]:
+    event: Dict[str, Any] = {}
+    for key, value in (("material", material), ("light", light)):
+        if value is not None:
+            event[key] = value
+    for key, value in (("emissive", emissive), ("base_color", base_color),
+                       ("position", position), ("intensity", intensity)):
+        if value is not None:
+            event[key] = [float(v) for v in value]
+    for key, value in (("roughness", roughness), ("metallic", metallic)):
+        if value is not None:
+            event[key] = float(value)
+    return event
+
+
+class Run:
+    """One technique's engine kept across calls (from `Session.start`): each `step` renders
+    more frames on it, accumulating as the engine does (or, for a real-time technique, carrying
+    its history), and edits land mid-run as `converge`'s events do. `run.step(2); run.step(1)`
+    gives the pixels of `session.render(t, frames=3)`. The run keeps the device alive until it
+    is dropped. Use it from the thread that made it."""
+
+    def __init__(self, run: "_gilab.Run") -> None:
+        self._r = run
+
+    def step(self, frames: int = 1, clock_check: bool = False, progress: bool = False) -> Frame:
+        """Renders `frames` more frames; the Frame holds everything since the start or reset
+        (samples, rays; timings are this step's mean per frame)."""
+        if isinstance(frames, bool) or int(frames) < 1:
+            raise ValueError("frames must be a positive integer")
+        with reporting(progress):
+            return _frame(self._r.step(int(frames), bool(clock_check), bool(progress)))
+
+    @property
+    def frames(self) -> int:
+        """Frames since the start or the last reset."""
+        return self._r.frames
+
+    def reset(self) -> None:
+        """Forgets history, accumulation and counters (a camera cut)."""
+        self._r.reset()
+
+    @property
+    def camera(self) -> Camera:
+        return Camera._from_json(self._r.camera_json())
+
+    @camera.setter
+    def camera(self, camera: Union[Camera, Mapping[str, Any]]) -> None:
+        """A scripted camera move: accumulation restarts, reuse history carries on."""
+        if isinstance(camera, Mapping):
+            camera = Camera(**camera)
+        self._r.move_camera_json(camera._json())
+
+    def edit_material(self, name: str, **fields: Any) -> None:
+        """A material edit now (emissive, base_color, roughness, metallic), as an event."""
+        self.apply_event(_event(material=name, **fields))
+
+    def edit_light(self, index: int, **fields: Any) -> None:
+        """A punctual-light edit now (position, intensity), as an event."""
+        self.apply_event(_event(light=int(index), **fields))
+
+    def apply_event(self, event: Mapping[str, Any]) -> None:
+        """An `[[experiment.event]]` table's change applied before the next frame (`frame`
+        is ignored): the edited scene is swapped in, the engine's history carries on."""
+        self._r.apply_event_json(json.dumps(dict(event)))
+
+
 class Session:
     """One GPU device and a loaded scene; renders any technique on it.
 
@@ -312,16 +392,8 @@ class Session:
     ) -> None:
         """A scripted material edit (an experiment's event): emissive switches a light on or
         off. Renders after this see the edited scene; references key on the edits."""
-        event: Dict[str, Any] = {"material": name}
-        for key, value in (
-            ("emissive", emissive),
-            ("base_color", base_color),
-            ("roughness", roughness),
-            ("metallic", metallic),
-        ):
-            if value is not None:
-                event[key] = [float(v) for v in value] if key in ("emissive", "base_color") else float(value)
-        self.apply_event(event)
+        self.apply_event(_event(material=name, emissive=emissive, base_color=base_color,
+                                roughness=roughness, metallic=metallic))
 
     def edit_light(
         self,
@@ -330,12 +402,7 @@ class Session:
         intensity: Optional[Sequence[float]] = None,
     ) -> None:
         """A scripted punctual-light edit: move it, or change its intensity (0 switches it off)."""
-        event: Dict[str, Any] = {"light": int(index)}
-        if position is not None:
-            event["position"] = [float(v) for v in position]
-        if intensity is not None:
-            event["intensity"] = [float(v) for v in intensity]
-        self.apply_event(event)
+        self.apply_event(_event(light=int(index), position=position, intensity=intensity))
 
     def apply_event(self, event: Mapping[str, Any]) -> None:
         """Applies an `[[experiment.event]]` table's change (material, light or camera fields;
@@ -380,13 +447,26 @@ class Session:
                 bool(clock_check),
                 bool(progress),
             )
-        check = out["clock_check_json"]
-        return Frame(
-            image=out["image"],
-            variance=out["variance"],
-            meta=json.loads(out["meta_json"]),
-            clock_check=None if check is None else json.loads(check),
-            _debug=dict(out["debug"]),
+        return _frame(out)
+
+    def start(
+        self,
+        technique: str,
+        seed: Optional[int] = None,
+        params: Optional[Mapping[str, Any]] = None,
+        denoise: bool = False,
+        budget: Optional[float] = None,
+    ) -> "Run":
+        """An engine for `technique` kept across calls (`Run.step`), for per-frame curves and
+        edits in the middle of a run (lag). Same arguments as `render`."""
+        return Run(
+            self._s.start(
+                technique,
+                None if seed is None else int(seed),
+                json.dumps(dict(params or {})),
+                bool(denoise),
+                None if budget is None else float(budget),
+            )
         )
 
     @property

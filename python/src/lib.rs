@@ -361,6 +361,41 @@ impl Session {
         run::edited_reference_key(&base, &self.events).map_err(py_err)
     }
 
+    /// The session's preset with one technique entry, checked by the library before any GPU
+    /// work (unknown technique, bad parameters), and the entry.
+    fn entry_preset(
+        &self,
+        technique: &str,
+        seed: Option<u32>,
+        params_json: &str,
+        denoise: bool,
+        budget: Option<f64>,
+    ) -> PyResult<(LoadedPreset, TechniqueEntry)> {
+        if budget.is_some_and(|b| !(b.is_finite() && b > 0.0)) {
+            return Err(PyValueError::new_err(
+                "budget must be a positive number of rays per pixel per frame",
+            ));
+        }
+        let entry = TechniqueEntry {
+            params: toml_table(params_json)?,
+            budget,
+            denoise,
+            ..TechniqueEntry::new(technique)
+        };
+        gilab::techniques::create_technique(&entry.name)
+            .and_then(|mut t| {
+                t.set_params(&entry.params)
+                    .with_context(|| format!("technique '{}'", entry.name))
+            })
+            .map_err(value_err)?;
+        let mut p = self.preset.clone();
+        if let Some(seed) = seed {
+            p.preset.render.seed = seed;
+        }
+        p.preset.techniques = vec![entry.clone()];
+        Ok((p, entry))
+    }
+
     fn reference_preset(&self, spp: Option<u32>) -> LoadedPreset {
         let mut p = self.preset.clone();
         if let Some(spp) = spp {
@@ -451,20 +486,7 @@ impl Session {
     }
 
     fn set_camera_json(&mut self, json: &str) -> PyResult<()> {
-        let camera: Camera = serde_json::from_str(json)
-            .map_err(|e| PyValueError::new_err(format!("camera: {e}")))?;
-        let finite =
-            camera.position.is_finite() && camera.target.is_finite() && camera.up.is_finite();
-        if !(finite && camera.fov_y > 0.0 && camera.fov_y < 180.0) {
-            return Err(PyValueError::new_err(
-                "camera: position, target and up must be finite and fov in (0, 180) degrees",
-            ));
-        }
-        if (camera.target - camera.position).length() == 0.0 {
-            return Err(PyValueError::new_err(
-                "camera: target must differ from position",
-            ));
-        }
+        let camera = camera_from_json(json)?;
         self.scene.camera = camera;
         self.preset.preset.camera = Some(camera);
         Ok(())
@@ -493,11 +515,7 @@ impl Session {
     /// base_color / roughness / metallic, light + position / intensity, camera), applied to the
     /// session's scene for the renders that follow.
     fn apply_event_json(&mut self, py: Python<'_>, json: &str) -> PyResult<()> {
-        let mut table = toml_table(json)?;
-        table.entry("frame").or_insert(toml::Value::Integer(0));
-        let mut event: Event = table
-            .try_into()
-            .map_err(|e| PyValueError::new_err(format!("event: {e}")))?;
+        let mut event = event_from_json(json)?;
         // Check it against the scene first (names, light indices), leaving the session as it was.
         let mut probe = (*self.scene.scene).clone();
         let mut camera = self.scene.camera;
@@ -536,50 +554,37 @@ impl Session {
         if frames == 0 {
             return Err(PyValueError::new_err("frames must be at least 1"));
         }
-        if budget.is_some_and(|b| !(b.is_finite() && b > 0.0)) {
-            return Err(PyValueError::new_err(
-                "budget must be a positive number of rays per pixel per frame",
-            ));
-        }
         let gpu = self.gpu()?;
-        let entry = TechniqueEntry {
-            params: toml_table(params_json)?,
-            budget,
-            denoise,
-            ..TechniqueEntry::new(technique)
-        };
-        // The library's own checks, before any GPU work: unknown technique, bad parameters.
-        gilab::techniques::create_technique(&entry.name)
-            .and_then(|mut t| {
-                t.set_params(&entry.params)
-                    .with_context(|| format!("technique '{}'", entry.name))
-            })
-            .map_err(value_err)?;
-        let mut p = self.preset.clone();
-        if let Some(seed) = seed {
-            p.preset.render.seed = seed;
-        }
-        p.preset.techniques = vec![entry.clone()];
+        let (p, entry) = self.entry_preset(technique, seed, params_json, denoise, budget)?;
         let scene = self.scene.clone();
         let rendered = py
             .detach(|| render_entry(gpu, &p, &scene, &entry, frames, clock_check, !progress))
             .map_err(py_err)?;
-        let out = PyDict::new(py);
-        out.set_item("image", image_to_array(py, rendered.image)?)?;
-        out.set_item("variance", image_to_array(py, rendered.variance)?)?;
-        out.set_item("meta_json", rendered.meta_json)?;
-        out.set_item("clock_check_json", rendered.clock_check_json)?;
-        let debug = PyDict::new(py);
-        let [w, h] = p.preset.render.size;
-        for (name, is_id, values) in rendered.debug {
-            let array: Bound<'py, PyArray2<f32>> =
-                Array2::from_shape_vec((h as usize, w as usize), values)
-                    .map_err(|e| PyRuntimeError::new_err(e.to_string()))?
-                    .into_pyarray(py);
-            debug.set_item(name, (array, is_id))?;
-        }
-        out.set_item("debug", debug)?;
-        Ok(out)
+        rendered.into_dict(py, p.preset.render.size)
+    }
+
+    /// An engine for `technique` kept for `Run.step` calls (the parameters checked first).
+    #[pyo3(signature = (technique, seed=None, params_json="{}", denoise=false, budget=None))]
+    fn start(
+        &self,
+        py: Python<'_>,
+        technique: &str,
+        seed: Option<u32>,
+        params_json: &str,
+        denoise: bool,
+        budget: Option<f64>,
+    ) -> PyResult<Run> {
+        let gpu = self.gpu()?;
+        let (p, entry) = self.entry_preset(technique, seed, params_json, denoise, budget)?;
+        let scene = self.scene.clone();
+        let engine = py
+            .detach(|| scene.engine(gpu, &p, &entry).map(EngineCell))
+            .map_err(py_err)?;
+        Ok(Run {
+            engine,
+            preset: p,
+            entry,
+        })
     }
 
     /// The preset's reference (cached in `cache` under the CLI's key): (image, EXR path).
@@ -625,9 +630,7 @@ struct Rendered {
     debug: Vec<(String, bool, Vec<f32>)>,
 }
 
-/// `shot`'s render of one entry (`SceneOnGpu::engine`, `jobs::render_frames`,
-/// `jobs::metadata`), plus the variance, the debug views and optionally the clock check
-/// `converge` runs around each run.
+/// `shot`'s render of one entry on a fresh engine (`SceneOnGpu::engine`, then `render_on`).
 fn render_entry(
     gpu: Arc<Gpu>,
     p: &LoadedPreset,
@@ -637,7 +640,22 @@ fn render_entry(
     clock_check: bool,
     quiet: bool,
 ) -> anyhow::Result<Rendered> {
-    let mut engine = scene.engine(gpu.clone(), p, entry)?;
+    let mut engine = scene.engine(gpu, p, entry)?;
+    render_on(&mut engine, p, entry, frames, clock_check, quiet)
+}
+
+/// `frames` more frames on `engine` (`jobs::render_frames`) and what `shot` reads after them
+/// (`jobs::metadata`), plus the variance, the debug views and optionally the clock check
+/// `converge` runs around each run.
+fn render_on(
+    engine: &mut gilab::render::engine::Engine,
+    p: &LoadedPreset,
+    entry: &TechniqueEntry,
+    frames: u32,
+    clock_check: bool,
+    quiet: bool,
+) -> anyhow::Result<Rendered> {
+    let gpu = engine.gpu.clone();
     let mut calibration = None;
     if clock_check {
         let mut c = gilab::gpu::calibrate::Calibration::new(&gpu, &engine.shaders)?;
@@ -645,7 +663,7 @@ fn render_entry(
         let clock_before = c.clock();
         calibration = Some((c, before, warm_up_ms, clock_before));
     }
-    let by_pass = jobs::render_frames(&mut engine, frames, &entry.name, quiet)?;
+    let by_pass = jobs::render_frames(engine, frames, &entry.name, quiet)?;
     let clock_check_json = match calibration {
         Some((mut c, before, warm_up_ms, clock_before)) => {
             let after = c.measure(&gpu)?;
@@ -656,7 +674,7 @@ fn render_entry(
     };
     let (image, variance) = engine.read_output_and_variance()?;
     let variance = variance.unwrap_or_else(|| Image::new(image.width, image.height));
-    let meta = jobs::metadata(&engine, p, entry, &image, by_pass)?;
+    let meta = jobs::metadata(engine, p, entry, &image, by_pass)?;
     let mut debug = Vec::new();
     if let Some(data) = engine.read_debug()? {
         let pixels = (image.width * image.height) as usize;
@@ -674,10 +692,155 @@ fn render_entry(
     })
 }
 
+impl Rendered {
+    fn into_dict<'py>(self, py: Python<'py>, size: [u32; 2]) -> PyResult<Bound<'py, PyDict>> {
+        let out = PyDict::new(py);
+        out.set_item("image", image_to_array(py, self.image)?)?;
+        out.set_item("variance", image_to_array(py, self.variance)?)?;
+        out.set_item("meta_json", self.meta_json)?;
+        out.set_item("clock_check_json", self.clock_check_json)?;
+        let debug = PyDict::new(py);
+        let [w, h] = size;
+        for (name, is_id, values) in self.debug {
+            let array: Bound<'py, PyArray2<f32>> =
+                Array2::from_shape_vec((h as usize, w as usize), values)
+                    .map_err(|e| PyRuntimeError::new_err(e.to_string()))?
+                    .into_pyarray(py);
+            debug.set_item(name, (array, is_id))?;
+        }
+        out.set_item("debug", debug)?;
+        Ok(out)
+    }
+}
+
+/// An engine kept between calls (`Run`).
+struct EngineCell(gilab::render::engine::Engine);
+
+impl EngineCell {
+    /// The engine, borrowed through the cell (so closures capture the cell, which is `Send`).
+    fn get(&mut self) -> &mut gilab::render::engine::Engine {
+        &mut self.0
+    }
+}
+
+// SAFETY: the engine (its technique is not `Send`) lives in a `Run`, an `unsendable` pyclass:
+// pyo3 hands a `Run` only to the thread that made it, and `Python::detach` runs its closure on
+// the calling thread, so the engine never crosses threads; `Send` is only what `detach` asks of
+// the closure that borrows it.
+unsafe impl Send for EngineCell {}
+
+/// One technique's engine kept across calls: frames accumulate (or a real-time technique's
+/// history carries on) from one `step` to the next, and scripted edits land mid-run, as in
+/// `converge`'s runs.
+#[pyclass(unsendable, module = "gilab._gilab")]
+struct Run {
+    engine: EngineCell,
+    preset: LoadedPreset,
+    entry: TechniqueEntry,
+}
+
+#[pymethods]
+impl Run {
+    /// `frames` more frames; the frame returned holds everything since the start (or reset).
+    #[pyo3(signature = (frames=1, clock_check=false, progress=false))]
+    fn step<'py>(
+        &mut self,
+        py: Python<'py>,
+        frames: u32,
+        clock_check: bool,
+        progress: bool,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        if frames == 0 {
+            return Err(PyValueError::new_err("frames must be at least 1"));
+        }
+        let (p, entry) = (&self.preset, &self.entry);
+        let engine = &mut self.engine;
+        let rendered = py
+            .detach(|| render_on(engine.get(), p, entry, frames, clock_check, !progress))
+            .map_err(py_err)?;
+        rendered.into_dict(py, self.preset.preset.render.size)
+    }
+
+    /// Frames since the start or the last reset.
+    #[getter]
+    fn frames(&self) -> u32 {
+        self.engine.0.frame_index
+    }
+
+    /// Forgets everything: history, accumulation, counters (a camera cut).
+    fn reset(&mut self, py: Python<'_>) {
+        let engine = &mut self.engine;
+        py.detach(|| engine.get().reset());
+    }
+
+    fn camera_json(&self) -> PyResult<String> {
+        serde_json::to_string(&self.engine.0.camera).map_err(json_err)
+    }
+
+    /// A scripted camera move (`Engine::move_camera`): accumulation restarts, reuse history
+    /// and counters carry on, as a camera event in `converge`.
+    fn move_camera_json(&mut self, json: &str) -> PyResult<()> {
+        let camera = camera_from_json(json)?;
+        self.engine.0.move_camera(camera);
+        Ok(())
+    }
+
+    /// A scripted scene edit mid-run, as `converge` applies `[[experiment.event]]`: the edited
+    /// scene is uploaded and swapped in (`Engine::change_scene`), then the camera moved.
+    fn apply_event_json(&mut self, py: Python<'_>, json: &str) -> PyResult<()> {
+        let event = event_from_json(json)?;
+        let engine = &mut self.engine;
+        let mut scene = (*engine.0.scene).clone();
+        let mut camera = engine.0.camera;
+        event.apply(&mut scene, &mut camera).map_err(value_err)?;
+        scene.validate().map_err(value_err)?;
+        let edits_scene = event.material.is_some() || event.light.is_some();
+        py.detach(|| -> anyhow::Result<()> {
+            let engine = engine.get();
+            if edits_scene {
+                let gpu_scene = gilab::scene::gpu_scene::GpuScene::upload(&engine.gpu, &scene);
+                engine.change_scene(Arc::new(scene), Arc::new(gpu_scene))?;
+            }
+            if camera != engine.camera {
+                engine.move_camera(camera);
+            }
+            Ok(())
+        })
+        .map_err(py_err)
+    }
+}
+
+fn camera_from_json(json: &str) -> PyResult<Camera> {
+    let camera: Camera =
+        serde_json::from_str(json).map_err(|e| PyValueError::new_err(format!("camera: {e}")))?;
+    let finite = camera.position.is_finite() && camera.target.is_finite() && camera.up.is_finite();
+    if !(finite && camera.fov_y > 0.0 && camera.fov_y < 180.0) {
+        return Err(PyValueError::new_err(
+            "camera: position, target and up must be finite and fov in (0, 180) degrees",
+        ));
+    }
+    if (camera.target - camera.position).length() == 0.0 {
+        return Err(PyValueError::new_err(
+            "camera: target must differ from position",
+        ));
+    }
+    Ok(camera)
+}
+
+/// An `[[experiment.event]]` table from JSON; `frame` may be left out (the edit is now).
+fn event_from_json(json: &str) -> PyResult<Event> {
+    let mut table = toml_table(json)?;
+    table.entry("frame").or_insert(toml::Value::Integer(0));
+    table
+        .try_into()
+        .map_err(|e| PyValueError::new_err(format!("event: {e}")))
+}
+
 #[pymodule]
 fn _gilab(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("GilabError", m.py().get_type::<GilabError>())?;
     m.add_class::<Session>()?;
+    m.add_class::<Run>()?;
     m.add_function(wrap_pyfunction!(set_progress, m)?)?;
     m.add_function(wrap_pyfunction!(techniques_json, m)?)?;
     m.add_function(wrap_pyfunction!(params_json, m)?)?;

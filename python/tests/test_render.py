@@ -119,3 +119,32 @@ def test_render_entry_equals_shot_of_the_preset(run_cli, tmp_path):
     run_cli("shot", "presets/cornell.toml", "--size", "16", "--spp", "3", "--out", str(tmp_path))
     cli = gilab.read_exr(tmp_path / "cornell" / "reference-2-bounces.exr")
     assert frame.frames == 3 and np.array_equal(frame.image, cli)
+
+
+def test_run_steps_equal_one_render(session):
+    """Frames on a kept engine accumulate as one render's: step(2) + step(1) = render(3)."""
+    run = session.start("restir", seed=4)
+    run.step(2)
+    stepped = run.step(1)
+    assert run.frames == 3 and stepped.frames == 3
+    assert np.array_equal(stepped.image, session.render("restir", frames=3, seed=4).image)
+    run.reset()
+    assert run.frames == 0
+    with pytest.raises(ValueError, match="reference has no parameter"):
+        session.start("reference", params={"nope": 1})
+
+
+def test_run_edit_mid_run(session):
+    """A light switched off mid-run (an experiment's event): the next frames go dark while
+    the run's counters carry on; the session's own scene is not edited."""
+    run = session.start("reference")
+    lit = run.step(2).image.mean()
+    run.edit_material("light", emissive=[0, 0, 0])
+    dark = run.step(2)
+    assert dark.frames == 4 and dark.image.mean() < 0.01 * lit
+    assert session.events == []
+    cam = run.camera
+    run.camera = gilab.Camera(cam.position, cam.target, cam.up, cam.fov * 0.8)
+    assert run.camera.fov == pytest.approx(cam.fov * 0.8)
+    with pytest.raises(ValueError, match="light 99 does not exist"):
+        run.edit_light(99, intensity=[0, 0, 0])
