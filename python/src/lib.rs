@@ -312,7 +312,8 @@ fn parse_backend(backend: Option<&str>) -> PyResult<BackendChoice> {
 struct Session {
     gpu: Option<Arc<Gpu>>,
     preset: LoadedPreset,
-    scene: SceneOnGpu,
+    /// None once closed: the scene's GPU buffers go with the device.
+    scene: Option<SceneOnGpu>,
     /// Scene edits applied since loading (their camera moved into `preset.render`'s camera);
     /// reference cache keys include them, as `converge` keys edited states.
     events: Vec<Event>,
@@ -325,12 +326,24 @@ impl Session {
             .ok_or_else(|| GilabError::new_err("the session is closed"))
     }
 
+    fn scene(&self) -> PyResult<&SceneOnGpu> {
+        self.scene
+            .as_ref()
+            .ok_or_else(|| GilabError::new_err("the session is closed"))
+    }
+
+    fn scene_mut(&mut self) -> PyResult<&mut SceneOnGpu> {
+        self.scene
+            .as_mut()
+            .ok_or_else(|| GilabError::new_err("the session is closed"))
+    }
+
     /// The preset's scene loaded again with the session's edits and camera.
     fn reload_scene(&mut self, py: Python<'_>) -> PyResult<()> {
         let gpu = self.gpu()?;
         let p = self.preset.clone();
         let events = self.events.clone();
-        let camera = self.scene.camera;
+        let camera = self.scene()?.camera;
         let scene = py
             .detach(|| -> anyhow::Result<SceneOnGpu> {
                 let mut scene = p.load_scene()?;
@@ -347,14 +360,14 @@ impl Session {
                 })
             })
             .map_err(value_err)?;
-        self.scene = scene;
+        self.scene = Some(scene);
         Ok(())
     }
 
     /// The reference's cache key: the CLI's for this preset and camera, with the session's
     /// edits hashed in as `converge` does for an edited state.
     fn reference_key(&self, p: &LoadedPreset) -> PyResult<String> {
-        let base = jobs::reference_key_for_camera(p, &self.scene.camera);
+        let base = jobs::reference_key_for_camera(p, &self.scene()?.camera);
         if self.events.is_empty() {
             return Ok(base);
         }
@@ -438,13 +451,14 @@ impl Session {
         Ok(Session {
             gpu: Some(gpu),
             preset: p,
-            scene,
+            scene: Some(scene),
             events: Vec::new(),
         })
     }
 
     /// Releases the GPU device (renders after this raise).
     fn close(&mut self) {
+        self.scene = None;
         self.gpu = None;
     }
 
@@ -466,7 +480,9 @@ impl Session {
 
     #[getter]
     fn scene_name(&self) -> String {
-        self.scene.scene.name.clone()
+        self.scene
+            .as_ref()
+            .map_or_else(String::new, |s| s.scene.name.clone())
     }
 
     fn adapter_json(&self) -> PyResult<String> {
@@ -478,16 +494,16 @@ impl Session {
     }
 
     fn scene_features_json(&self) -> PyResult<String> {
-        serde_json::to_string(&self.scene.gpu_scene.data.features).map_err(json_err)
+        serde_json::to_string(&self.scene()?.gpu_scene.data.features).map_err(json_err)
     }
 
     fn camera_json(&self) -> PyResult<String> {
-        serde_json::to_string(&self.scene.camera).map_err(json_err)
+        serde_json::to_string(&self.scene()?.camera).map_err(json_err)
     }
 
     fn set_camera_json(&mut self, json: &str) -> PyResult<()> {
         let camera = camera_from_json(json)?;
-        self.scene.camera = camera;
+        self.scene_mut()?.camera = camera;
         self.preset.preset.camera = Some(camera);
         Ok(())
     }
@@ -517,11 +533,11 @@ impl Session {
     fn apply_event_json(&mut self, py: Python<'_>, json: &str) -> PyResult<()> {
         let mut event = event_from_json(json)?;
         // Check it against the scene first (names, light indices), leaving the session as it was.
-        let mut probe = (*self.scene.scene).clone();
-        let mut camera = self.scene.camera;
+        let mut probe = (*self.scene()?.scene).clone();
+        let mut camera = self.scene()?.camera;
         event.apply(&mut probe, &mut camera).map_err(value_err)?;
         if let Some(c) = event.camera.take() {
-            self.scene.camera = c;
+            self.scene_mut()?.camera = c;
             self.preset.preset.camera = Some(c);
         }
         if event.material.is_some() || event.light.is_some() {
@@ -556,7 +572,7 @@ impl Session {
         }
         let gpu = self.gpu()?;
         let (p, entry) = self.entry_preset(technique, seed, params_json, denoise, budget)?;
-        let scene = self.scene.clone();
+        let scene = self.scene()?.clone();
         let rendered = py
             .detach(|| render_entry(gpu, &p, &scene, &entry, frames, clock_check, !progress))
             .map_err(py_err)?;
@@ -576,7 +592,7 @@ impl Session {
     ) -> PyResult<Run> {
         let gpu = self.gpu()?;
         let (p, entry) = self.entry_preset(technique, seed, params_json, denoise, budget)?;
-        let scene = self.scene.clone();
+        let scene = self.scene()?.clone();
         let engine = py
             .detach(|| scene.engine(gpu, &p, &entry).map(EngineCell))
             .map_err(py_err)?;
@@ -603,8 +619,8 @@ impl Session {
         let gpu = self.gpu()?;
         let p = self.reference_preset(spp);
         let key = self.reference_key(&p)?;
-        let scene = (*self.scene.scene).clone();
-        let camera = self.scene.camera;
+        let scene = (*self.scene()?.scene).clone();
+        let camera = self.scene()?.camera;
         let (image, path) = py
             .detach(|| {
                 jobs::reference_image(gpu, &p, scene, camera, &key, &cache, force, !progress)

@@ -67,3 +67,6 @@ def test_closed_session():
     assert s.closed
     with pytest.raises(gilab.GilabError, match="closed"):
         s.render("reference")
+    with pytest.raises(gilab.GilabError, match="closed"):
+        s.camera
+    assert repr(s).endswith("closed>")

@@ -69,3 +69,24 @@ def test_overhead_against_cli(run_cli, tmp_path):
     assert np.array_equal(frame.image, cold.image)
     # An open session skips what every CLI call pays (process, device, scene upload).
     assert warm_s < cli_s
+
+
+def test_closed_sessions_release_the_device():
+    """A closed session drops its device and scene buffers: opening and closing sessions does
+    not pile up memory."""
+
+    def open_render_close():
+        s = gilab.Session("presets/cornell.toml", size=16)
+        s.render("reference", frames=1)
+        s.close()
+
+    for _ in range(3):
+        open_render_close()
+    gc.collect()
+    before = rss_mb()
+    for _ in range(10):
+        open_render_close()
+    gc.collect()
+    growth = rss_mb() - before
+    print(f"\nRSS over 10 sessions opened, rendered and closed: {growth:+.1f} MB")
+    assert growth < RSS_GROWTH_LIMIT_MB
