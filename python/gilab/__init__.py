@@ -190,6 +190,13 @@ class Frame:
                 f"no debug view '{view}' for technique '{self.meta['technique']}' (it has: {views})"
             ) from None
 
+    def __repr__(self) -> str:
+        h, w = self.image.shape[:2]
+        return (
+            f"<gilab.Frame {self.meta['label']} {w}x{h}, {self.frames} frames, {self.samples} spp, "
+            f"{self.gpu_ms_per_frame:.2f} ms/frame, {self.rays_per_pixel:.2f} rays/px>"
+        )
+
     def save(self, path: PathLike, operator: Optional[str] = None, exposure: float = 0.0) -> None:
         """Writes the image as `gilab shot` does: `.exr` linear, `.png` tonemapped (the
         preset's display transform unless `operator` is given)."""
@@ -260,11 +267,12 @@ class Run:
 
     @property
     def camera(self) -> Camera:
+        """The run's camera; assigning one is a scripted camera move (accumulation restarts,
+        reuse history carries on)."""
         return Camera._from_json(self._r.camera_json())
 
     @camera.setter
     def camera(self, camera: Union[Camera, Mapping[str, Any]]) -> None:
-        """A scripted camera move: accumulation restarts, reuse history carries on."""
         if isinstance(camera, Mapping):
             camera = Camera(**camera)
         self._r.move_camera_json(camera._json())

@@ -127,6 +127,7 @@ fn techniques_json() -> String {
 #[pyfunction]
 fn params_json(technique: &str) -> PyResult<String> {
     let t = gilab::techniques::create_technique(technique).map_err(value_err)?;
+    let defaults = t.params();
     let specs: Vec<serde_json::Value> = t
         .param_set()
         .specs()
@@ -136,6 +137,12 @@ fn params_json(technique: &str) -> PyResult<String> {
             let choices = match s.kind {
                 gilab::render::params::ParamKind::Choice(c) => Some(c.to_vec()),
                 _ => None,
+            };
+            // The default in the parameter's own type: a number, a switch, a choice's name.
+            let default = match (&choices, defaults.get(s.name)) {
+                (Some(c), _) => serde_json::json!(c.get(s.default as usize)),
+                (None, Some(v)) => serde_json::to_value(v).unwrap_or(serde_json::Value::Null),
+                (None, None) => serde_json::json!(s.default),
             };
             serde_json::json!({
                 "name": s.name,
@@ -151,8 +158,7 @@ fn params_json(technique: &str) -> PyResult<String> {
                 "min": min,
                 "max": max,
                 "choices": choices,
-                "default": s.default,
-                "current": t.params().get(s.name).map(|v| serde_json::to_value(v).ok()),
+                "default": default,
             })
         })
         .collect();

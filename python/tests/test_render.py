@@ -42,6 +42,7 @@ def test_frame_contents(session):
     assert frame.rays["camera"] == 4 * w * h
     assert frame.timings and all(ms >= 0 for ms in frame.timings.values())
     assert frame.clock_check is None
+    assert repr(frame).startswith(f"<gilab.Frame reference {w}x{h}, 4 frames, 4 spp,")
 
 
 def test_debug_views_and_denoise(session):
