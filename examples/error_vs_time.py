@@ -1,7 +1,7 @@
 """Error against GPU time for two techniques on the Cornell box, plotted with matplotlib.
 
-A notebook-style script: one session, one cached reference, renders of 1, 2, 4 ... frames for
-each technique, relMSE against GPU time on log-log axes.
+A notebook-style script: one session, one cached reference, one run per technique whose error
+is read after 1, 2, 4 ... frames, relMSE against GPU time on log-log axes.
 
     python examples/error_vs_time.py --size 64 --frames 16 --out out/python-examples
 """
@@ -31,17 +31,16 @@ session = gilab.Session(args.preset, size=args.size)
 print(session, session.adapter["name"])
 reference = session.reference(spp=args.reference_spp)
 
-# %% Each technique at 1, 2, 4 ... frames: GPU time and error of the accumulated image.
-curves = {}
+# %% Each technique on one engine (a Run), the error read after 1, 2, 4 ... frames against the
+# GPU time spent so far.
+curves, last = {}, {}
 for technique in args.techniques:
+    run = session.start(technique)
     points = []
-    frames = 1
-    while frames <= args.frames:
-        frame = session.render(technique, frames=frames)
-        gpu_ms = frame.gpu_ms_per_frame * frame.frames
-        points.append((gpu_ms, gilab.metrics.relmse(frame.image, reference)))
-        frames *= 2
-    curves[technique] = points
+    while run.frames < args.frames:
+        frame = run.step(max(1, run.frames))  # doubles the frames so far
+        points.append((frame.meta["gpu_ms_total"], gilab.metrics.relmse(frame.image, reference)))
+    curves[technique], last[technique] = points, frame
     print(technique, " ".join(f"{ms:.1f} ms: {err:.4f}" for ms, err in points))
 
 # %% The plot: error against GPU time, and the last image of each technique beside it.
@@ -53,9 +52,9 @@ axes[0].set_xlabel("GPU time (ms)")
 axes[0].set_ylabel("relMSE")
 axes[0].legend()
 axes[0].set_title(f"{session.scene_name}, {args.size}x{args.size}")
-for ax, technique in zip(axes[1:], curves):
-    ax.imshow(gilab.tonemap(session.render(technique, frames=args.frames).image))
-    ax.set_title(f"{technique}, {args.frames} frames")
+for ax, (technique, frame) in zip(axes[1:], last.items()):
+    ax.imshow(gilab.tonemap(frame.image))
+    ax.set_title(f"{technique}, {frame.frames} frames")
     ax.axis("off")
 fig.tight_layout()
 path = os.path.join(args.out, "error_vs_time.png")

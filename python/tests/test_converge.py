@@ -61,3 +61,22 @@ def test_converge_from_dict(tmp_path):
     assert all(r["rel_mse"] > 0 for r in rows)
     assert summary["runs"][0]["spec"]["label"] == "reference"
     assert (tmp_path / "out" / "report.md").is_file()
+
+
+def test_converge_rows_as_dataframe_with_pandas(tmp_path, monkeypatch):
+    """With pandas importable, the rows come back as its DataFrame (a stand-in module here:
+    CI does not install pandas)."""
+    import sys
+    import types
+
+    fake = types.ModuleType("pandas")
+    fake.DataFrame = lambda rows: ("DataFrame", rows)
+    monkeypatch.setitem(sys.modules, "pandas", fake)
+    experiment = {
+        "scene": {"source": "cornell"},
+        "render": {"size": [16, 16], "reference_spp": 4},
+        "techniques": [{"name": "reference"}],
+        "experiment": {"frames": 1},
+    }
+    _, rows = gilab.converge(experiment, out=tmp_path / "o", cache=tmp_path / "c", progress=False)
+    assert rows[0] == "DataFrame" and rows[1][0]["frame"] == 1
