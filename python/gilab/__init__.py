@@ -383,7 +383,8 @@ class Session:
 
     def set(self, key: str, value: Any) -> None:
         """Sets a preset key as `--set key=value` does (`render.reference_spp`, `tonemap.exposure`,
-        `scene.params.albedo`, ...); a `scene.` key loads the scene again."""
+        `scene.params.albedo`, ...); a `scene.` key loads the scene again (the session's edits
+        are applied to it again; the camera stays where it is: assign `camera` to move it)."""
         self._s.set_preset_value(key, _toml_literal(value))
 
     def set_scene_param(self, name: str, value: Any) -> None:

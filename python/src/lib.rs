@@ -320,7 +320,7 @@ struct Session {
     preset: LoadedPreset,
     /// None once closed: the scene's GPU buffers go with the device.
     scene: Option<SceneOnGpu>,
-    /// Scene edits applied since loading (their camera moved into `preset.render`'s camera);
+    /// Scene edits applied since loading (a camera among them moves the preset's camera instead);
     /// reference cache keys include them, as `converge` keys edited states.
     events: Vec<Event>,
 }
