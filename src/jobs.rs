@@ -77,33 +77,67 @@ impl Engine {
     }
 }
 
+/// A preset's scene loaded and uploaded once, with the preset's camera: every engine made on it
+/// shares it (`shot` makes one per technique; a Python session keeps one for all its renders).
+#[derive(Clone)]
+pub struct SceneOnGpu {
+    pub scene: Arc<Scene>,
+    pub gpu_scene: Arc<GpuScene>,
+    pub camera: crate::scene::Camera,
+}
+
+impl SceneOnGpu {
+    pub fn load(gpu: &Gpu, p: &LoadedPreset) -> Result<SceneOnGpu> {
+        let start = std::time::Instant::now();
+        let scene = p.load_scene()?;
+        let load_ms = start.elapsed().as_secs_f64() * 1e3;
+        let camera = p.camera(&scene);
+        let mut gpu_scene = GpuScene::upload(gpu, &scene);
+        gpu_scene.data.timings.load_ms = load_ms;
+        Ok(SceneOnGpu {
+            scene: Arc::new(scene),
+            gpu_scene: Arc::new(gpu_scene),
+            camera,
+        })
+    }
+
+    /// An engine for `entry` on this scene: the preset's size and seed, this camera.
+    pub fn engine(
+        &self,
+        gpu: Arc<Gpu>,
+        p: &LoadedPreset,
+        entry: &TechniqueEntry,
+    ) -> Result<Engine> {
+        let settings = EngineSettings {
+            extent: p.preset.render.size,
+            seed: p.preset.render.seed,
+            camera: self.camera,
+        };
+        Engine::for_entry(
+            gpu,
+            ShaderLibrary::discover(),
+            self.scene.clone(),
+            self.gpu_scene.clone(),
+            entry,
+            settings,
+        )
+    }
+}
+
 /// An engine for the preset's technique entry `index`: its scene (loaded and uploaded here),
 /// camera, size, seed and ray budget.
 pub fn engine_for_entry(gpu: Arc<Gpu>, p: &LoadedPreset, index: usize) -> Result<Engine> {
-    let start = std::time::Instant::now();
-    let scene = p.load_scene()?;
-    let load_ms = start.elapsed().as_secs_f64() * 1e3;
-    let camera = p.camera(&scene);
-    let mut gpu_scene = GpuScene::upload(&gpu, &scene);
-    gpu_scene.data.timings.load_ms = load_ms;
-    let gpu_scene = Arc::new(gpu_scene);
-    let settings = EngineSettings {
-        extent: p.preset.render.size,
-        seed: p.preset.render.seed,
-        camera,
-    };
-    Engine::for_entry(
-        gpu,
-        ShaderLibrary::discover(),
-        Arc::new(scene),
-        gpu_scene,
-        &p.preset.techniques[index],
-        settings,
-    )
+    SceneOnGpu::load(&gpu, p)?.engine(gpu, p, &p.preset.techniques[index])
+}
+
+/// Frames `shot` renders for `spp` samples per pixel on an engine.
+pub fn frames_for_spp(engine: &Engine, spp: u32) -> u32 {
+    let spf = engine.technique.samples_per_frame().max(1);
+    spp.div_ceil(spf).max(1)
 }
 
 /// Renders `frames` frames with a progress bar; returns the mean GPU ms per frame of each pass.
-fn render_frames(
+pub fn render_frames(
     engine: &mut Engine,
     frames: u32,
     label: &str,
@@ -132,8 +166,7 @@ pub fn render_technique(
     let preset = &p.preset;
     let entry = &preset.techniques[index];
     let mut engine = engine_for_entry(gpu, p, index)?;
-    let spf = engine.technique.samples_per_frame().max(1);
-    let frames = preset.render.spp.div_ceil(spf).max(1);
+    let frames = frames_for_spp(&engine, preset.render.spp);
     let by_pass = render_frames(&mut engine, frames, &entry.name, quiet)?;
     let image = engine.read_output()?;
     let meta = metadata(&engine, p, entry, &image, by_pass)?;
@@ -444,13 +477,69 @@ pub fn reference_image_seeded(
     Ok((image, path))
 }
 
-/// A progress bar in gilab's style (hidden when `quiet`).
-pub fn progress_bar(len: u64, prefix: &str, quiet: bool) -> ProgressBar {
-    let bar = if quiet {
+/// Where progress goes instead of the terminal bar (the Python module's tqdm): called with
+/// the bar's label, position, length and whether it finished.
+pub type ProgressSink = Arc<dyn Fn(&str, u64, u64, bool) + Send + Sync>;
+
+static PROGRESS_SINK: std::sync::RwLock<Option<ProgressSink>> = std::sync::RwLock::new(None);
+
+/// Sends every visible progress bar to `sink` (None: back to the terminal).
+pub fn set_progress_sink(sink: Option<ProgressSink>) {
+    *PROGRESS_SINK.write().unwrap_or_else(|e| e.into_inner()) = sink;
+}
+
+/// A progress bar: indicatif's on the terminal, or the installed sink's.
+pub struct Progress {
+    bar: ProgressBar,
+    sink: Option<ProgressSink>,
+    label: String,
+}
+
+impl Progress {
+    pub fn inc(&self, n: u64) {
+        self.bar.inc(n);
+        if let Some(sink) = &self.sink {
+            sink(&self.label, self.bar.position(), self.len(), false);
+        }
+    }
+    pub fn position(&self) -> u64 {
+        self.bar.position()
+    }
+    fn len(&self) -> u64 {
+        self.bar.length().unwrap_or(0)
+    }
+    pub fn set_message(&self, message: String) {
+        self.bar.set_message(message);
+    }
+    /// Runs `f` (which prints) without the bar drawn over it.
+    pub fn suspend<R>(&self, f: impl FnOnce() -> R) -> R {
+        self.bar.suspend(f)
+    }
+    pub fn finish_and_clear(&self) {
+        self.bar.finish_and_clear();
+        if let Some(sink) = &self.sink {
+            sink(&self.label, self.bar.position(), self.len(), true);
+        }
+    }
+}
+
+/// A progress bar in gilab's style (hidden when `quiet`; through the sink when one is set).
+pub fn progress_bar(len: u64, prefix: &str, quiet: bool) -> Progress {
+    let sink = if quiet {
+        None
+    } else {
+        PROGRESS_SINK
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
+    };
+    let bar = if quiet || sink.is_some() {
         ProgressBar::hidden()
     } else {
         ProgressBar::new(len)
     };
+    // A hidden bar keeps its length and position: the sink reads them.
+    bar.set_length(len);
     bar.set_style(
         ProgressStyle::with_template(
             "{prefix:>10} [{bar:30}] {pos}/{len} frames {elapsed_precise} eta {eta} {msg}",
@@ -459,5 +548,12 @@ pub fn progress_bar(len: u64, prefix: &str, quiet: bool) -> ProgressBar {
         .progress_chars("=> "),
     );
     bar.set_prefix(prefix.to_string());
-    bar
+    if let Some(sink) = &sink {
+        sink(prefix, 0, len, false);
+    }
+    Progress {
+        bar,
+        sink,
+        label: prefix.to_string(),
+    }
 }

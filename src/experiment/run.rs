@@ -101,6 +101,16 @@ fn sorted_events(p: &LoadedPreset) -> Result<Vec<Event>> {
     Ok(events)
 }
 
+/// The reference cache key of a scene state: the preset's key (`jobs::reference_key_for_camera`)
+/// with the events applied so far hashed in (the Python module keys its edited scenes so too).
+pub fn edited_reference_key(base_key: &str, events: &[Event]) -> Result<String> {
+    use std::hash::Hasher;
+    let mut h = fnv::FnvHasher::default();
+    h.write(base_key.as_bytes());
+    h.write(serde_json::to_string(events)?.as_bytes());
+    Ok(format!("{:016x}", h.finish()))
+}
+
 fn build_states(
     gpu: &Arc<Gpu>,
     p: &LoadedPreset,
@@ -123,11 +133,7 @@ fn build_states(
         let key = if k == 0 {
             base_key.clone()
         } else {
-            use std::hash::Hasher;
-            let mut h = fnv::FnvHasher::default();
-            h.write(base_key.as_bytes());
-            h.write(serde_json::to_string(&events[..k])?.as_bytes());
-            format!("{:016x}", h.finish())
+            edited_reference_key(&base_key, &events[..k])?
         };
         let (reference, path) = if render_references {
             let (image, path) = jobs::reference_image(
@@ -480,7 +486,7 @@ fn run_one(
     spec: &RunSpec,
     exp: &super::ExperimentSettings,
     opts: &ConvergeOptions,
-    bar: &indicatif::ProgressBar,
+    bar: &jobs::Progress,
     calibration: &mut crate::gpu::calibrate::Calibration,
 ) -> Result<(Vec<Row>, RunSummary)> {
     let entry = crate::techniques::entry_for_timing(&TechniqueEntry {
