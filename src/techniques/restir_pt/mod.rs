@@ -4,13 +4,15 @@
 //! Importance Sampling: Foundations of ReSTIR", SIGGRAPH; the shift RTXDI 3.0 ships). Per pixel
 //! and frame, on the engine's primary surfaces:
 //!
-//! 1. `initial`: one path traced as the reference traces it (NEE with MIS at every vertex,
+//! Pass names carry `path_` so they never collide with the direct-light part's (`spatial`).
+//!
+//! 1. `path_initial`: one path traced as the reference traces it (NEE with MIS at every vertex,
 //!    bounded by `max_bounces`, no Russian roulette); its contributions (one per length and
 //!    end) are candidates resampled by luminance into the pixel's path reservoir. The reservoir
 //!    keeps the reconnection vertex (triangle + barycentrics, so it follows moving objects),
 //!    the suffix radiance there, the path's seed, length and end.
-//! 2. `temporal`: last frame's reservoir at the reprojected pixel, pairwise MIS (two shifts).
-//! 3. `spatial`: `spatial_count` neighbours, pairwise MIS with the canonical sample (two
+//! 2. `path_temporal`: last frame's reservoir at the reprojected pixel, pairwise MIS (two shifts).
+//! 3. `path_spatial`: `spatial_count` neighbours, pairwise MIS with the canonical sample (two
 //!    shifts per neighbour: GRIS's generalised balance heuristic in its pairwise form).
 //! 4. `shade`: F × W of the kept path, emission, accumulation.
 //!
@@ -206,7 +208,7 @@ impl Technique for RestirPt {
             });
         }
         v.push(PassInfo {
-            name: "initial",
+            name: "path_initial",
             runs: true,
             why: format!(
                 "one path per pixel (NEE + MIS, up to {} bounces), its contributions resampled into a path reservoir{}",
@@ -219,7 +221,7 @@ impl Technique for RestirPt {
             ),
         });
         v.push(PassInfo {
-            name: "temporal",
+            name: "path_temporal",
             runs: s.temporal,
             why: if s.temporal {
                 format!(
@@ -231,7 +233,7 @@ impl Technique for RestirPt {
             },
         });
         v.push(PassInfo {
-            name: "spatial",
+            name: "path_spatial",
             runs: true,
             why: if s.spatial_count > 0 {
                 format!(
@@ -316,11 +318,11 @@ impl Technique for RestirPt {
                 .record(ctx, enc, timer, &r.direct_bind_group);
         }
         let bg = &r.bind_group;
-        pipelines::image_pass(ctx, enc, timer, "initial", initial, bg);
+        pipelines::image_pass(ctx, enc, timer, "path_initial", initial, bg);
         if self.settings.temporal {
-            pipelines::image_pass(ctx, enc, timer, "temporal", temporal, bg);
+            pipelines::image_pass(ctx, enc, timer, "path_temporal", temporal, bg);
         }
-        pipelines::image_pass(ctx, enc, timer, "spatial", spatial, bg);
+        pipelines::image_pass(ctx, enc, timer, "path_spatial", spatial, bg);
         pipelines::image_pass(ctx, enc, timer, "shade", shade, bg);
     }
 
