@@ -521,7 +521,7 @@ fn unbiased_on_glossy() {
     assert_unbiased(
         "glossy",
         builtin::glossy(),
-        [64, 64],
+        [48, 48],
         256,
         toml::Table::new(),
     );
