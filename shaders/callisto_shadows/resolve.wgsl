@@ -13,10 +13,10 @@
 // (group 2) adds indirect light as in ReSTIR's shading pass. With `direct = "restir"` the
 // direct-light part's per-pixel result replaces all of the above. Then the engine's progressive
 // average.
-#import gilab::frame::{frame, FLAG_NO_PRIMARY_EMISSION}
+#import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts, RAY_SHADOW, COUNT_INVALID_SAMPLES}
 #import gilab::accumulate::accumulate_sample
-#import gilab::primary::{current_surface, previous_surface, previous_pixel_position, surface_material, GSurface, at_last_frame}
+#import gilab::primary::{current_surface, previous_surface, previous_pixel_position, surface_material, GSurface, at_last_frame, primary_emission}
 #import gilab::restir::{gi_reservoirs, gi_sky, reservoir_index, gi_contribution, gi_visible}
 #import gilab::callisto::{params, current, history, debug_out, pixel_direct, pixel_specular, parity}
 #import gilab::brdf::specular_eval
@@ -73,10 +73,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     if gid.x < frame.size.x && gid.y < frame.size.y {
         let idx = gid.y * frame.size.x + gid.x;
         let s = current_surface(idx);
-        var l = s.emission.xyz;
-        if (frame.flags & FLAG_NO_PRIMARY_EMISSION) != 0u {
-            l = vec3<f32>(0.0);
-        }
+        var l = primary_emission(s);
         var frames = 0.0;
         if s.pos.w > 0.5 {
             if params.direct_restir == 1u {

@@ -4,7 +4,7 @@
 // Layout must match src/render/primary.rs.
 #define_import_path gilab::primary
 
-#import gilab::frame::frame
+#import gilab::frame::{frame, FLAG_NO_PRIMARY_EMISSION}
 #import gilab::brdf::Surface
 #import gilab::scene::materials
 
@@ -45,6 +45,13 @@ fn surface_slot(frame_index: u32, pixel: u32) -> u32 {
 
 fn current_surface(pixel: u32) -> GSurface {
     return surfaces[surface_slot(frame.frame_index, pixel)];
+}
+
+// What the camera sees emitted at a primary surface, or nothing where the frame asks for the
+// light sources' own radiance to be left out (FLAG_NO_PRIMARY_EMISSION): every technique's
+// final pass starts its pixel from this.
+fn primary_emission(s: GSurface) -> vec3<f32> {
+    return select(s.emission.xyz, vec3<f32>(0.0), (frame.flags & FLAG_NO_PRIMARY_EMISSION) != 0u);
 }
 
 fn previous_surface(pixel: u32) -> GSurface {

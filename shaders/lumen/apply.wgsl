@@ -5,12 +5,12 @@
 // the debug planes (with `debug_views`) and accumulates. With screen probes the irradiance comes
 // from `integrate` at full resolution, and the reflected radiance (no emission) is kept for next
 // frame's screen traces.
-#import gilab::frame::{frame, FLAG_NO_PRIMARY_EMISSION}
+#import gilab::frame::frame
 #import gilab::math::{INV_PI, luminance}
 #import gilab::counters::{flush_counts, no_counts, RAY_SHADOW, COUNT_INVALID_SAMPLES}
 #import gilab::accumulate::accumulate_sample
 #import gilab::rng::{rng_init, rand, rand_pair, STREAM_LUMEN_PIXEL}
-#import gilab::primary::{current_surface, surface_material, GSurface}
+#import gilab::primary::{current_surface, surface_material, GSurface, primary_emission}
 #import gilab::brdf::diffuse_color
 #import gilab::nee::direct_light
 #import gilab::lumen_probes::{pixel_data, lit_index, parity, probes_flag, PROBES_ACTIVE}
@@ -58,10 +58,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     if gid.x < frame.size.x && gid.y < frame.size.y {
         let idx = gid.y * frame.size.x + gid.x;
         let s = current_surface(idx);
-        var l = s.emission.xyz;
-        if (frame.flags & FLAG_NO_PRIMARY_EMISSION) != 0u {
-            l = vec3<f32>(0.0);
-        }
+        var l = primary_emission(s);
         let emitted = l;
         var first_plane = vec4<f32>(0.0);
         var second_plane = vec4<f32>(0.0);

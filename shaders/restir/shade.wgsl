@@ -1,9 +1,9 @@
 // ReSTIR final pass: visibility rays for each pixel's DI and GI reservoirs, shading (emission + f * Le * G * V * W + GI),
 // and progressive accumulation (Welford mean and M2, as the reference path tracer does).
-#import gilab::frame::{frame, FLAG_NO_PRIMARY_EMISSION}
+#import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts, RAY_SHADOW, COUNT_INVALID_SAMPLES}
 #import gilab::accumulate::accumulate_sample
-#import gilab::primary::{current_surface}
+#import gilab::primary::{current_surface, primary_emission}
 #import gilab::restir::{params, reservoirs, gi_reservoirs, gi_sky, reservoir_index, parity, shade_reservoir, gi_contribution, gi_visible, regir_cell, debug_out, SKY_SAMPLE}
 #import gilab::scene::light_pool
 
@@ -14,10 +14,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let idx = gid.y * frame.size.x + gid.x;
         let s = current_surface(idx);
         let ri = reservoir_index(parity(), idx);
-        var l = s.emission.xyz;
-        if (frame.flags & FLAG_NO_PRIMARY_EMISSION) != 0u {
-            l = vec3<f32>(0.0);
-        }
+        var l = primary_emission(s);
         let direct = shade_reservoir(s, ri);
         l += direct.radiance;
         counts[RAY_SHADOW] += direct.shadow_rays;

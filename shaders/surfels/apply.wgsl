@@ -9,11 +9,11 @@
 // and normal; a pixel none of them matches (an edge, a thin object) gathers itself. In
 // cache-only mode (FLAG_CACHE_ONLY: another technique reads the surfels) it only marks: the
 // pixels are that technique's.
-#import gilab::frame::{frame, FLAG_NO_PRIMARY_EMISSION}
+#import gilab::frame::frame
 #import gilab::math::INV_PI
 #import gilab::counters::{flush_counts, no_counts, COUNT_INVALID_SAMPLES}
 #import gilab::accumulate::accumulate_sample
-#import gilab::primary::{current_surface, surface_material, GSurface}
+#import gilab::primary::{current_surface, surface_material, GSurface, primary_emission}
 #import gilab::brdf::diffuse_color
 #import gilab::surfels::{pixel_direct, pixel_specular, FLAG_REFLECTIONS, has_flag, gather, Gather, gathered_irradiance, grid_center_for, write_debug, block_sample_pixel, note_gather, FLAG_ACCUMULATE, FLAG_CACHE_ONLY, FLAG_QUARTER_APPLY, NONE}
 
@@ -23,10 +23,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     if gid.x < frame.size.x && gid.y < frame.size.y {
         let idx = gid.y * frame.size.x + gid.x;
         let s = current_surface(idx);
-        var l = s.emission.xyz;
-        if (frame.flags & FLAG_NO_PRIMARY_EMISSION) != 0u {
-            l = vec3<f32>(0.0);
-        }
+        var l = primary_emission(s);
         var first_plane = vec4<f32>(0.0);
         var second_plane = vec4<f32>(0.0);
         var debug_done = false;
