@@ -606,6 +606,29 @@ fn cornell_run_frames(params: toml::Table, n: u32) -> (Image, gilab::render::Ray
     (img, rays)
 }
 
+/// What the converged technique shows: `warm` frames from a cold start (their accumulated mean
+/// is returned too: the warm-up's energy), then the average restarts (not the caches, probes or
+/// temporal histories: the same camera) and `n` frames are accumulated. Ray counts cover all
+/// `warm + n` frames.
+fn cornell_run_steady(
+    params: toml::Table,
+    warm: u32,
+    n: u32,
+) -> (Image, Image, gilab::render::RayCounts) {
+    let mut t = toml::toml! { atlas_size = 256 };
+    t.extend(params);
+    let mut e = engine("lumen", small(t), builtin::cornell(), [128, 128], 1);
+    frames(&mut e, warm);
+    let cold = e.read_output().unwrap();
+    let camera = e.camera;
+    e.move_camera(camera);
+    frames(&mut e, n);
+    let img = e.read_output().unwrap();
+    let rays = e.ray_counts().unwrap();
+    assert_eq!(rays.invalid_samples, 0);
+    (img, cold, rays)
+}
+
 fn rays_per_pixel_frame(rays: &gilab::render::RayCounts, frames: u32) -> f64 {
     rays.total() as f64 / (128.0 * 128.0 * frames as f64)
 }
@@ -621,7 +644,8 @@ fn kind(rays: &gilab::render::RayCounts, name: &str) -> u64 {
 /// blend) and, with `sdf`, from the distance field's hit positions and over-occlusion.
 ///
 /// The screen-probe gather (with cache budgets high enough that the cache has converged, so what
-/// is measured is the gather): energy within 7% in both modes; a frame's relMSE below the
+/// is measured is the gather), converged (a warm-up, then the average restarts): energy within
+/// 3% with the SDF at its default 128³ clipmaps (issue 38), within 5% with the BVH; a frame's relMSE below the
 /// per-pixel gather's at about equal rays per pixel; product and uniform probe sampling agree
 /// on the mean; screen traces take rays off the world trace and leave the energy within 2%.
 #[test]
@@ -645,7 +669,7 @@ fn cornell_against_reference_both_gathers() {
     // at 32 frames BVH probes measured 0.927, outside the 7% bound); a single frame is judged
     // after 16, when the cache (every texel updated every frame) has converged (48 before
     // 2026-11-26, for CI time).
-    let (slow, fast, single) = (48, 48, 16);
+    let (slow, fast, single, warm) = (48, 48, 16, 32);
     // The per-pixel gather at default budgets through the BVH (through the SDF too before
     // 2026-11-26; the SDF per-pixel gather's energy is still checked on the furnace).
     let (img, rays) = cornell_run_frames(
@@ -659,21 +683,48 @@ fn cornell_against_reference_both_gathers() {
         t.insert("direct_texels_per_frame".into(), 4_194_304.into());
         t
     };
+    // The screen probes (the default final gather) as they converge: 32 frames from a cold start,
+    // then 48 accumulated. Until 2026-11-27 (sixth session) the 48 frames were accumulated from
+    // the cold start, and the mean carried the warm-up: the surface cache adds a bounce a frame
+    // and the probes' and pixels' temporal filters (1/(n+1) down to 1/4 and 1/10) hold the dark
+    // first frames for about 25 more; SDF read 0.9665 that way and 0.98 converged. The SDF runs
+    // at the default 128³ clipmaps: at this file's 64³ the Cornell box lies in 0.6-unit voxels,
+    // whose grazing and rim hits bring back 22% more light per ray than the BVH's from the same
+    // cache (`sdf_hits_against_exact_hits`), and the probes read 1.01 by two errors cancelling.
     let mut probes = Vec::new();
-    for mode in ["sdf", "bvh"] {
-        let (img, rays) = cornell_run_frames(converged(toml::toml! { tracing = mode }), fast);
-        let (ratio, _) = report(&format!("screen probes ({mode})"), &img, &rays, fast);
-        assert!((ratio - 1.0).abs() < 0.07, "{mode}: energy ratio {ratio}");
+    for (mode, bound) in [("sdf", 0.03), ("bvh", 0.05)] {
+        let mut t = toml::toml! { tracing = mode };
+        if mode == "sdf" {
+            t.insert("clipmap_resolution".into(), 128.into());
+        }
+        let (img, cold, rays) = cornell_run_steady(converged(t), warm, fast);
+        let cold_ratio = energy(&cold) / energy(&truth);
+        let (ratio, _) = report(
+            &format!("screen probes ({mode}), after {warm} frames"),
+            &img,
+            &rays,
+            warm + fast,
+        );
+        eprintln!("  ({mode}: the first {warm} frames from a cold start read {cold_ratio:.4})");
+        // Issue 38: SDF within 3% (measured 0.980-0.983 over seeds), BVH within 5% (0.965-0.969;
+        // the cold-start mean read 0.9415).
+        assert!((ratio - 1.0).abs() < bound, "{mode}: energy ratio {ratio}");
         probes.push((img, rays, ratio));
     }
     // The world radiance cache (on by default) against none: what its lookups lose (issue 38:
     // within 3%; measured 2026-11-26 at 256 probes a frame: -3.3% before the lookups waited a
     // probe diagonal, -0.9% after).
-    let (img, rays) = cornell_run_frames(
+    let (img, _, rays) = cornell_run_steady(
         converged(toml::toml! { tracing = "bvh" world_cache = false }),
+        warm,
         fast,
     );
-    let (no_cache, _) = report("screen probes (bvh), no world cache", &img, &rays, fast);
+    let (no_cache, _) = report(
+        "screen probes (bvh), no world cache, converged",
+        &img,
+        &rays,
+        warm + fast,
+    );
     let cache_loss = probes[1].2 / no_cache - 1.0;
     eprintln!(
         "world radiance cache on Cornell: {:+.2}% of the light against none",
@@ -761,11 +812,17 @@ fn cornell_against_reference_both_gathers() {
         agree.abs() < 0.015,
         "product and uniform sampling disagree by {agree:+.4}"
     );
-    let (img, rays) = cornell_run_frames(
+    let (img, _, rays) = cornell_run_steady(
         converged(toml::toml! { tracing = "bvh" screen_traces = false }),
+        warm,
         fast,
     );
-    report("screen probes (bvh), no screen traces", &img, &rays, fast);
+    report(
+        "screen probes (bvh), no screen traces, converged",
+        &img,
+        &rays,
+        warm + fast,
+    );
     let (with, without) = (kind(probe_rays, "probe"), kind(&rays, "probe"));
     eprintln!("world-traced probe rays: {with} with screen traces, {without} without");
     assert!(
@@ -1397,4 +1454,84 @@ fn playing_keeps_the_cache_and_rebuilds_the_sdf_where_objects_moved() {
         played + hits / 100 >= fresh_lit,
         "moved objects' voxels not refreshed: {played} against {fresh_lit}"
     );
+}
+
+/// The same cosine rays from the surfaces the camera sees (Cornell, 80², 2 rays each), traced
+/// through the distance field and through the BVH and shaded from the same converged surface
+/// cache (`CacheRayBvh`): what global-SDF tracing itself changes in the light a gather ray brings
+/// back. The expand (half a voxel diagonal, the seed's guard against thin-wall leaks) stops rays
+/// that graze a wall or pass a rim within it: they bring back the wall's light instead of what
+/// lies beyond. Rays the BVH sends out of the box's open side (black) come back lit, and rays
+/// from the ceiling meet the lit upper walls early. Measured 2026-11-27: +22.1% per ray at 64³
+/// (the box in 0.6-unit voxels), +7.7% at the default 128³; the SDF's over-occluded direct light
+/// (`cache_direct_light_matches_reference`) pulls the other way. Asserted: the excess shrinks with the
+/// resolution and stays under 12% at the default.
+#[test]
+fn sdf_hits_against_exact_hits() {
+    let mut excess = Vec::new();
+    for res in [64i64, 128] {
+        let mut t = toml::toml! { tracing = "sdf" atlas_size = 256 indirect_texels_per_frame = 4194304 direct_texels_per_frame = 4194304 };
+        t.insert("clipmap_resolution".into(), res.into());
+        let mut e = engine("lumen", small(t), builtin::cornell(), [80, 80], 1);
+        frames(&mut e, 16);
+        let surfaces: Vec<_> = e
+            .read_primary_surfaces()
+            .unwrap()
+            .unwrap()
+            .iter()
+            .filter(|s| s.pos[3] > 0.5)
+            .map(|s| {
+                let p = [s.pos[0], s.pos[1], s.pos[2]];
+                let n = [s.geo_specular[0], s.geo_specular[1], s.geo_specular[2]];
+                (p, n)
+            })
+            .collect();
+        // Directions are hashed from the query's index: the second copy draws new ones.
+        let inputs: Vec<_> = surfaces.iter().chain(&surfaces).cloned().collect();
+        let sdf = query(&e, QueryMode::CacheRay, &inputs);
+        let bvh = query(&e, QueryMode::CacheRayBvh, &inputs);
+        // Per region of the surface the ray starts on: (SDF sum, BVH sum, rays).
+        let names = ["ceiling", "floor and box tops", "walls and box sides"];
+        let mut sums = [[0.0f64; 3]; 3];
+        let (mut escaped, mut escaped_light, mut total) = (0usize, 0.0f64, 0.0f64);
+        for ((input, s), b) in inputs.iter().zip(&sdf).zip(&bvh) {
+            let region = match input.1[1] {
+                y if y < -0.9 => 0,
+                y if y > 0.9 => 1,
+                _ => 2,
+            };
+            sums[region][0] += s[1][0] as f64;
+            sums[region][1] += b[1][0] as f64;
+            sums[region][2] += 1.0;
+            total += b[1][0] as f64;
+            if b[0][1] < 0.5 {
+                escaped += 1;
+                escaped_light += s[1][0] as f64;
+            }
+        }
+        for (name, [a, b, n]) in names.iter().zip(sums) {
+            eprintln!(
+                "{res}³: rays from the {name} ({n}): SDF {:.5}, BVH {:.5} per ray ({:+.1}%)",
+                a / n,
+                b / n,
+                100.0 * (a / b - 1.0)
+            );
+        }
+        let (a, b) = sums
+            .iter()
+            .fold((0.0, 0.0), |(x, y), s| (x + s[0], y + s[1]));
+        let ratio = a / b - 1.0;
+        eprintln!(
+            "{res}³: SDF rays bring back {:+.1}% of the BVH's light; of {escaped} rays that leave the box (BVH), the SDF lights some with {:.1}% of the BVH total",
+            100.0 * ratio,
+            100.0 * escaped_light / total
+        );
+        assert!(ratio.is_finite(), "{res}: {ratio}");
+        excess.push(ratio);
+    }
+    assert!(
+        excess[1].abs() < excess[0].abs(),
+        "SDF error does not shrink with resolution: {excess:?}"
+    );
+    assert!(excess[1].abs() < 0.12, "128³: {:+.3}", excess[1]);
 }

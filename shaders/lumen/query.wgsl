@@ -12,14 +12,16 @@
 //    reflected radiance the hit brings back, best card or -1, object, answered by: 0 nothing,
 //    1 cards, 2 voxel lighting);
 // 5: the same rays, both answers apart: out queries[2i] = (t, hit, back face, voxel lighting
-//    weight), queries[2i + 1] = (luminance of the voxel lighting, of the cards, card weight, 0).
+//    weight), queries[2i + 1] = (luminance of the voxel lighting, of the cards, card weight, 0);
+// 6: mode 3's rays through the BVH whatever the `tracing` mode, shaded from the cards with the
+//    BVH's depth tolerance (the same cache, traced exactly): out as mode 3.
 #import gilab::bvh::{trace_closest, NO_HIT}
 #import gilab::scene::tri_geom
 #import gilab::math::{to_world, luminance}
 #import gilab::sampling::sample_cosine_hemisphere
 #import gilab::rng::{rng_init, rand_pair, STREAM_LUMEN_QUERY}
-#import gilab::surface_cache::cache_reflected
-#import gilab::lumen::{params, sdf_distance, sdf_object, sdf_trace, finest_level, trace_scene, hit_cache_sample, hit_light, voxel_lighting, EMPTY}
+#import gilab::surface_cache::{cache_reflected, sample_cache}
+#import gilab::lumen::{params, sdf_distance, sdf_object, sdf_trace, finest_level, trace_scene, trace_bvh_mode, hit_cache_sample, hit_light, TraceHit, voxel_lighting, EMPTY}
 
 // Group 1 of the query pipeline only (it has no frame group): inputs in, answers out.
 @group(1) @binding(0) var<storage, read_write> queries: array<vec4<f32>>;
@@ -48,27 +50,37 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             let h = sdf_trace(a, b, 1e30, false, params.query_mode == 4u, 0.0);
             queries[2u * i] = vec4<f32>(h.t, select(0.0, 1.0, h.hit), f32(h.steps), f32(h.level));
         }
-        case 3u, 5u: {
+        case 3u, 5u, 6u: {
             var rng = rng_init(vec2<u32>(i, 0u), 0u, STREAM_LUMEN_QUERY, 1u);
             let dir = to_world(sample_cosine_hemisphere(rand_pair(&rng)), b);
-            let h = trace_scene(a, b, dir, 1e30);
+            var h: TraceHit;
+            if params.query_mode == 6u {
+                h = trace_bvh_mode(a, b, dir, 1e30);
+            } else {
+                h = trace_scene(a, b, dir, 1e30);
+            }
             var weight = 0.0;
             var card = -1.0;
             var light = vec4<f32>(0.0);
             var voxel = vec4<f32>(0.0);
             var cards = 0.0;
             if h.hit && !h.back_face {
-                let s = hit_cache_sample(h);
+                var s = hit_cache_sample(h);
+                if params.query_mode == 6u {
+                    s = sample_cache(h.position, h.normal, h.object, 1e-3 * max(h.t, 1.0));
+                }
                 weight = s.weight;
                 card = select(f32(s.best_card), -1.0, s.best_card == EMPTY);
                 cards = luminance(cache_reflected(s));
                 voxel = voxel_lighting(h.position, h.normal, h.level, h.object);
             }
-            if h.hit {
+            if params.query_mode == 6u {
+                light = vec4<f32>(vec3<f32>(cards), select(0.0, 1.0, weight > 1e-4));
+            } else if h.hit {
                 light = hit_light(h);
             }
             let flags = vec3<f32>(h.t, select(0.0, 1.0, h.hit), select(0.0, 1.0, h.back_face));
-            if params.query_mode == 3u {
+            if params.query_mode != 5u {
                 queries[2u * i] = vec4<f32>(flags, weight);
                 queries[2u * i + 1u] = vec4<f32>(luminance(light.xyz), card, f32(h.object), light.w);
             } else {

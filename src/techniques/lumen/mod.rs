@@ -113,6 +113,9 @@ pub enum QueryMode {
     /// The same rays, the voxel lighting and the cards apart: out (t, hit, back face, voxel
     /// lighting weight), (voxel lighting luminance, cards' luminance, card weight, 0).
     VoxelRay = 5,
+    /// `CacheRay`'s rays through the BVH in either `tracing` mode, shaded from the cards with
+    /// the BVH's depth tolerance: the same cache traced exactly, out as `CacheRay`.
+    CacheRayBvh = 6,
 }
 
 /// Global SDF counters read back for tests and the README.
