@@ -68,6 +68,65 @@ fn bad_inputs_fail_with_one_line_errors() {
     assert_clean_failure(code, &err, "missing-a.exr");
 }
 
+fn copy_dir(from: &std::path::Path, to: &std::path::Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for entry in std::fs::read_dir(from).unwrap() {
+        let entry = entry.unwrap();
+        let target = to.join(entry.file_name());
+        if entry.file_type().unwrap().is_dir() {
+            copy_dir(&entry.path(), &target);
+        } else {
+            std::fs::copy(entry.path(), &target).unwrap();
+        }
+    }
+}
+
+/// A shader edited under `GILAB_SHADERS` so that it compiles but no longer fits the engine's
+/// buffers (the frame uniforms grown by 1 KiB) fails validation at its dispatch, and wgpu drops
+/// the submission. The error must say why, not only that the device poll found no such
+/// submission (what it said until 2026-11-27, while the reason went to the log).
+#[test]
+fn a_shader_that_no_longer_fits_names_the_validation_error() {
+    let d = tmp("shader-fit");
+    let shaders = d.join("shaders");
+    copy_dir(std::path::Path::new("shaders"), &shaders);
+    let frame = shaders.join("common/frame.wgsl");
+    let text = std::fs::read_to_string(&frame).unwrap();
+    let grown = text.replacen(
+        "    pad: vec2<u32>,\n}",
+        "    pad: vec2<u32>,\n    extra: array<vec4<f32>, 64>,\n}",
+        1,
+    );
+    assert_ne!(
+        grown, text,
+        "the frame uniforms' layout changed: update this test"
+    );
+    std::fs::write(&frame, grown).unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_gilab"))
+        .args([
+            "shot",
+            "--technique",
+            "reference",
+            "--size",
+            "16",
+            "--spp",
+            "1",
+            "--out",
+        ])
+        .arg(d.join("out"))
+        .env("GILAB_SHADERS", &shaders)
+        .env("RUST_LOG", "off")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_clean_failure(
+        out.status.code().unwrap_or(-1),
+        &err,
+        "GPU error: Validation Error",
+    );
+    assert!(err.contains("where the shader expects"), "{err}");
+}
+
 #[test]
 fn shot_writes_png_exr_json_and_compare_reads_them() {
     let d = tmp("shot");

@@ -332,7 +332,22 @@ impl Gpu {
                 what.map_or_else(|| self.last_submitted(), str::to_string),
                 self.summary.name
             )),
-            Err(e) => Err(anyhow!("device poll failed: {e}")),
+            Err(e) => Err(self.poll_error(e)),
+        }
+    }
+
+    /// A failed device poll, with what wgpu reported since the last check: a submission that
+    /// failed validation (a shader edited under `GILAB_SHADERS` that no longer fits the engine's
+    /// buffers, say) is dropped, and the poll alone only says its index was never returned.
+    pub fn poll_error(&self, e: impl std::fmt::Display) -> anyhow::Error {
+        let errs = self.errors.take();
+        if errs.is_empty() {
+            anyhow!("device poll failed: {e}")
+        } else {
+            anyhow!(
+                "GPU error: {} (the submission was dropped; device poll: {e})",
+                errs.join("; ")
+            )
         }
     }
 

@@ -118,7 +118,7 @@ impl StagingRead {
         } else {
             gpu.device
                 .poll(wgpu::PollType::Poll)
-                .map_err(|e| anyhow!("device poll failed: {e}"))?;
+                .map_err(|e| gpu.poll_error(e))?;
         }
         let take = |state: &std::sync::Mutex<MapState>| {
             let mut s = state.lock().expect("map state");
@@ -138,7 +138,7 @@ impl StagingRead {
             std::thread::yield_now();
             gpu.device
                 .poll(wgpu::PollType::Poll)
-                .map_err(|e| anyhow!("device poll failed: {e}"))?;
+                .map_err(|e| gpu.poll_error(e))?;
             done = take(&self.state);
         }
         let Some(result) = done else {
