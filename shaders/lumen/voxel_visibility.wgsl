@@ -3,7 +3,7 @@
 // per lighting voxel (4^3 per brick, twice the field's voxel) traces BVH rays per axis
 // direction across the voxel, from the face that direction points out of, and stores the
 // nearest front face they meet: its object and the distance. Geometry is cached, lighting is
-// not: the radiance is shaded every frame (voxel_lighting.wgsl).
+// not: the radiance is shaded every frame (voxel_lighting.wgsl), and reads as none until then.
 #import gilab::scene::{tri_geom, tri_material, materials, scene_triangle}
 #import gilab::bvh::{trace_closest, NO_HIT}
 #import gilab::lumen::{params, brick_table, brick_coord, brick_pool, fill_list, lighting_voxel_size, sdf_distance, voxel_dir, voxel_word_index, lighting_voxel_centre, voxel_ray_start, voxel_ray_length, encode_seen, VOXEL_DIRS, EMPTY}
@@ -55,5 +55,10 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) l
             }
         }
         brick_pool[voxel_word_index(0u, entry, li, k)] = word;
+        // No radiance until this frame's voxel lighting pass: the surface cache's lighting
+        // traces between the two, and the pool entry still held the radiance of whichever brick
+        // had it last (entries come off the free stack in atomic order, so that read made
+        // SDF-traced Lumen in a playing scene differ from run to run).
+        brick_pool[voxel_word_index(1u, entry, li, k)] = EMPTY;
     }
 }
