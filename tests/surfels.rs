@@ -45,7 +45,8 @@ fn surfels_furnace_matches_closed_form() {
     );
     // Surfels cover the visible part of the sphere and multi-bounce settles by ~100 frames.
     // (160 + 32 frames before 2026-11-26, for CI time: -0.06% against the 3% bound. At 32²
-    // surfels cover too little of the sphere: -33%.)
+    // the seed's one spawn per 16×16 tile a frame covers only the top half of each tile by
+    // then, -33%; 600 frames reach -0.05%: docs/known-issues.md.)
     frames(&mut e, 112);
     // Converged: restart the average (surfels kept) and average 16 more frames.
     let camera = e.camera;
