@@ -51,6 +51,33 @@ fn query(e: &Engine, mode: QueryMode, inputs: &[([f32; 3], [f32; 3])]) -> Vec<[[
     })
 }
 
+/// Plays the engine's scene clip: `time_scale` scene seconds per second of frames (60 frames a
+/// second, so 60 moves the clip a second a frame).
+fn play(e: &mut Engine, time_scale: f32) {
+    std::sync::Arc::make_mut(
+        std::sync::Arc::make_mut(&mut e.scene)
+            .motion
+            .as_mut()
+            .unwrap(),
+    )
+    .time_scale = time_scale;
+}
+
+/// The surfaces the camera sees (position, geometric normal): origins for `QueryMode::CacheRay`.
+fn visible_surfaces(e: &Engine) -> Vec<([f32; 3], [f32; 3])> {
+    e.read_primary_surfaces()
+        .unwrap()
+        .unwrap()
+        .iter()
+        .filter(|s| s.pos[3] > 0.5)
+        .map(|s| {
+            let p = [s.pos[0], s.pos[1], s.pos[2]];
+            let n = [s.geo_specular[0], s.geo_specular[1], s.geo_specular[2]];
+            (p, n)
+        })
+        .collect()
+}
+
 /// xorshift: the tests' own random points, independent of the GPU's generator.
 struct Rand(u64);
 impl Rand {
@@ -441,18 +468,7 @@ fn cache_lookups_at_hits_find_the_surface() {
             t.insert("tracing".into(), mode.into());
             let mut e = engine("lumen", small(t), scene.clone(), [80, 80], 1);
             frames(&mut e, 2);
-            let inputs: Vec<_> = e
-                .read_primary_surfaces()
-                .unwrap()
-                .unwrap()
-                .iter()
-                .filter(|s| s.pos[3] > 0.5)
-                .map(|s| {
-                    let p = [s.pos[0], s.pos[1], s.pos[2]];
-                    let n = [s.geo_specular[0], s.geo_specular[1], s.geo_specular[2]];
-                    (p, n)
-                })
-                .collect();
+            let inputs = visible_surfaces(&e);
             let out = query(&e, QueryMode::CacheRay, &inputs);
             let hits = out.iter().filter(|o| o[0][1] > 0.5).count();
             let back = out.iter().filter(|o| o[0][2] > 0.5).count();
@@ -1026,13 +1042,7 @@ fn stable_and_deterministic() {
         // 32³ clipmaps (the smallest): the refill is most of these frames' cost.
         let t = toml::toml! { clipmap_resolution = 32 };
         let mut e = engine("lumen", small(t), scene, [32, 32], 5);
-        std::sync::Arc::make_mut(
-            std::sync::Arc::make_mut(&mut e.scene)
-                .motion
-                .as_mut()
-                .unwrap(),
-        )
-        .time_scale = 60.0;
+        play(&mut e, 60.0);
         frames(&mut e, 3);
         e.read_output().unwrap()
     };
@@ -1301,16 +1311,7 @@ fn playing_keeps_the_cache_and_rebuilds_the_sdf_where_objects_moved() {
     let params = small(toml::toml! { direct_texels_per_frame = 262144 });
     let mut e = engine("lumen", params, scene, [32, 32], 1);
     frames(&mut e, 10);
-    let play = |e: &mut Engine| {
-        std::sync::Arc::make_mut(
-            std::sync::Arc::make_mut(&mut e.scene)
-                .motion
-                .as_mut()
-                .unwrap(),
-        )
-        .time_scale = 60.0;
-    };
-    play(&mut e);
+    play(&mut e, 60.0);
     frames(&mut e, 2);
     let first = lumen(&e).card_set().unwrap().clone();
     let gpu = e.gpu.clone();
@@ -1502,18 +1503,7 @@ fn sdf_hits_against_exact_hits() {
         t.insert("clipmap_resolution".into(), res.into());
         let mut e = engine("lumen", small(t), builtin::cornell(), [80, 80], 1);
         frames(&mut e, 16);
-        let surfaces: Vec<_> = e
-            .read_primary_surfaces()
-            .unwrap()
-            .unwrap()
-            .iter()
-            .filter(|s| s.pos[3] > 0.5)
-            .map(|s| {
-                let p = [s.pos[0], s.pos[1], s.pos[2]];
-                let n = [s.geo_specular[0], s.geo_specular[1], s.geo_specular[2]];
-                (p, n)
-            })
-            .collect();
+        let surfaces = visible_surfaces(&e);
         // Directions are hashed from the query's index: the second copy draws new ones.
         let inputs: Vec<_> = surfaces.iter().chain(&surfaces).cloned().collect();
         let sdf = query(&e, QueryMode::CacheRay, &inputs);
