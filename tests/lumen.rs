@@ -543,35 +543,30 @@ fn voxel_lighting_against_cards(name: &str, out: &[[[f32; 4]; 2]]) {
 /// White furnace (closed sphere, albedo 0.8, emission 1): converges to 1 / 0.2 = 5 once the
 /// cache's feedback has carried enough bounces, in both tracing modes with part 1's per-pixel
 /// gather, and with the screen probes (BVH) with and without the world radiance cache (issue 38:
-/// within 3% with it). SDF screen probes are printed.
+/// within 3% with it).
 #[test]
 fn furnace_converges_in_both_modes() {
-    // (label, parameters, bound on |mean / 5 - 1|; None: printed only).
+    // (label, parameters, bound on |mean / 5 - 1|).
     let runs = [
         (
             "sdf, pixels",
             toml::toml! { tracing = "sdf" final_gather = "pixels" },
-            Some(0.01),
+            0.01,
         ),
         (
             "bvh, pixels",
             toml::toml! { tracing = "bvh" final_gather = "pixels" },
-            Some(0.01),
+            0.01,
         ),
         (
             "bvh, probes",
             toml::toml! { tracing = "bvh" world_cache = false },
-            Some(0.03),
+            0.03,
         ),
         (
             "bvh, probes with world cache",
             toml::toml! { tracing = "bvh" },
-            Some(0.03),
-        ),
-        (
-            "sdf, probes with world cache",
-            toml::toml! { tracing = "sdf" },
-            None,
+            0.03,
         ),
     ];
     let mut means = Vec::new();
@@ -588,10 +583,10 @@ fn furnace_converges_in_both_modes() {
             [32, 32],
             1,
         );
-        // 160 frames (48 before 2026-11-27, sixth session): the cache adds a bounce a frame
+        // 128 frames (48 before 2026-11-27, sixth session): the cache adds a bounce a frame
         // and 0.8^n needs about 25 of them, which the probes' and pixels' temporal filters slow
         // further. At 48 frames the per-pixel gathers read 4.85 and the probes 4.56.
-        frames(&mut e, 160);
+        frames(&mut e, 128);
         // Restart the average (not the caches): what the converged technique shows.
         let camera = e.camera;
         e.move_camera(camera);
@@ -608,13 +603,12 @@ fn furnace_converges_in_both_modes() {
         means.push(m[1]);
         assert_eq!(e.ray_counts().unwrap().invalid_samples, 0);
     }
-    // Measured 2026-11-27 (sixth session): SDF 4.997, BVH 4.999 with the per-pixel gather; BVH
-    // screen probes 4.911 without the world cache, 4.896 (-2.1%) with it (4.815, -3.7%, before
-    // the probes' irradiance was normalised: shaders/lumen/integrate.wgsl); SDF probes 4.810.
+    // Measured 2026-11-27 (sixth session), 128 frames: SDF 4.995, BVH 4.999 with the per-pixel
+    // gather; BVH screen probes 4.903 without the world cache, 4.888 (-2.3%) with it (-3.7%
+    // before the probes' irradiance was normalised: shaders/lumen/integrate.wgsl). SDF probes
+    // (4.810 at 160 frames, -3.8%) are in docs/lumen.md, not run here (CI time).
     for ((label, _, tolerance), mean) in runs.iter().zip(&means) {
-        if let Some(tolerance) = tolerance {
-            assert!((mean / 5.0 - 1.0).abs() < *tolerance, "{label}: {mean}");
-        }
+        assert!((mean / 5.0 - 1.0).abs() < *tolerance, "{label}: {mean}");
     }
     // The world radiance cache lags the surface cache while the feedback still brightens it:
     // within 3% of the probes without it (issue 38). Measured 2026-11-26: 4.164 (-8.3%) with a

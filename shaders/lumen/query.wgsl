@@ -20,7 +20,7 @@
 #import gilab::math::{to_world, luminance}
 #import gilab::sampling::sample_cosine_hemisphere
 #import gilab::rng::{rng_init, rand_pair, STREAM_LUMEN_QUERY}
-#import gilab::surface_cache::{cache_reflected, sample_cache}
+#import gilab::surface_cache::cache_reflected
 #import gilab::lumen::{params, sdf_distance, sdf_object, sdf_trace, finest_level, trace_scene, trace_bvh_mode, hit_cache_sample, hit_light, TraceHit, voxel_lighting, EMPTY}
 
 // Group 1 of the query pipeline only (it has no frame group): inputs in, answers out.
@@ -65,10 +65,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             var voxel = vec4<f32>(0.0);
             var cards = 0.0;
             if h.hit && !h.back_face {
-                var s = hit_cache_sample(h);
-                if params.query_mode == 6u {
-                    s = sample_cache(h.position, h.normal, h.object, 1e-3 * max(h.t, 1.0));
-                }
+                let s = hit_cache_sample(h);
                 weight = s.weight;
                 card = select(f32(s.best_card), -1.0, s.best_card == EMPTY);
                 cards = luminance(cache_reflected(s));

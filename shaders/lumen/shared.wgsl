@@ -458,9 +458,10 @@ fn hit_light(h: TraceHit) -> vec4<f32> {
     return vec4<f32>(0.0);
 }
 
-// The surface cache at a traced hit, with the depth tolerance of the `tracing` mode.
+// The surface cache at a traced hit, with the depth tolerance of the mode that traced it (a BVH
+// hit has no voxel: it is exact).
 fn hit_cache_sample(h: TraceHit) -> CacheSample {
-    let tol = select(2.5 * h.voxel, 1e-3 * max(h.t, 1.0), has_flag(FLAG_BVH));
+    let tol = select(2.5 * h.voxel, 1e-3 * max(h.t, 1.0), h.voxel == 0.0);
     return sample_cache(h.position, h.normal, h.object, tol);
 }
 
