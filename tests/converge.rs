@@ -367,6 +367,8 @@ frames = 32
         );
         assert_eq!(r1.rays, r8.rays);
     }
+    // Pairs whose times were compared: a run that compared none has checked no time at all.
+    let mut compared = 0;
     for (a, b) in s1.runs.iter().zip(&s8.runs) {
         let median = |rows: &[Row], run: usize| {
             let mut v: Vec<f64> = rows
@@ -409,6 +411,7 @@ frames = 32
                 a.spec.label
             );
         } else {
+            compared += 1;
             assert!(
                 (m8 / m1 - 1.0).abs() <= 0.10,
                 "{}: {m1} vs {m8} ms/frame",
@@ -420,6 +423,10 @@ frames = 32
             assert_eq!(c.flagged, c.drift.abs() > 0.10);
         }
     }
+    assert!(
+        compared > 0,
+        "no run's times were compared (every pair flagged or timed by the wall clock)"
+    );
 }
 
 /// A time budget with sparse scoring (error_every > 1 and seconds) keeps the last frames in a

@@ -690,6 +690,113 @@ fn random_streams_are_distinct_per_pass() {
     assert!(calls >= 8, "rng_init calls found: {calls}");
 }
 
+/// The shared references' cache key (`common::scene_content_hash`) changes with everything a
+/// reference image depends on: one texel of a texture or of the environment map, one normal,
+/// UV, tangent, an instance's transform, a material, and for a playing scene its speed and the
+/// number of frames (poses) the render takes. Two equal scenes share a key.
+#[test]
+fn reference_cache_key_covers_the_image_inputs() {
+    use gilab::scene::{environment::Environment, Texture};
+    use glam::{Vec2, Vec3, Vec4};
+    let key = |s: &gilab::scene::Scene| common::scene_content_hash(s, 4);
+    let mut base = gilab::scene::builtin::cornell();
+    let n = base.positions.len();
+    base.normals = vec![Vec3::Y; n];
+    base.uvs = vec![Vec2::ZERO; n];
+    base.uvs1 = vec![Vec2::ZERO; n];
+    base.tangents = vec![Vec4::X; n];
+    base.textures.push(Texture {
+        width: 2,
+        height: 2,
+        rgba8: vec![128; 16],
+    });
+    base.environment = Some(Environment::new(2, 1, vec![[1.0; 3]; 2]).unwrap());
+    let k0 = key(&base);
+    assert_eq!(k0, key(&base.clone()), "equal scenes share a key");
+    type Edit = fn(&mut gilab::scene::Scene);
+    let edits: [(&str, Edit); 7] = [
+        ("texture texel", |s| s.textures[0].rgba8[5] = 129),
+        ("environment texel", |s| {
+            s.environment = Some(Environment::new(2, 1, vec![[1.0; 3], [1.0, 1.0, 0.5]]).unwrap())
+        }),
+        ("normal", |s| s.normals[3] = Vec3::X),
+        ("uv", |s| s.uvs[3] = Vec2::new(0.5, 0.0)),
+        ("second uv", |s| s.uvs1[3] = Vec2::new(0.5, 0.0)),
+        ("tangent", |s| s.tangents[3] = Vec4::Y),
+        ("material", |s| s.materials[0].roughness += 0.1),
+    ];
+    for (what, edit) in edits {
+        let mut s = base.clone();
+        edit(&mut s);
+        assert_ne!(key(&s), k0, "the key ignores a changed {what}");
+    }
+    // Instances and motion: the animated box room (its panel light, cube and lamp move).
+    let dir = common::tmp_dir("cpu", "cache-key");
+    let (path, _) = common::animated_box_room(&dir);
+    let mut playing = gilab::scene::gltf_load::load(&path).unwrap();
+    assert!(!playing.instances.is_empty());
+    std::sync::Arc::make_mut(playing.motion.as_mut().unwrap()).time_scale = 30.0;
+    let k_play = key(&playing);
+    assert_ne!(
+        common::scene_content_hash(&playing, 1),
+        k_play,
+        "a longer render sees more poses"
+    );
+    let mut faster = playing.clone();
+    std::sync::Arc::make_mut(faster.motion.as_mut().unwrap()).time_scale = 60.0;
+    assert_ne!(key(&faster), k_play, "the key ignores the playback speed");
+    let mut moved = playing.clone();
+    moved.instances[0].transform =
+        glam::Mat4::from_translation(Vec3::X * 0.01) * moved.instances[0].transform;
+    assert_ne!(
+        key(&moved),
+        k_play,
+        "the key ignores an instance's transform"
+    );
+}
+
+/// docs/known-issues.md lists every unmet accuracy target that a test holds as a ratchet
+/// (tests/common/targets.rs): the table between its markers is `targets::markdown_table()`, and
+/// every target's id is checked by a test file. `GILAB_BLESS=1` rewrites the table.
+#[test]
+fn known_issues_lists_every_unmet_target() {
+    let path = "docs/known-issues.md";
+    let doc = std::fs::read_to_string(path).unwrap();
+    let (begin, end) = (
+        "<!-- unmet-targets:begin (generated from tests/common/targets.rs) -->\n",
+        "<!-- unmet-targets:end -->",
+    );
+    let (a, b) = (
+        doc.find(begin).expect("the begin marker") + begin.len(),
+        doc.find(end).expect("the end marker"),
+    );
+    let table = common::targets::markdown_table();
+    if std::env::var("GILAB_BLESS").is_ok_and(|v| v == "1") {
+        std::fs::write(path, format!("{}{table}{}", &doc[..a], &doc[b..])).unwrap();
+    } else {
+        assert_eq!(
+            &doc[a..b],
+            table,
+            "{path}'s table of unmet targets is out of date: run `GILAB_BLESS=1 cargo test --release --test cpu known_issues`"
+        );
+    }
+    // Each id is passed to targets::check by the test that holds it.
+    let tests: String = std::fs::read_dir("tests")
+        .unwrap()
+        .flatten()
+        .filter(|e| e.path().extension().is_some_and(|x| x == "rs"))
+        .map(|e| std::fs::read_to_string(e.path()).unwrap())
+        .collect();
+    for u in common::targets::UNMET {
+        assert!(
+            tests.contains(&format!("\"{}\"", u.id)),
+            "unmet target {} is held by no test",
+            u.id
+        );
+        assert!(u.issue > 0 && !u.date.is_empty());
+    }
+}
+
 /// docs/parameters.md holds the tables the techniques declare (`gilab params` prints them).
 #[test]
 fn parameter_tables_match_the_declared_ones() {

@@ -73,6 +73,8 @@ fn lum(rgb: &[f32], i: usize) -> f64 {
 struct Comparison {
     mean_ratio: [f64; 3],
     checked: usize,
+    /// The blocks compared (lit, not noise-dominated), as (x, y) in blocks.
+    checked_blocks: Vec<(usize, usize)>,
     blocks: usize,
     worst: f64,
     failures: Vec<String>,
@@ -101,6 +103,7 @@ fn compare(
         .sum::<f64>()
         / (w * gilab.height as usize) as f64;
     let (mut checked, mut worst) = (0, 1.0f64);
+    let mut checked_blocks = Vec::new();
     for by in 0..bh {
         for bx in 0..bw {
             let (mut a, mut b, mut var) = (0.0, 0.0, 0.0);
@@ -127,6 +130,7 @@ fn compare(
                 continue;
             }
             checked += 1;
+            checked_blocks.push((bx, by));
             let ratio = a / b;
             if (ratio - 1.0).abs() > (worst - 1.0).abs() {
                 worst = ratio;
@@ -148,6 +152,7 @@ fn compare(
     Comparison {
         mean_ratio,
         checked,
+        checked_blocks,
         blocks: bw * bh,
         worst,
         failures,
@@ -189,6 +194,45 @@ fn render_depths(gltf: &Path, size: [u32; 2]) -> Vec<(u32, Image, Image)> {
     ]
 }
 
+/// Negative controls (issue 55): the same comparison must fail on gilab's image with a known
+/// bias injected: one channel 2% off (away from 1, so an existing deviation cannot hide it) and
+/// one compared block 10% dark.
+fn negative_controls(
+    scene: &str,
+    depth: u32,
+    c: &Comparison,
+    image: &Image,
+    variance: &Image,
+    reference: &Image,
+    mitsuba_spp: u32,
+) {
+    let mut biased = image.clone();
+    let f = if c.mean_ratio[0] >= 1.0 { 1.02 } else { 0.98 };
+    biased.rgb.iter_mut().step_by(3).for_each(|v| *v *= f);
+    let found = compare(&biased, variance, SPP, reference, mitsuba_spp).failures;
+    assert!(
+        found.iter().any(|f| f.starts_with("channel 0")),
+        "{scene} max_depth {depth}: 2% on one channel passes the comparison"
+    );
+    let &(bx, by) = c.checked_blocks.first().expect("blocks are compared");
+    let mut dark = image.clone();
+    let w = image.width as usize;
+    for y in by * BLOCK..(by + 1) * BLOCK {
+        for x in bx * BLOCK..(bx + 1) * BLOCK {
+            dark.rgb[3 * (y * w + x)..3 * (y * w + x) + 3]
+                .iter_mut()
+                .for_each(|v| *v *= 0.9);
+        }
+    }
+    let found = compare(&dark, variance, SPP, reference, mitsuba_spp).failures;
+    assert!(
+        found
+            .iter()
+            .any(|f| f.starts_with(&format!("block ({bx}, {by})"))),
+        "{scene} max_depth {depth}: an 8x8 block 10% dark passes the comparison"
+    );
+}
+
 /// Renders every depth of a scene with gilab's reference and compares it with Mitsuba's.
 fn check_scene(scene: &str) {
     let (gltf, renders) = manifest_renders(scene);
@@ -218,6 +262,15 @@ fn check_scene(scene: &str) {
             c.checked,
             c.blocks,
             c.worst
+        );
+        negative_controls(
+            scene,
+            r.gilab_max_depth,
+            &c,
+            image,
+            variance,
+            &reference,
+            r.mitsuba_spp,
         );
         failures.extend(
             c.failures

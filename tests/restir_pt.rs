@@ -437,7 +437,9 @@ fn block_means(img: &Image, block: u32) -> Vec<[f64; 3]> {
 
 /// ReSTIR PT over many frames against the reference at the same path length: each channel's
 /// image mean, and every 8×8 block, within `z` standard errors (batch means) of the reference,
-/// whose own standard error is added. Prints the worst block.
+/// whose own standard error is added. Prints the worst block. Negative controls (issue 55): the
+/// same check fails on the frames with one channel 3% off, and with one well-measured 8×8 block
+/// 10% dark.
 fn assert_unbiased(name: &str, scene: Scene, size: [u32; 2], count: u32, extra: toml::Table) {
     let max_bounces = extra
         .get("max_bounces")
@@ -445,14 +447,69 @@ fn assert_unbiased(name: &str, scene: Scene, size: [u32; 2], count: u32, extra: 
         .unwrap_or(6) as u32;
     let truth = common::shared_reference(scene.clone(), size, 2048, 11, max_bounces, 0);
     let images = frames(scene, size, 8, count, 5, extra);
+    let check = unbiasedness(name, &images, &truth, true);
+    assert!(check.failures.is_empty(), "{}", check.failures.join("\n"));
+
+    let biased: Vec<Image> = images
+        .iter()
+        .map(|img| {
+            let mut b = img.clone();
+            b.rgb.iter_mut().step_by(3).for_each(|v| *v *= 1.03);
+            b
+        })
+        .collect();
+    let found = unbiasedness(name, &biased, &truth, false).failures;
+    assert!(
+        !found.is_empty(),
+        "{name}: control: one channel 3% bright passes the check"
+    );
+    let (bx, by) = check.best_block;
+    let bw = size[0] / 8;
+    let dark: Vec<Image> = images
+        .iter()
+        .map(|img| {
+            let mut b = img.clone();
+            for y in by * 8..(by + 1) * 8 {
+                for x in bx * 8..(bx + 1) * 8 {
+                    let i = 3 * (y * size[0] + x) as usize;
+                    b.rgb[i..i + 3].iter_mut().for_each(|v| *v *= 0.9);
+                }
+            }
+            b
+        })
+        .collect();
+    let found = unbiasedness(name, &dark, &truth, false).failures;
+    let label = format!("block {} ", by * bw + bx);
+    assert!(
+        found.iter().any(|f| f.contains(&label)),
+        "{name}: control: block ({bx}, {by}) 10% dark passes the check: {found:?}"
+    );
+    eprintln!("{name}: negative controls (one channel 3% bright, block ({bx}, {by}) 10% dark) fail the check");
+}
+
+/// The outcome of the unbiasedness check on per-frame images against a truth.
+struct Unbiasedness {
+    failures: Vec<String>,
+    /// The lit block whose mean is measured most precisely (relative standard error), in blocks.
+    best_block: (u32, u32),
+}
+
+fn unbiasedness(name: &str, images: &[Image], truth: &Image, print: bool) -> Unbiasedness {
+    let size = [truth.width, truth.height];
+    let count = images.len();
     let batches = 16;
-    let stats = block_stats(&images, 8, batches);
-    let truth_blocks = block_means(&truth, 8);
+    let stats = block_stats(images, 8, batches);
+    let truth_blocks = block_means(truth, 8);
     // The reference's own noise at 2,048 spp is small but not nothing: 1% of the block's value.
     let mut worst = (0f64, 0usize, 0usize);
-    let mut outside = 0;
+    let mut outside = Vec::new();
+    let mut best = (f64::MAX, 0usize);
     let z = 4.5;
     for (i, (m, t)) in stats.mean.iter().zip(&truth_blocks).enumerate() {
+        let relative = stats.std_error[i][1] / t[1].max(1e-9);
+        if t[1] > 0.0 && relative < best.0 {
+            best = (relative, i);
+        }
         for c in 0..3 {
             let se = (stats.std_error[i][c].powi(2) + (0.01 * t[c]).powi(2)).sqrt();
             let dev = (m[c] - t[c]).abs() / se.max(1e-6);
@@ -460,9 +517,12 @@ fn assert_unbiased(name: &str, scene: Scene, size: [u32; 2], count: u32, extra: 
                 worst = (dev, i, c);
             }
             if dev > z {
-                outside += 1;
+                outside.push(format!(
+                    "{name}: block {i} channel {c}: {:.4} vs {:.4} ({dev:.1} standard errors)",
+                    m[c], t[c]
+                ));
             }
-            if dev > 3.0 {
+            if dev > 3.0 && print {
                 eprintln!(
                     "  block {i} ({}, {}) channel {c}: {:.4} vs {:.4} ({dev:.1} standard errors)",
                     i % (size[0] as usize / 8),
@@ -478,27 +538,35 @@ fn assert_unbiased(name: &str, scene: Scene, size: [u32; 2], count: u32, extra: 
         .collect();
     let truth_mean = truth.mean();
     let (d, i, c) = worst;
-    eprintln!(
-        "{name}: {count} frames, mean {:.4?} vs reference {:.4?}; worst 8x8 block {i} channel {c}: {:.4} vs {:.4} ({d:.2} standard errors, {} of {} over {z})",
-        mean,
-        truth_mean,
-        stats.mean[i][c],
-        truth_blocks[i][c],
-        outside,
-        3 * stats.mean.len()
-    );
+    if print {
+        eprintln!(
+            "{name}: {count} frames, mean {:.4?} vs reference {:.4?}; worst 8x8 block {i} channel {c}: {:.4} vs {:.4} ({d:.2} standard errors, {} of {} over {z})",
+            mean,
+            truth_mean,
+            stats.mean[i][c],
+            truth_blocks[i][c],
+            outside.len(),
+            3 * stats.mean.len()
+        );
+    }
+    let mut failures = Vec::new();
     for c in 0..3 {
         let se: f64 = (stats.std_error.iter().map(|s| s[c].powi(2)).sum::<f64>()).sqrt()
             / stats.std_error.len() as f64;
         let tol = z * (se.powi(2) + (0.005 * truth_mean[c]).powi(2)).sqrt();
-        assert!(
-            (mean[c] - truth_mean[c]).abs() <= tol,
-            "{name}: channel {c} mean {} vs reference {} (tolerance {tol})",
-            mean[c],
-            truth_mean[c]
-        );
+        if (mean[c] - truth_mean[c]).abs() > tol {
+            failures.push(format!(
+                "{name}: channel {c} mean {} vs reference {} (tolerance {tol})",
+                mean[c], truth_mean[c]
+            ));
+        }
     }
-    assert_eq!(outside, 0, "{name}: 8x8 blocks outside {z} standard errors");
+    failures.extend(outside);
+    let bw = size[0] as usize / 8;
+    Unbiasedness {
+        failures,
+        best_block: ((best.1 % bw) as u32, (best.1 / bw) as u32),
+    }
 }
 
 #[test]
@@ -536,14 +604,40 @@ fn unbiased_on_the_metal_cornell_box() {
     assert_unbiased("metal cornell", scene, [64, 64], 256, toml::Table::new());
 }
 
+/// Issue 55's question about the metal box at 48² (at 256 frames, 2 of 108 block-channels over
+/// 4.5 standard errors, worst −12%): the same check over 1,024 frames. A bias would stay the
+/// same size and grow in standard errors; noise shrinks. Its answer is in docs/restir_pt.md.
+/// Not run by default (about 4 minutes on lavapipe):
+/// `cargo test --release --test restir_pt -- --ignored --nocapture metal_cornell_box_at_48`.
+#[test]
+#[ignore]
+fn unbiased_on_the_metal_cornell_box_at_48_over_1024_frames() {
+    let _g = common::serial();
+    let path = std::path::Path::new("tests/data/mitsuba/glossy.gltf");
+    let scene = gilab::scene::gltf_load::load(path).unwrap();
+    assert_unbiased(
+        "metal cornell 48²",
+        scene,
+        [48, 48],
+        1024,
+        toml::Table::new(),
+    );
+}
+
 #[test]
 fn furnace_within_one_percent() {
     // Closed sphere, albedo a, emission E, paths of at most D bounces: L = E (1 - a^(D+1)) / (1 - a).
+    // The shipped defaults (D = max_bounces, 6).
     let _g = common::serial();
-    let (a, e, d) = (0.8f64, 1.0f64, 8u32);
+    let d = gilab::techniques::create_technique("restir-pt")
+        .unwrap()
+        .params()["max_bounces"]
+        .as_integer()
+        .unwrap() as u32;
+    let (a, e) = (0.8f64, 1.0f64);
     let (img, _) = common::render_technique(
         "restir-pt",
-        toml::toml! { max_bounces = 8 },
+        toml::Table::new(),
         builtin::furnace(a as f32, e as f32, 2),
         [32, 32],
         64,

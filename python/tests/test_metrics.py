@@ -49,7 +49,29 @@ def test_metric_definitions():
     assert gilab.metrics.flip(x, x) == 0.0
 
 
-def test_tonemap_matches_shot_png(session, tmp_path):
+def test_tonemap_matches_shot_png(session, run_cli, tmp_path):
+    # `gilab shot` writes each technique's linear EXR and the PNG of the preset's tonemap
+    # (cornell: aces, exposure 0): gilab.tonemap of the EXR is that PNG, pixel for pixel.
+    from PIL import Image as PILImage
+
+    run_cli(
+        "shot", "presets/cornell.toml", "--technique", "reference", "--size", "32x32",
+        "--spp", "2", "--out", str(tmp_path),
+    )
+    exrs = sorted(tmp_path.rglob("*.exr"))
+    assert exrs, f"shot wrote no EXR under {tmp_path}"
+    for exr in exrs:
+        png = exr.with_suffix(".png")
+        shot_png = np.asarray(PILImage.open(png).convert("RGB"))
+        ours = gilab.tonemap(gilab.read_exr(exr), operator="aces", exposure=0.0)
+        assert ours.shape == shot_png.shape
+        assert np.array_equal(ours, shot_png), (
+            f"{png.name}: {int((ours != shot_png).any(axis=2).sum())} pixels differ, "
+            f"largest difference {int(np.abs(ours.astype(int) - shot_png.astype(int)).max())}"
+        )
+    # Negative control: another exposure is not shot's PNG.
+    assert not np.array_equal(gilab.tonemap(gilab.read_exr(exrs[0]), exposure=1.0), shot_png)
+
     frame = session.render("reference", frames=2)
     ldr = gilab.tonemap(frame.image, operator="aces")
     assert ldr.dtype == np.uint8 and ldr.shape == frame.image.shape

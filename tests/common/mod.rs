@@ -2,6 +2,7 @@
 #![allow(dead_code)]
 
 pub mod gltf_writer;
+pub mod targets;
 
 use gilab::compare::Image;
 use gilab::gpu::{shaders::ShaderLibrary, BackendChoice, Gpu};
@@ -137,8 +138,9 @@ pub fn render_reference(
 /// A converged reference image (the reference path tracer, `spp` samples per pixel in frames of
 /// at most 64, `max_depth` 0 = unbounded, FrameUniforms `flags`), rendered once and shared by
 /// every test and every test binary: kept in memory per binary and as a lossless float EXR under
-/// cargo's `target/tmp/gilab-references/`. The file name hashes the scene's content, the
-/// arguments and every file of `src/` and `shaders/`, so a code change renders it again. On
+/// cargo's `target/tmp/gilab-references/`. The file name hashes everything the image depends
+/// on: the scene's content (`scene_content_hash`), the arguments, every file of `src/` and
+/// `shaders/` and `Cargo.lock`, so a code or dependency change renders it again. On
 /// lavapipe a 128² Cornell box at 1,024 spp costs about 110 s: several binaries share it.
 pub fn shared_reference(
     scene: Scene,
@@ -152,21 +154,8 @@ pub fn shared_reference(
     static MEMORY: std::sync::Mutex<Vec<(u64, Image)>> = std::sync::Mutex::new(Vec::new());
     let mut h = fnv::FnvHasher::default();
     source_hash().hash(&mut h);
-    scene.name.hash(&mut h);
-    for p in &scene.positions {
-        p.to_array().map(f32::to_bits).hash(&mut h);
-    }
-    scene.triangles.hash(&mut h);
-    scene.triangle_material.hash(&mut h);
-    format!(
-        "{:?} {:?} {:?} {:?} {}",
-        scene.materials,
-        scene.lights,
-        scene.camera,
-        scene.sky,
-        scene.environment.is_some()
-    )
-    .hash(&mut h);
+    let frames = spp.div_ceil(spp.min(64));
+    scene_content_hash(&scene, frames).hash(&mut h);
     (size, spp, seed, max_depth, flags).hash(&mut h);
     let key = h.finish();
     // Held while rendering: a second test asking for the same truth waits for it.
@@ -217,7 +206,66 @@ pub fn reference_render(
     )
 }
 
-/// Hash of every file under `src/` and `shaders/` (paths and contents), once per binary.
+/// A hash of everything in `scene` that a reference image of it depends on: geometry and its
+/// attributes (positions, normals, both UV sets, tangents), triangles and their materials,
+/// materials, textures and the environment map by content, punctual lights, camera, sky,
+/// instances and named objects, the pose, and, for a scene that plays, the pose of each of the
+/// `frames` frames a render takes (positions, instance transforms and lights at each frame's
+/// scene time, as the engine plays it).
+pub fn scene_content_hash(scene: &Scene, frames: u32) -> u64 {
+    use std::hash::{Hash, Hasher};
+    fn floats<H: Hasher>(h: &mut H, v: impl IntoIterator<Item = f32>) {
+        for x in v {
+            x.to_bits().hash(h);
+        }
+    }
+    fn geometry<H: Hasher>(h: &mut H, s: &Scene) {
+        floats(h, s.positions.iter().flat_map(|p| p.to_array()));
+        s.instances.len().hash(h);
+        for i in &s.instances {
+            (i.mesh, i.first_triangle, i.triangle_count).hash(h);
+            floats(h, i.transform.to_cols_array());
+        }
+        format!("{:?} {:?}", s.lights, s.posed_at).hash(h);
+    }
+    let mut h = fnv::FnvHasher::default();
+    scene.name.hash(&mut h);
+    geometry(&mut h, scene);
+    floats(&mut h, scene.normals.iter().flat_map(|p| p.to_array()));
+    floats(&mut h, scene.uvs.iter().flat_map(|p| p.to_array()));
+    floats(&mut h, scene.uvs1.iter().flat_map(|p| p.to_array()));
+    floats(&mut h, scene.tangents.iter().flat_map(|p| p.to_array()));
+    scene.triangles.hash(&mut h);
+    scene.triangle_material.hash(&mut h);
+    for t in &scene.textures {
+        (t.width, t.height, &t.rgba8).hash(&mut h);
+    }
+    format!(
+        "{:?} {:?} {:?} {:?} {:?}",
+        scene.materials, scene.camera, scene.sky, scene.objects, scene.animations
+    )
+    .hash(&mut h);
+    if let Some(env) = &scene.environment {
+        (env.width(), env.height()).hash(&mut h);
+        floats(&mut h, [env.rotation_deg, env.intensity]);
+        floats(&mut h, env.texels().iter().flatten().copied());
+    }
+    if let Some(motion) = &scene.motion {
+        format!("{:?} {:?}", motion.time_scale, motion.play_until).hash(&mut h);
+        // Frame k is shown at time_after(t0, k): the poses the render will see.
+        let t0 = scene.posed_at.unwrap_or(0.0);
+        let mut posed = scene.clone();
+        for k in 0..frames.max(1) {
+            let t = motion.time_after(t0, k, gilab::render::engine::PLAYBACK_FPS);
+            motion.apply(&mut posed, t).unwrap();
+            geometry(&mut h, &posed);
+        }
+    }
+    h.finish()
+}
+
+/// Hash of every file under `src/` and `shaders/` and of `Cargo.lock` (paths and contents), once
+/// per binary.
 fn source_hash() -> u64 {
     static HASH: OnceLock<u64> = OnceLock::new();
     *HASH.get_or_init(|| {
@@ -236,6 +284,7 @@ fn source_hash() -> u64 {
         let mut files = Vec::new();
         walk(&root.join("src"), &mut files);
         walk(&root.join("shaders"), &mut files);
+        files.push(root.join("Cargo.lock"));
         files.sort();
         let mut h = fnv::FnvHasher::default();
         for f in files {
@@ -258,6 +307,49 @@ pub fn corner_form_factor(a: f64, b: f64, h: f64) -> f64 {
     let (sx, sy) = ((1.0 + x * x).sqrt(), (1.0 + y * y).sqrt());
     let f = (x / sx * (y / sx).atan() + y / sy * (x / sy).atan()) / (2.0 * std::f64::consts::PI);
     f * a.signum() * b.signum()
+}
+
+/// Negative controls for an energy-ratio bound and a relMSE bound of `img` against `truth`
+/// (issue 55): the same checks must fail on `img` with a known bias injected. Every channel
+/// 1.5 bounds off (away from 1, so the image's own deviation cannot hide it) must leave the
+/// energy bound; the 16×16 block at the image's centre set to black must exceed the relMSE
+/// bound. (A 2% bias on one channel moves luminance by at most 1.4%: energy checks, which bound
+/// luminance, are not meant to see it; the Mitsuba and ReSTIR PT checks are per channel.)
+pub fn assert_energy_and_error_controls_fail(
+    img: &Image,
+    truth: &Image,
+    energy_bound: f64,
+    rel_mse_bound: f64,
+) {
+    let energy = |i: &Image| luminance(i.mean());
+    let ratio = energy(img) / energy(truth);
+    let f = if ratio >= 1.0 {
+        1.0 + 1.5 * energy_bound
+    } else {
+        1.0 - 1.5 * energy_bound
+    };
+    let mut scaled = img.clone();
+    scaled.rgb.iter_mut().for_each(|v| *v *= f as f32);
+    let biased = energy(&scaled) / energy(truth);
+    assert!(
+        (biased - 1.0).abs() >= energy_bound,
+        "control: an image {f:.3}x as bright passes the energy bound ({biased:.4})"
+    );
+    let mut dark = img.clone();
+    let (cx, cy) = (img.width as usize / 2, img.height as usize / 2);
+    for y in cy - 8..cy + 8 {
+        for x in cx - 8..cx + 8 {
+            let i = 3 * (y * img.width as usize + x);
+            dark.rgb[i..i + 3].fill(0.0);
+        }
+    }
+    let rel = gilab::compare::metrics::compare(&dark, truth)
+        .unwrap()
+        .rel_mse;
+    assert!(
+        rel >= rel_mse_bound,
+        "control: a black 16x16 block passes the relMSE bound ({rel:.3e})"
+    );
 }
 
 /// A fresh folder for one test's outputs: `gilab-<binary>-<pid>-<name>` in the temp dir.
