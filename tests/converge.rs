@@ -321,7 +321,9 @@ fn bad_experiments_fail_with_clear_errors() {
 
 /// Scoring must not change what is scored or how long frames take: errors every frame and
 /// every 8th frame are bit-identical at the shared frames, the median GPU ms per frame agrees
-/// within 10%, and every run carries its clock check (calibration kernel before and after).
+/// within 10% on a GPU (at least one pair compared; on a CPU adapter the times are printed:
+/// lavapipe's vary by tens of percent between runs), and every run carries its clock check
+/// (calibration kernel before and after).
 #[test]
 fn scoring_every_frame_or_every_eighth_gives_the_same_errors_and_times() {
     let _serial = common::serial();
@@ -367,66 +369,79 @@ frames = 32
         );
         assert_eq!(r1.rays, r8.rays);
     }
+    // Times: each configuration runs twice more, interleaved (every frame, every 8th, every
+    // frame, every 8th), and the fastest comparable median of each side is compared, so that
+    // the shared host slowing down under one run (seen on CI's 2-core lavapipe machine: +14%
+    // between two back-to-back runs whose clock checks both passed) does not decide. Runs
+    // whose calibration kernel drifted are flagged by the protocol as not comparable; runs
+    // with frames the engine timed by the wall clock (`TimingSource::judge`: timestamps it did
+    // not believe) measure the host more than the scoring. Neither is compared.
+    let (s1b, rows1b) = every(1);
+    let (s8b, rows8b) = every(8);
+    let comparable = |run: &run::RunSummary, rows: &[Row]| {
+        let walled = rows
+            .iter()
+            .filter(|r| r.run == run.spec.index && r.timing != "timestamps")
+            .count();
+        println!(
+            "  {} (error_every {}): median GPU ms/frame {:.3} (mean {:.3}); {}{}",
+            run.spec.label,
+            if rows.len() > 8 { 1 } else { 8 },
+            run.gpu_ms_median,
+            run.gpu_ms_per_frame,
+            run.clock_check.summary(),
+            if walled > 0 {
+                format!("; {walled} frames timed by the wall clock")
+            } else {
+                String::new()
+            }
+        );
+        assert!(run.clock_check.kernel_ms_before > 0.0 && run.clock_check.kernel_ms_after > 0.0);
+        assert_eq!(run.clock_check.flagged, run.clock_check.drift.abs() > 0.10);
+        (!run.clock_check.flagged && walled == 0).then_some(run.gpu_ms_median)
+    };
+    // On a CPU adapter (lavapipe) no pair can be held to 10%: the same configuration's median
+    // frame time moved from 29 to 42 ms between back-to-back runs on CI's 2-core machine
+    // (2026-11-28), and the calibration kernel by -53% to +11%. There the times are printed,
+    // not compared (docs/known-issues.md); on a GPU at least one pair must be compared.
+    let cpu = common::gpu().adapter.get_info().device_type == wgpu::DeviceType::Cpu;
     // Pairs whose times were compared: a run that compared none has checked no time at all.
     let mut compared = 0;
-    for (a, b) in s1.runs.iter().zip(&s8.runs) {
-        let median = |rows: &[Row], run: usize| {
-            let mut v: Vec<f64> = rows
+    for k in 0..s1.runs.len() {
+        let fastest = |sides: [(&Summary, &[Row]); 2]| {
+            sides
                 .iter()
-                .filter(|r| r.run == run)
-                .map(|r| r.gpu_ms)
-                .collect();
-            v.sort_by(f64::total_cmp);
-            v[v.len() / 2]
+                .filter_map(|(s, rows)| comparable(&s.runs[k], rows))
+                .min_by(f64::total_cmp)
         };
-        // Every frame is timed either way; the summary's median is over all of them.
-        let (m1, m8) = (a.gpu_ms_median, b.gpu_ms_median);
-        println!(
-            "{}: median GPU ms/frame every frame {m1:.3}, every 8th {m8:.3} (means {:.3} / {:.3}; median of scored rows {:.3} / {:.3}); {} | {}",
-            a.spec.label,
-            a.gpu_ms_per_frame,
-            b.gpu_ms_per_frame,
-            median(&rows1, a.spec.index),
-            median(&rows8, b.spec.index),
-            a.clock_check.summary(),
-            b.clock_check.summary()
-        );
-        // A run whose calibration kernel drifted is flagged by the protocol as not comparable
-        // (the shared CI host changed speed under it: seen once at +770%); only unflagged
-        // pairs must agree.
-        // Frames whose timestamps the engine did not believe (`TimingSource::judge`: lavapipe
-        // beside another test's GPU work) are timed by the wall clock, which measures the
-        // shared host more than the scoring: such pairs are reported, not compared.
-        let walled = |rows: &[Row], run: usize| {
-            rows.iter()
-                .filter(|r| r.run == run && r.timing != "timestamps")
-                .count()
-        };
-        let (w1, w8) = (walled(&rows1, a.spec.index), walled(&rows8, b.spec.index));
-        if a.clock_check.flagged || b.clock_check.flagged {
-            println!("{}: flagged run, times not compared", a.spec.label);
-        } else if w1 + w8 > 0 {
-            println!(
-                "{}: {w1} / {w8} frames timed by the wall clock (timestamps implausible), times not compared",
-                a.spec.label
-            );
-        } else {
-            compared += 1;
-            assert!(
-                (m8 / m1 - 1.0).abs() <= 0.10,
-                "{}: {m1} vs {m8} ms/frame",
-                a.spec.label
-            );
-        }
-        for c in [&a.clock_check, &b.clock_check] {
-            assert!(c.kernel_ms_before > 0.0 && c.kernel_ms_after > 0.0);
-            assert_eq!(c.flagged, c.drift.abs() > 0.10);
+        let m1 = fastest([(&s1, &rows1), (&s1b, &rows1b)]);
+        let m8 = fastest([(&s8, &rows8), (&s8b, &rows8b)]);
+        let label = &s1.runs[k].spec.label;
+        match (m1, m8) {
+            (Some(m1), Some(m8)) => {
+                println!(
+                    "{label}: fastest comparable median every frame {m1:.3}, every 8th {m8:.3} ms"
+                );
+                if cpu {
+                    continue;
+                }
+                compared += 1;
+                assert!(
+                    (m8 / m1 - 1.0).abs() <= 0.10,
+                    "{label}: {m1} vs {m8} ms/frame"
+                );
+            }
+            _ => println!("{label}: no comparable run on one side, times not compared"),
         }
     }
-    assert!(
-        compared > 0,
-        "no run's times were compared (every pair flagged or timed by the wall clock)"
-    );
+    if cpu {
+        println!("CPU adapter: times printed, not compared (they vary by tens of percent between runs here)");
+    } else {
+        assert!(
+            compared > 0,
+            "no run's times were compared (every pair flagged or timed by the wall clock)"
+        );
+    }
 }
 
 /// A time budget with sparse scoring (error_every > 1 and seconds) keeps the last frames in a
