@@ -134,7 +134,21 @@ fn irradiance_sharing_against_none() {
 
 /// Luminance inside the thin-wall room (interior light off: the truth is exactly 0) seen from
 /// inside after surfels were spawned outside in the sun: the seed's leak through thin walls.
+/// Each configuration is rendered once per test binary (two tests read the default's).
 fn interior_luminance_after_outside_view(radial_depth: bool, apply: &str) -> f64 {
+    type Done = Vec<((bool, String), f64)>;
+    static DONE: std::sync::Mutex<Done> = std::sync::Mutex::new(Vec::new());
+    let mut done = DONE.lock().unwrap_or_else(|e| e.into_inner());
+    let key = (radial_depth, apply.to_string());
+    if let Some((_, v)) = done.iter().find(|(k, _)| *k == key) {
+        return *v;
+    }
+    let v = render_interior_luminance_after_outside_view(radial_depth, apply);
+    done.push((key, v));
+    v
+}
+
+fn render_interior_luminance_after_outside_view(radial_depth: bool, apply: &str) -> f64 {
     let scene = builtin::thin_wall(0.0);
     let inside = scene.default_camera();
     let mut p = toml::Table::new();

@@ -312,9 +312,11 @@ pub fn corner_form_factor(a: f64, b: f64, h: f64) -> f64 {
 /// Negative controls for an energy-ratio bound and a relMSE bound of `img` against `truth`
 /// (issue 55): the same checks must fail on `img` with a known bias injected. Every channel
 /// 1.5 bounds off (away from 1, so the image's own deviation cannot hide it) must leave the
-/// energy bound; the 16×16 block at the image's centre set to black must exceed the relMSE
-/// bound. (A 2% bias on one channel moves luminance by at most 1.4%: energy checks, which bound
-/// luminance, are not meant to see it; the Mitsuba and ReSTIR PT checks are per channel.)
+/// energy bound; the 32×32 block at the image's centre set to black must exceed the relMSE
+/// bound. These checks are coarse: a 2% bias on one channel moves luminance by at most 1.4%,
+/// and on ReSTIR's Cornell box at 128² a black 16×16 block read relMSE 7.9e-3, under its 1e-2
+/// bound (2026-11-28). Local and per-channel errors are what the block checks of the Mitsuba
+/// comparison and of ReSTIR PT's unbiasedness test see.
 pub fn assert_energy_and_error_controls_fail(
     img: &Image,
     truth: &Image,
@@ -337,8 +339,8 @@ pub fn assert_energy_and_error_controls_fail(
     );
     let mut dark = img.clone();
     let (cx, cy) = (img.width as usize / 2, img.height as usize / 2);
-    for y in cy - 8..cy + 8 {
-        for x in cx - 8..cx + 8 {
+    for y in cy - 16..cy + 16 {
+        for x in cx - 16..cx + 16 {
             let i = 3 * (y * img.width as usize + x);
             dark.rgb[i..i + 3].fill(0.0);
         }
@@ -348,7 +350,7 @@ pub fn assert_energy_and_error_controls_fail(
         .rel_mse;
     assert!(
         rel >= rel_mse_bound,
-        "control: a black 16x16 block passes the relMSE bound ({rel:.3e})"
+        "control: a black 32x32 block passes the relMSE bound ({rel:.3e})"
     );
 }
 
