@@ -971,43 +971,62 @@ fn reposing_the_atrium_costs_less_than_an_upload() {
     use gilab::scene::gpu_scene::GpuScene;
     let mut scene = gilab::scene::builtin::build("atrium", &toml::Table::new()).unwrap();
     let gpu = common::gpu();
-    let start = std::time::Instant::now();
+    // Each cost is the fastest of a few runs, so that the shared host slowing down under one
+    // run does not decide (lavapipe's 2-core CI machine varies by tens of percent).
+    let timed = |f: &mut dyn FnMut()| {
+        let start = std::time::Instant::now();
+        f();
+        start.elapsed().as_secs_f64() * 1e3
+    };
     let mut g = GpuScene::upload(&gpu, &scene);
-    let upload_ms = start.elapsed().as_secs_f64() * 1e3;
-    let shift = glam::Mat4::from_translation(glam::Vec3::new(0.01, 0.0, 0.0));
-    let mut moved = Vec::new();
-    let mut done = vec![false; scene.positions.len()];
-    for (j, i) in scene.instances.iter_mut().enumerate() {
-        i.transform = shift * i.transform;
-        let range = i.first_triangle as usize..(i.first_triangle + i.triangle_count) as usize;
-        for t in &scene.triangles[range] {
-            for &v in t {
-                if !done[v as usize] {
-                    done[v as usize] = true;
-                    scene.positions[v as usize] =
-                        shift.transform_point3(scene.positions[v as usize]);
+    let mut upload_ms = f64::MAX;
+    for _ in 0..2 {
+        upload_ms = upload_ms.min(timed(&mut || drop(GpuScene::upload(&gpu, &scene))));
+    }
+    // Every instance moved by dx along x (positions and transforms, as playback does).
+    let shift_all = |scene: &mut gilab::scene::Scene, dx: f32| {
+        let shift = glam::Mat4::from_translation(glam::Vec3::new(dx, 0.0, 0.0));
+        let mut moved = Vec::new();
+        let mut done = vec![false; scene.positions.len()];
+        for (j, i) in scene.instances.iter_mut().enumerate() {
+            i.transform = shift * i.transform;
+            let range = i.first_triangle as usize..(i.first_triangle + i.triangle_count) as usize;
+            for t in &scene.triangles[range] {
+                for &v in t {
+                    if !done[v as usize] {
+                        done[v as usize] = true;
+                        scene.positions[v as usize] =
+                            shift.transform_point3(scene.positions[v as usize]);
+                    }
                 }
             }
+            moved.push(j);
         }
-        moved.push(j);
+        moved
+    };
+    // 1 cm along x, back, and along x again: the scene ends moved.
+    let mut repose_ms = f64::MAX;
+    let mut moved = Vec::new();
+    for dx in [0.01, -0.01, 0.01] {
+        moved = shift_all(&mut scene, dx);
+        repose_ms = repose_ms.min(timed(&mut || {
+            assert!(
+                g.repose(&gpu, &scene, &moved),
+                "the atrium re-poses in place"
+            );
+            gpu.device
+                .poll(wgpu::PollType::wait_indefinitely())
+                .unwrap();
+        }));
     }
-    let start = std::time::Instant::now();
-    assert!(
-        g.repose(&gpu, &scene, &moved),
-        "the atrium re-poses in place"
-    );
-    gpu.device
-        .poll(wgpu::PollType::wait_indefinitely())
-        .unwrap();
-    let repose_ms = start.elapsed().as_secs_f64() * 1e3;
     eprintln!(
-        "atrium, {} instances moved, {} triangles: repose {repose_ms:.0} ms (top level {:.2} ms), full upload {upload_ms:.0} ms",
+        "atrium, {} instances moved, {} triangles: repose {repose_ms:.0} ms (top level {:.2} ms), full upload {upload_ms:.0} ms (fastest of 3 and 2)",
         moved.len(),
         scene.triangles.len(),
         g.data.timings.bvh_build_ms
     );
-    // Less than an upload, with a 20% margin against timing noise (measured 2026-11-28 on
-    // lavapipe's 2 cores beside another test: 914 ms against 1,540; 625 against 1,905 alone).
+    // Less than an upload, with a 20% margin (measured 2026-11-28 on lavapipe's 2 cores, one
+    // run each: 914 ms against 1,540 beside another test; 625 against 1,905 alone).
     assert!(
         repose_ms < 0.8 * upload_ms,
         "re-posing {repose_ms:.0} ms against a full upload's {upload_ms:.0} ms"
