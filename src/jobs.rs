@@ -264,6 +264,13 @@ pub fn shot(gpu: Arc<Gpu>, p: &LoadedPreset, out: &Path, verbose: bool) -> Resul
                 t.upload_ms
             );
         }
+        if verbose && meta.rays.cache_lookups.total() > 0 {
+            println!(
+                "  {:<10} {}",
+                meta.technique,
+                meta.rays.cache_lookups.summary()
+            );
+        }
         if verbose {
             for pass in &meta.passes {
                 println!(

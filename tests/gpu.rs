@@ -313,47 +313,6 @@ fn welford_variance_matches_cpu() {
     }
 }
 
-/// The raster G-buffer sees what the ray tracer sees: view distance at pixel centres equals
-/// the CPU BVH's closest hit along the same camera ray.
-#[test]
-fn gbuffer_view_distance_matches_ray_casting() {
-    let scene = builtin::cornell();
-    let size = [32u32, 32u32];
-    let r = render_reference(scene.clone(), size, 1, 1, 1, 0);
-    let mut engine = r.engine;
-    let dist = engine
-        .render_gbuffer()
-        .unwrap()
-        .read_view_distance(&gpu())
-        .unwrap();
-    let data = gilab::scene::gpu_scene::SceneData::new(&scene);
-    let cam = scene.default_camera();
-    let (right, up, fwd) = cam.basis();
-    let tan = (cam.fov_y.to_radians() * 0.5).tan();
-    let (mut agree, mut total) = (0, 0);
-    for y in 0..size[1] {
-        for x in 0..size[0] {
-            let ndc_x = 2.0 * (x as f32 + 0.5) / size[0] as f32 - 1.0;
-            let ndc_y = 1.0 - 2.0 * (y as f32 + 0.5) / size[1] as f32;
-            let dir = (fwd + right * ndc_x * tan + up * ndc_y * tan).normalize();
-            let cpu = data
-                .bvh
-                .closest_hit(&data.tris, cam.position, dir, f32::MAX)
-                .map_or(0.0, |h| h.0);
-            let gpu_d = dist[(y * size[0] + x) as usize];
-            total += 1;
-            if (cpu - gpu_d).abs() <= 1e-3 * cpu.max(1.0) {
-                agree += 1;
-            }
-        }
-    }
-    // Silhouette pixels may differ by rasterisation rules; everything else must agree.
-    assert!(
-        agree as f64 >= 0.97 * total as f64,
-        "{agree}/{total} pixels agree"
-    );
-}
-
 /// A parameter change updates uniforms and parameter-sized buffers and asks for no pipeline; a
 /// shader rebuild asks for them all (compiling those whose source changed: see
 /// `engines_share_pipelines_until_a_source_changes`).

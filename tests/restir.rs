@@ -595,7 +595,7 @@ fn regir_marked_build_equals_the_full_build() {
     let marked = render(ShaderLibrary::discover());
     let dir = common::tmp_dir("restir", "regir-full-build");
     common::copy_dir(std::path::Path::new("shaders"), &dir);
-    let build = dir.join("restir/regir_build.wgsl");
+    let build = dir.join("parts/restir/regir_build.wgsl");
     let text = std::fs::read_to_string(&build).unwrap();
     let check = "if atomicLoad(&regir_used[cell]) == 0u {";
     assert!(

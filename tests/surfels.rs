@@ -394,7 +394,7 @@ fn pool_invariants_hold_through_moves_and_resets() {
     assert_eq!(p.live, 0);
     frames(&mut e, 4);
     check(&e, "after reset and frames");
-    // Gathers read each cell's list in slot order (determinism; shaders/surfels/sort_cells.wgsl).
+    // Gathers read each cell's list in slot order (determinism; shaders/parts/surfels/sort_cells.wgsl).
     let lists = surfels(&e).cell_lists(&e.gpu).unwrap();
     let longest = lists.iter().map(Vec::len).max().unwrap_or(0);
     for l in &lists {

@@ -15,6 +15,15 @@ const RAY_CANDIDATE: u32 = 6u;
 const RAY_REUSE: u32 = 7u;
 // Rays along a specular lobe for reflections (the reflections part).
 const RAY_REFLECTION: u32 = 8u;
+// Not rays: what a ray's hit found in the radiance cache it may end in (render::CacheLookups):
+// covered by the cache's entries, by its coarse average only, or not at all, each split by
+// whether the camera sees the hit this frame (gilab::primary::camera_sees).
+const COUNT_CACHE_ENTRY_SEEN: u32 = 9u;
+const COUNT_CACHE_COARSE_SEEN: u32 = 10u;
+const COUNT_CACHE_MISS_SEEN: u32 = 11u;
+const COUNT_CACHE_ENTRY_UNSEEN: u32 = 12u;
+const COUNT_CACHE_COARSE_UNSEEN: u32 = 13u;
+const COUNT_CACHE_MISS_UNSEEN: u32 = 14u;
 // Not a ray: samples whose radiance was NaN/Inf and was dropped. Tests require it to stay 0.
 const COUNT_INVALID_SAMPLES: u32 = 15u;
 const COUNTER_KINDS: u32 = 16u;

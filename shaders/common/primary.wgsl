@@ -76,6 +76,27 @@ fn previous_pixel_position(p: vec3<f32>) -> vec2<f32> {
     return vec2<f32>((ndc.x * 0.5 + 0.5) * f32(frame.size.x), (0.5 - ndc.y * 0.5) * f32(frame.size.y));
 }
 
+// Whether the camera sees world point p this frame: p projects into the image and the primary
+// surface of that pixel lies at p's distance from the camera, within 5% (a surface the camera
+// has seen, for a still camera; the cache-coverage counters split ray hits by it).
+fn camera_sees(p: vec3<f32>) -> bool {
+    let clip = frame.clip_from_world * vec4<f32>(p, 1.0);
+    if clip.w <= 0.0 {
+        return false;
+    }
+    let ndc = clip.xy / clip.w;
+    let f = vec2<f32>((ndc.x * 0.5 + 0.5) * f32(frame.size.x), (0.5 - ndc.y * 0.5) * f32(frame.size.y));
+    if f.x < 0.0 || f.y < 0.0 || f.x >= f32(frame.size.x) || f.y >= f32(frame.size.y) {
+        return false;
+    }
+    let s = current_surface(u32(f.y) * frame.size.x + u32(f.x));
+    if s.pos.w < 0.5 {
+        return false;
+    }
+    let d = distance(p, frame.camera_pos.xyz);
+    return abs(d - s.wo_dist.w) <= 0.05 * d;
+}
+
 // Previous-frame pixel of a surface point, or -1 when it was off screen.
 fn reproject(p: vec3<f32>) -> i32 {
     let f = previous_pixel_position(p);

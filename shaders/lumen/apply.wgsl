@@ -14,7 +14,8 @@
 #import gilab::brdf::diffuse_color
 #import gilab::nee::direct_light
 #import gilab::lumen_probes::{pixel_data, lit_index, parity, probes_flag, PROBES_ACTIVE}
-#import gilab::lumen::{params, gather_out, debug_out, pixel_direct, has_flag, sdf_trace, sdf_sample, sdf_bias, level_voxel, FLAG_ACCUMULATE, FLAG_DEBUG, FLAG_LIGHTS, FLAG_DIRECT_RESTIR, FLAG_REFLECTIONS, EMPTY}
+#import gilab::tracing::{params, has_flag, sdf_trace, sdf_sample, sdf_bias, level_voxel, FLAG_LIGHTS, EMPTY}
+#import gilab::lumen::{gather_out, debug_out, pixel_direct, FLAG_ACCUMULATE, FLAG_DEBUG, FLAG_DIRECT_RESTIR, FLAG_REFLECTIONS}
 #import gilab::surface_cache::{tri_object, sample_cache, cache_radiance}
 
 fn gathered_irradiance(pixel: vec2<u32>, s: GSurface) -> vec3<f32> {

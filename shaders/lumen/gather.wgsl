@@ -8,7 +8,8 @@
 #import gilab::counters::{flush_counts, no_counts, RAY_INDIRECT}
 #import gilab::rng::{rng_init, rand_pair, STREAM_LUMEN_GATHER}
 #import gilab::primary::current_surface
-#import gilab::lumen::{params, gather_out, trace_scene, hit_radiance}
+#import gilab::tracing::{params, trace_scene, hit_radiance}
+#import gilab::lumen::{gather_out}
 #import gilab::sky::sky_radiance
 
 @compute @workgroup_size(8, 8, 1)

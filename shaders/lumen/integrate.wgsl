@@ -10,7 +10,8 @@
 #import gilab::rng::{rng_init, rand_pair, STREAM_LUMEN_AO}
 #import gilab::math::to_world
 #import gilab::sampling::sample_cosine_hemisphere
-#import gilab::lumen::{gather_out, debug_out, has_flag, FLAG_DEBUG}
+#import gilab::tracing::{has_flag}
+#import gilab::lumen::{gather_out, debug_out, FLAG_DEBUG}
 #import gilab::equal_area::cell_dir
 #import gilab::world_cache::world_lookup
 #import gilab::lumen_probes::{pp, probe_data, pixel_data, load_probe, parity, probes_flag, history_valid, filtered_index, irradiance_index, uniform_neighbours, adaptive_map, plane_weight, tile_probe, tiles, spacing, NO_PROBE, PROBE_CELLS, PROBE_RES, PROBES_TEMPORAL, PROBES_CONTACT_AO, PROBES_WORLD_CACHE}

@@ -21,7 +21,7 @@
 #import gilab::sampling::sample_cosine_hemisphere
 #import gilab::rng::{rng_init, rand_pair, STREAM_LUMEN_QUERY}
 #import gilab::surface_cache::cache_reflected
-#import gilab::lumen::{params, sdf_distance, sdf_object, sdf_trace, finest_level, trace_scene, trace_bvh_mode, hit_cache_sample, hit_light, TraceHit, voxel_lighting, EMPTY}
+#import gilab::tracing::{params, sdf_distance, sdf_object, sdf_trace, finest_level, trace_scene, trace_bvh_mode, hit_cache_sample, hit_light, TraceHit, voxel_lighting, EMPTY}
 
 // Group 1 of the query pipeline only (it has no frame group): inputs in, answers out.
 @group(1) @binding(0) var<storage, read_write> queries: array<vec4<f32>>;

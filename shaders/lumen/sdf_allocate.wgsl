@@ -3,7 +3,7 @@
 // from the free stack and joins the fill list; the rest stay empty (the coarse volume answers
 // there). When the pool runs out the brick stays empty and the failure is counted. Every slot
 // holding a brick afterwards joins the voxel lighting's list.
-#import gilab::lumen::{params, brick_table, brick_coord, free_stack, sdf_state, fill_list, lit_list_index, level_voxel, closest_triangle, BRICK, BAND, EMPTY, STATE_LIT}
+#import gilab::tracing::{params, brick_table, brick_coord, free_stack, sdf_state, fill_list, lit_list_index, level_voxel, closest_triangle, BRICK, BAND, EMPTY, STATE_LIT}
 
 @compute @workgroup_size(64, 1, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {

@@ -1,7 +1,7 @@
 // Global SDF update, step 3 (one invocation): takes the popped bricks off the free stack and
 // writes each level's fill dispatch (one workgroup per brick), then the voxel lighting's (one
 // workgroup per allocated brick, rows of MAX_GROUPS).
-#import gilab::lumen::{sdf_state, STATE_LIT, MAX_GROUPS}
+#import gilab::tracing::{sdf_state, STATE_LIT, MAX_GROUPS}
 
 struct Args {
     x: u32,

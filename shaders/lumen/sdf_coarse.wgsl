@@ -3,7 +3,7 @@
 // cell centre (searched out to the level's size). Tracing uses it to skip empty space. After
 // scene edits alone (levels' update.z), a cell keeps its distance when every edited box lies
 // farther than it: neither its closest triangle nor any new one can be in them.
-#import gilab::lumen::{params, coarse, dirty_boxes, level_min, level_voxel, coarse_cells, closest_triangle}
+#import gilab::tracing::{params, coarse, dirty_boxes, level_min, level_voxel, coarse_cells, closest_triangle}
 
 fn near_an_edit(p: vec3<f32>, d: f32) -> bool {
     for (var k = 0u; k < params.dirty_box_count; k++) {

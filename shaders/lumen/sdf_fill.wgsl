@@ -5,7 +5,7 @@
 #import gilab::scene::{tri_geom, tri_material, materials, scene_triangle}
 #import gilab::bvh::{trace_closest, NO_HIT}
 #import gilab::math::TWO_PI
-#import gilab::lumen::{params, brick_table, brick_coord, brick_pool, fill_list, level_voxel, closest_triangle, encode_voxel, BRICK, BRICK_VOXELS, BAND, NO_OBJECT}
+#import gilab::tracing::{params, brick_table, brick_coord, brick_pool, fill_list, level_voxel, closest_triangle, encode_voxel, BRICK, BRICK_VOXELS, BAND, NO_OBJECT}
 #import gilab::surface_cache::{tri_object}
 
 // Direction k of n spread over the sphere (spherical Fibonacci).

@@ -2,7 +2,7 @@
 // scrolled past it, or that a scene edit touched, or all of them when the level is rebuilt whole, gives its
 // pool brick back to the free stack and is marked pending (brick_coord.w = 0). Slots that still
 // hold the right brick keep it: scrolling rebuilds only the new slabs.
-#import gilab::lumen::{params, brick_table, brick_coord, free_stack, sdf_state, wanted_brick, brick_edited, EMPTY}
+#import gilab::tracing::{params, brick_table, brick_coord, free_stack, sdf_state, wanted_brick, brick_edited, EMPTY}
 
 @compute @workgroup_size(64, 1, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {

@@ -2,7 +2,7 @@
 // cache's lighting: each stored visibility hit of every allocated brick is shaded from its
 // object's cards facing that direction (the reflected light a ray arriving from that side
 // takes back); directions with no surface or no card answer store EMPTY (weight 0).
-#import gilab::lumen::{params, brick_table, brick_coord, brick_pool, fill_list, sdf_state, lit_list_index, STATE_LIT, MAX_GROUPS, level_voxel, lighting_voxel_size, voxel_dir, voxel_word_index, lighting_voxel_centre, seen_point, pack_rgb9e5, VOXEL_DIRS, EMPTY}
+#import gilab::tracing::{params, brick_table, brick_coord, brick_pool, fill_list, sdf_state, lit_list_index, STATE_LIT, MAX_GROUPS, level_voxel, lighting_voxel_size, voxel_dir, voxel_word_index, lighting_voxel_centre, seen_point, pack_rgb9e5, VOXEL_DIRS, EMPTY}
 #import gilab::surface_cache::{sample_cache, cache_reflected}
 
 // One workgroup per allocated brick (the list sdf_allocate wrote), a thread per lighting voxel.

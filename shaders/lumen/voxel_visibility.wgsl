@@ -6,7 +6,7 @@
 // not: the radiance is shaded every frame (voxel_lighting.wgsl), and reads as none until then.
 #import gilab::scene::{tri_geom, tri_material, materials, scene_triangle}
 #import gilab::bvh::{trace_closest, NO_HIT}
-#import gilab::lumen::{params, brick_table, brick_coord, brick_pool, fill_list, lighting_voxel_size, sdf_distance, voxel_dir, voxel_word_index, lighting_voxel_centre, voxel_ray_start, voxel_ray_length, encode_seen, VOXEL_DIRS, EMPTY}
+#import gilab::tracing::{params, brick_table, brick_coord, brick_pool, fill_list, lighting_voxel_size, sdf_distance, voxel_dir, voxel_word_index, lighting_voxel_centre, voxel_ray_start, voxel_ray_length, encode_seen, VOXEL_DIRS, EMPTY}
 #import gilab::surface_cache::{tri_object}
 
 // The level this dispatch fills (one dispatch per level, as the fill).

@@ -5,7 +5,7 @@
 // goes on to the end.
 #import gilab::counters::{flush_counts, no_counts, RAY_PROBE}
 #import gilab::frame::frame
-#import gilab::lumen::{trace_scene_on, hit_radiance, has_flag, FLAG_BVH}
+#import gilab::tracing::{trace_scene_on, hit_radiance, has_flag, FLAG_BVH}
 #import gilab::equal_area::equal_area_dir
 #import gilab::lumen_probes::{pp, probe_state, probe_data, load_probe, parity, probes_flag, ray_index, PROBES_WORLD_CACHE, PROBE_CELLS, STATE_WORLD_RAYS, STATE_WORLD_CONTINUED, STATE_WORLD_READS}
 #import gilab::world_cache::{world_lookup, world_tmin_at}

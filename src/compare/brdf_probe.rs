@@ -59,17 +59,17 @@ impl ProbeMaterial {
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct GpuProbeMaterial {
-    base_metal: [f32; 4],
-    misc: [f32; 4],
-    shading: [[f32; 4]; 5],
+pub struct GpuProbeMaterial {
+    pub base_metal: [f32; 4],
+    pub misc: [f32; 4],
+    pub shading: [[f32; 4]; 5],
 }
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct GpuQuery {
-    wo: [f32; 4],
-    wi: [f32; 4],
+pub struct GpuQuery {
+    pub wo: [f32; 4],
+    pub wi: [f32; 4],
 }
 
 /// One evaluation: material index, direction to the viewer, direction to the light (normal +Z).

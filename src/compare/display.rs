@@ -60,29 +60,29 @@ pub struct DisplaySettings {
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct DisplayParams {
-    size: [u32; 2],
-    mode: u32,
-    operator: u32,
-    exposure_scale: f32,
-    range_lo: f32,
-    range_hi: f32,
-    channel: u32,
-    samples: f32,
-    row_words: u32,
+pub struct DisplayParams {
+    pub size: [u32; 2],
+    pub mode: u32,
+    pub operator: u32,
+    pub exposure_scale: f32,
+    pub range_lo: f32,
+    pub range_hi: f32,
+    pub channel: u32,
+    pub samples: f32,
+    pub row_words: u32,
     /// tonemap::View as u32.
-    view: u32,
+    pub view: u32,
     /// GT curve: P, a, m, l, c, b.
-    gt: [f32; 6],
-    pad: [u32; 3],
+    pub gt: [f32; 6],
+    pub pad: [u32; 3],
 }
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct MetricParams {
-    pixels: u32,
-    partial_count: u32,
-    pad: [u32; 2],
+pub struct MetricParams {
+    pub pixels: u32,
+    pub partial_count: u32,
+    pub pad: [u32; 2],
 }
 
 /// Pipelines and constant buffers, shared by every pane and run.

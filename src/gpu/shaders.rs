@@ -61,7 +61,7 @@ impl Default for ShaderVariant {
 /// The bind group of the surface cache's lookup bindings (shaders/parts/surface_cache/shared.wgsl) when
 /// a pipeline sets nothing else: Lumen's own group.
 pub const DEFAULT_SURFACE_CACHE_GROUP: u32 = 2;
-/// The bind group of the surfels' bindings (shaders/surfels/shared.wgsl) when a pipeline sets
+/// The bind group of the surfels' bindings (shaders/parts/surfels/shared.wgsl) when a pipeline sets
 /// nothing else: the surfels' own group (the reflections part reads them at another).
 pub const DEFAULT_SURFELS_GROUP: u32 = 2;
 /// The bind group of the world ReGIR clipmap's bindings (shaders/parts/world_regir/shared.wgsl)

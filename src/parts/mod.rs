@@ -1,21 +1,27 @@
 //! Parts: pieces of light transport that more than one technique family uses, built once per
 //! engine entry and plugged in by name ("Making Connections", shared/seeds/003; issue 34). A
 //! family names a part in its parameters (`direct = "restir"`) and holds it; the part owns its
-//! passes, buffers and bind groups, and hands the family one output to read. Techniques never
-//! import each other's modules or shaders: what they share lives here and in `shaders/parts/`.
-//! The design note with the diagram of who reads what: docs/parts.md.
+//! passes, buffers and bind groups, and hands the family one output to read. This folder is a
+//! floor below `techniques/`: techniques never import each other, what they share lives here
+//! and in `shaders/parts/`, and a part names no technique (one exception left: the surface
+//! cache's use of Lumen's tracing uniform, docs/architecture.md#floors). The design note with
+//! the diagram of who reads what: docs/parts.md.
+//!
+//! - [`restir`]: ReSTIR's lighting core (DI, GI, ReGIR, their parameters and bind group), held
+//!   by the `restir` technique and by the two parts below.
+//! - [`surfels`]: the GIBS surfel core, held by the `surfels` technique and by the surfel cache.
 //!
 //! - [`restir_direct::RestirDirect`]: direct light at the primary surfaces by ReSTIR DI (the
-//!   `restir` technique's own DI and ReGIR passes, GI off), shaded into one radiance value per
+//!   ReSTIR core's DI and ReGIR passes, GI off), shaded into one radiance value per
 //!   pixel. Used by `surfels`, `lumen` and `callisto-shadows` (`direct = "restir"`).
-//! - [`restir_gi::RestirGi`]: indirect light by ReSTIR GI (the `restir` technique's GI passes,
+//! - [`restir_gi::RestirGi`]: indirect light by ReSTIR GI (the ReSTIR core's GI passes,
 //!   no DI), its sample paths ending where `gi_terminate` says. Used by `callisto-shadows`
 //!   (`gi = true`).
 //! - [`surface_cache::SurfaceCache`]: Lumen's surface cache (cards, lit every frame with
 //!   multi-bounce feedback) and its lookup (`gilab::surface_cache`, at the bind group a pass
 //!   names with `SURFACE_CACHE_GROUP`). Held by `lumen` (its resources in Lumen's group 2) and,
 //!   on its own, by ReSTIR GI (`gi_terminate = "lumen-cards"`).
-//! - [`surfel_cache::SurfelCache`]: the surfels (spawned from the primary surfaces, their rays
+//! - [`surfel_cache::SurfelCache`]: the surfel core in cache-only mode (spawned from the primary surfaces, their rays
 //!   integrated every frame) and their irradiance lookup (`gilab::surfels::gather`, at the bind
 //!   group a pass names with `SURFELS_GROUP`). Used by ReSTIR GI (`gi_terminate = "surfels"`).
 //! - [`reflections::Reflections`]: specular indirect light (GGX rays, hit lighting from a surface
@@ -31,11 +37,15 @@
 //!   `WORLD_REGIR_GROUP`). Used by `lumen`'s card texels and the surfels' ray hits
 //!   (`cache_direct = "regir"`).
 
+pub mod gi_cache;
 pub mod reflections;
+pub mod restir;
 pub mod restir_direct;
 pub mod restir_gi;
 pub mod surface_cache;
 pub mod surfel_cache;
+pub mod surfels;
+pub mod tracing;
 pub mod world_cache;
 pub mod world_regir;
 

@@ -185,24 +185,24 @@ impl Default for ReflectionSettings {
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct ReflectionParamsGpu {
-    max_roughness: f32,
-    downsample: u32,
-    flags: u32,
-    reuse: u32,
-    reuse_radius: f32,
-    max_history: f32,
-    trace_width: u32,
-    trace_height: u32,
-    output_plane: u32,
-    pad: [u32; 3],
+pub struct ReflectionParamsGpu {
+    pub max_roughness: f32,
+    pub downsample: u32,
+    pub flags: u32,
+    pub reuse: u32,
+    pub reuse_radius: f32,
+    pub max_history: f32,
+    pub trace_width: u32,
+    pub trace_height: u32,
+    pub output_plane: u32,
+    pub pad: [u32; 3],
 }
 
-const FLAG_HIT_LIGHTING: u32 = 1;
-const FLAG_TEMPORAL: u32 = 2;
-const FLAG_FILTER: u32 = 4;
-const FLAG_DEBUG: u32 = 8;
-const FLAG_SCREEN_REUSE: u32 = 16;
+pub const FLAG_HIT_LIGHTING: u32 = 1;
+pub const FLAG_TEMPORAL: u32 = 2;
+pub const FLAG_FILTER: u32 = 4;
+pub const FLAG_DEBUG: u32 = 8;
+pub const FLAG_SCREEN_REUSE: u32 = 16;
 
 struct Buffers {
     params: wgpu::Buffer,

@@ -9,10 +9,10 @@
 //! engine's, so the image equals the `restir` technique's direct light with GI off (tested).
 
 use crate::gpu::{timing::PassTimer, Gpu};
+use crate::parts::restir::{self, RestirLighting, RestirSettings};
 use crate::render::params::Params;
 use crate::render::{pipelines, PassInfo, RenderContext};
 use crate::scene::features::SceneFeatures;
-use crate::techniques::restir::{self, RestirLighting, RestirSettings};
 use anyhow::Result;
 
 /// The shading pass's entry file.
@@ -22,10 +22,10 @@ pub const SHADE: &str = "parts/restir_direct.wgsl";
 /// that uses the part lists them in its `shader_files`, so editing one rebuilds it.
 pub const SHADER_FILES: [&str; 5] = [
     SHADE,
-    "restir/regir_mark.wgsl",
-    "restir/regir_build.wgsl",
-    "restir/initial_temporal.wgsl",
-    "restir/spatial.wgsl",
+    "parts/restir/regir_mark.wgsl",
+    "parts/restir/regir_build.wgsl",
+    "parts/restir/initial_temporal.wgsl",
+    "parts/restir/spatial.wgsl",
 ];
 
 pub struct RestirDirect {

@@ -6,12 +6,12 @@
 //! through [`RestirGi::layout`] at its group 2 (`gilab::restir`'s bindings).
 
 use crate::gpu::{timing::PassTimer, Gpu};
+pub use crate::parts::restir::GiTerminate;
+use crate::parts::restir::{self, RestirLighting, RestirSettings};
 use crate::parts::world_regir::WorldRegirSettings;
 use crate::render::params::Params;
 use crate::render::{PassInfo, RenderContext};
 use crate::scene::features::SceneFeatures;
-pub use crate::techniques::restir::GiTerminate;
-use crate::techniques::restir::{self, RestirLighting, RestirSettings};
 use anyhow::Result;
 
 pub struct RestirGi {

@@ -5,16 +5,19 @@
 //!
 //! ReSTIR GI's sample paths end here with `gi_terminate = "surfels"`, as they end in Lumen's
 //! cards with `"lumen-cards"` (seed 003's connection, with the other family's cache). It is the
-//! `surfels` technique in its cache-only mode (`Surfels::surfel_cache`): the same code and
-//! shaders, none of the pixels' shading. Its passes run inside the frame that reads it, timed
+//! surfel core ([`crate::parts::surfels`], which the `surfels` technique holds too) in its
+//! cache-only mode (`SurfelCore::surfel_cache`): the same code and shaders, none of the pixels'
+//! shading. Its passes run inside the frame that reads it, timed
 //! under their names, its rays counted as `surfel` (and `shadow`, `indirect` where a surfel's
 //! ray continues as a path). Each engine entry holds its own cache, as with the surface cache.
 
 use crate::gpu::{timing::PassTimer, Gpu};
+use crate::parts::surfels::{self, SurfelCore};
 use crate::parts::world_regir::WorldRegirSettings;
-use crate::render::{PassInfo, RenderContext, Technique};
+use crate::render::{PassInfo, RenderContext};
 use crate::scene::features::SceneFeatures;
-use crate::techniques::surfels::{self, Surfels};
+
+pub use crate::parts::surfels::SURFEL_CACHE_FILES;
 use anyhow::Result;
 
 /// Shader defs of a pipeline that reads the surfels at bind group `group`.
@@ -23,7 +26,7 @@ pub fn lookup_defs(group: u32) -> [(&'static str, u32); 1] {
 }
 
 pub struct SurfelCache {
-    surfels: Surfels,
+    surfels: SurfelCore,
     ray_budget: u32,
 }
 
@@ -32,7 +35,7 @@ impl SurfelCache {
     /// `ray_budget`), whose ray hits pick their lights as `light` says (`cache_direct`), its
     /// other settings the technique's defaults.
     pub fn new(ray_budget: u32, light: WorldRegirSettings) -> Result<SurfelCache> {
-        let mut surfels = Surfels::surfel_cache();
+        let mut surfels = SurfelCore::surfel_cache();
         let mut t = light.to_table();
         t.insert("ray_budget".into(), (ray_budget as i64).into());
         surfels.set_params(&t)?;
@@ -94,5 +97,49 @@ impl SurfelCache {
     /// The surfels' passes, for the technique that holds them.
     pub fn passes(&self, f: &SceneFeatures) -> Vec<PassInfo> {
         self.surfels.passes(f)
+    }
+}
+
+/// `surfels`.
+impl crate::parts::gi_cache::GiCache for SurfelCache {
+    fn key(&self) -> crate::parts::gi_cache::CacheKey {
+        crate::parts::gi_cache::CacheKey {
+            name: "surfels",
+            size: self.sized(),
+            budget: 0,
+            light: self.cache_light(),
+        }
+    }
+
+    fn build(&mut self, ctx: &RenderContext) -> Result<()> {
+        SurfelCache::build(self, ctx)
+    }
+
+    fn record(
+        &mut self,
+        ctx: &RenderContext,
+        enc: &mut wgpu::CommandEncoder,
+        timer: &mut PassTimer,
+    ) {
+        SurfelCache::record(self, ctx, enc, timer)
+    }
+
+    fn lookup(&self) -> Option<&wgpu::BindGroup> {
+        SurfelCache::lookup(self)
+    }
+
+    fn passes(&self, f: &SceneFeatures) -> Vec<PassInfo> {
+        SurfelCache::passes(self, f)
+    }
+
+    fn reader(&self, gpu: &Gpu, group: u32) -> (Vec<(&'static str, u32)>, wgpu::BindGroupLayout) {
+        (
+            vec![("GI_TERMINATE_SURFELS", 1), lookup_defs(group)[0]],
+            SurfelCache::lookup_layout(gpu),
+        )
+    }
+
+    fn cache_regir_coverage(&self, gpu: &Gpu) -> Result<crate::parts::world_regir::Coverage> {
+        SurfelCache::cache_regir_coverage(self, gpu)
     }
 }

@@ -6,8 +6,8 @@
 //! (never traced first, then the stalest) and `world update` traces a fixed budget of them,
 //! 256 rays each, lit at their hits from the surface cache.
 //!
-//! Its rays run through Lumen's scene representation (`gilab::lumen::trace_scene`, Lumen's bind
-//! group 2), so it lives beside a surface cache: Lumen's final gather reads it past a screen
+//! Its rays run through the scene-tracing part (`gilab::tracing::trace_scene`,
+//! [`crate::parts::tracing`], bind group 2), so it lives beside a surface cache: Lumen's final gather reads it past a screen
 //! probe's TMin, and ReSTIR GI's sample paths end in it (`gi_terminate = "lumen-world"`,
 //! through [`crate::parts::SurfaceCache`] built with the world cache).
 
@@ -63,6 +63,16 @@ pub struct WorldCacheSettings {
     pub distance: f32,
 }
 
+/// The defaults (Lumen's `world_cache_*` parameters take theirs from here): the seed's 2 m
+/// probe TMin, three 16^3 clipmaps, 128 probes traced a frame, the latest update alone.
+pub const DEFAULTS: WorldCacheSettings = WorldCacheSettings {
+    levels: 3,
+    probes: 16,
+    probes_per_frame: 128,
+    history: 1,
+    distance: 2.0,
+};
+
 impl WorldCacheSettings {
     pub fn slots(&self) -> u32 {
         self.levels * self.probes * self.probes * self.probes
@@ -82,12 +92,12 @@ impl WorldCacheSettings {
 /// `WorldCacheParams` of shaders/parts/world_cache/shared.wgsl.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-struct WorldCacheParamsGpu {
-    levels: [[f32; 4]; 4],
-    base: [[i32; 4]; 4],
-    shape: [u32; 4],
-    update: [u32; 4],
-    misc: [f32; 4],
+pub struct WorldCacheParamsGpu {
+    pub levels: [[f32; 4]; 4],
+    pub base: [[i32; 4]; 4],
+    pub shape: [u32; 4],
+    pub update: [u32; 4],
+    pub misc: [f32; 4],
 }
 
 /// The select and update pipelines (groups: scene, frame, Lumen's group 2, the cache's own).

@@ -37,7 +37,7 @@ pub const BUILD_FILE: &str = "parts/world_regir/build.wgsl";
 /// The part's entry files (hot reload).
 pub const SHADER_FILES: [&str; 1] = [BUILD_FILE];
 pub const PASS: &str = "cache regir";
-const SLOT_BYTES: u64 = crate::techniques::restir::REGIR_SLOT_BYTES;
+const SLOT_BYTES: u64 = crate::parts::restir::REGIR_SLOT_BYTES;
 /// Pairs of lookup counters (`STAT_SLOTS` in shaders/parts/world_regir/shared.wgsl).
 const STAT_SLOTS: u64 = 64;
 
@@ -112,14 +112,14 @@ pub fn lookup_defs(group: u32) -> [(&'static str, u32); 2] {
 /// `WorldRegirParams` in shaders/parts/world_regir/shared.wgsl.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-struct WorldRegirParamsGpu {
-    cell_size: f32,
-    levels: u32,
-    dims: u32,
-    slots: u32,
-    lookup_candidates: u32,
-    keep_frames: u32,
-    pad: [u32; 2],
+pub struct WorldRegirParamsGpu {
+    pub cell_size: f32,
+    pub levels: u32,
+    pub dims: u32,
+    pub slots: u32,
+    pub lookup_candidates: u32,
+    pub keep_frames: u32,
+    pub pad: [u32; 2],
 }
 
 struct Buffers {

@@ -65,7 +65,7 @@ pub fn pass_names() -> Vec<&'static str> {
 }
 
 /// `Remod` of shaders/denoise/svgf.wgsl: albedo and emission, a vec4 each.
-const REMOD_BYTES: u64 = 32;
+pub const REMOD_BYTES: u64 = 32;
 const VEC4_BYTES: u64 = 16;
 
 struct Pipelines {

@@ -2,8 +2,8 @@
 //! back and accounts rays and GPU time. The CLI, the tests and (later) the viewer all use it.
 
 use super::{
-    denoise::Denoiser, gbuffer::GBuffer, pipelines, primary, FrameUniforms, PassInfo, RayCounts,
-    RenderContext, Technique, COUNTER_SLOTS,
+    denoise::Denoiser, pipelines, primary, FrameUniforms, PassInfo, RayCounts, RenderContext,
+    Technique, COUNTER_SLOTS,
 };
 use crate::compare::Image;
 /// Re-exported: frames and the clock check share one plausibility check (`TimingSource::judge`).
@@ -92,7 +92,6 @@ pub struct Engine {
     /// The technique's accumulated output: per pixel mean (w: samples) and Welford M2.
     accum_mean: wgpu::Buffer,
     accum_m2: wgpu::Buffer,
-    gbuffer: Option<GBuffer>,
     /// The shared denoiser, when on (`set_denoise`): runs after the technique every frame.
     denoiser: Option<Denoiser>,
     timer: PassTimer,
@@ -252,7 +251,6 @@ impl Engine {
             surfaces,
             accum_mean,
             accum_m2,
-            gbuffer: None,
             denoiser: None,
             timer,
             slots,
@@ -803,35 +801,6 @@ impl Engine {
             rays: RayCounts::from_words(&words),
         });
         Ok(true)
-    }
-
-    /// Renders the G-buffer for the current camera (for techniques that consume it, tests and debug views).
-    pub fn render_gbuffer(&mut self) -> Result<&GBuffer> {
-        if self
-            .gbuffer
-            .as_ref()
-            .is_none_or(|g| g.extent != self.extent)
-        {
-            self.gbuffer = Some(GBuffer::new(
-                &self.gpu,
-                &self.shaders,
-                &self.gpu_scene,
-                &self.uniforms,
-                self.extent,
-            )?);
-        }
-        let uniforms = self.uniforms_for_frame();
-        self.gpu
-            .queue
-            .write_buffer(&self.uniforms, 0, bytemuck::bytes_of(&uniforms));
-        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
-        let mut timer = PassTimer::new(&self.gpu);
-        let gbuffer = self.gbuffer.as_ref().expect("created above");
-        gbuffer.render(&self.gpu_scene, &mut enc, &mut timer);
-        self.gpu.submit("G-buffer", enc.finish());
-        self.gpu.wait()?;
-        self.gpu.check_errors()?;
-        Ok(gbuffer)
     }
 
     /// The accumulated output on the GPU: per pixel mean (w: samples) and Welford M2. The

@@ -3,7 +3,6 @@
 
 pub mod denoise;
 pub mod engine;
-pub mod gbuffer;
 pub mod params;
 pub mod pipelines;
 pub mod primary;
@@ -57,12 +56,74 @@ pub const RAY_KINDS: [&str; 9] = [
 ];
 pub const COUNTER_INVALID_SAMPLES: usize = 15;
 pub const COUNTER_SLOTS: usize = 16;
+/// First of the six cache-lookup counters (not rays; counters.wgsl's COUNT_CACHE_*).
+pub const COUNTER_CACHE_LOOKUPS: usize = 9;
 
 /// Cumulative counters since the last history reset.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
 pub struct RayCounts {
     pub by_kind: [u64; RAY_KINDS.len()],
     pub invalid_samples: u64,
+    pub cache_lookups: CacheLookups,
+}
+
+/// Not rays: what a ray's hit found in the radiance cache it may end in (the surfels' own rays
+/// today), by outcome and by whether the camera sees the hit this frame (it projects into the
+/// image at the primary surface's depth, within 5%): covered by the cache's entries (a surfel
+/// footprint of weight >= 0.25), by a coarser average only (the surfels' cell average), or not
+/// at all (the ray goes on as a path).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct CacheLookups {
+    pub entry_seen: u64,
+    pub coarse_seen: u64,
+    pub miss_seen: u64,
+    pub entry_unseen: u64,
+    pub coarse_unseen: u64,
+    pub miss_unseen: u64,
+}
+
+impl CacheLookups {
+    pub fn total(&self) -> u64 {
+        self.seen() + self.unseen()
+    }
+
+    pub fn seen(&self) -> u64 {
+        self.entry_seen + self.coarse_seen + self.miss_seen
+    }
+
+    pub fn unseen(&self) -> u64 {
+        self.entry_unseen + self.coarse_unseen + self.miss_unseen
+    }
+
+    /// Share of the hits on surfaces the camera sees that the cache covers (entry or coarse).
+    pub fn covered_seen(&self) -> Option<f64> {
+        (self.seen() > 0).then(|| (self.entry_seen + self.coarse_seen) as f64 / self.seen() as f64)
+    }
+
+    /// Share of the hits the camera does not see that the cache covers.
+    pub fn covered_unseen(&self) -> Option<f64> {
+        (self.unseen() > 0)
+            .then(|| (self.entry_unseen + self.coarse_unseen) as f64 / self.unseen() as f64)
+    }
+
+    /// One line for `shot --verbose` and the tests.
+    pub fn summary(&self) -> String {
+        let pct = |a: u64, b: u64| 100.0 * a as f64 / b.max(1) as f64;
+        format!(
+            "cache lookups at ray hits: {} seen by the camera ({:.1}% of all): {:.1}% covered ({:.1}% by entries, {:.1}% by the coarse average only), {:.1}% not; {} unseen: {:.1}% covered ({:.1}% by entries, {:.1}% coarse), {:.1}% not",
+            self.seen(),
+            pct(self.seen(), self.total()),
+            pct(self.entry_seen + self.coarse_seen, self.seen()),
+            pct(self.entry_seen, self.seen()),
+            pct(self.coarse_seen, self.seen()),
+            pct(self.miss_seen, self.seen()),
+            self.unseen(),
+            pct(self.entry_unseen + self.coarse_unseen, self.unseen()),
+            pct(self.entry_unseen, self.unseen()),
+            pct(self.coarse_unseen, self.unseen()),
+            pct(self.miss_unseen, self.unseen()),
+        )
+    }
 }
 
 impl RayCounts {
@@ -75,9 +136,18 @@ impl RayCounts {
         for (k, v) in by_kind.iter_mut().enumerate() {
             *v = get(k);
         }
+        let c = COUNTER_CACHE_LOOKUPS;
         RayCounts {
             by_kind,
             invalid_samples: get(COUNTER_INVALID_SAMPLES),
+            cache_lookups: CacheLookups {
+                entry_seen: get(c),
+                coarse_seen: get(c + 1),
+                miss_seen: get(c + 2),
+                entry_unseen: get(c + 3),
+                coarse_unseen: get(c + 4),
+                miss_unseen: get(c + 5),
+            },
         }
     }
     /// Rays of one kind of [`RAY_KINDS`] (0 for an unknown name).

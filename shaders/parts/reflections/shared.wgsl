@@ -25,6 +25,10 @@ struct ReflectionParams {
     trace_height: u32,
     // Where the output's two planes start in the family's buffer, in planes of pixels.
     output_plane: u32,
+    // To the Rust struct's 48 bytes (src/parts/reflections.rs).
+    pad_a: u32,
+    pad_b: u32,
+    pad_c: u32,
 }
 
 const FLAG_HIT_LIGHTING: u32 = 1u;

@@ -7,7 +7,7 @@
 #import gilab::counters::{flush_counts, no_counts, RAY_CACHE}
 #import gilab::rng::{rng_init, STREAM_LUMEN_DIRECT}
 #import gilab::cache_light::cache_light_sample
-#import gilab::lumen::{light_visible, has_flag, FLAG_LIGHTS}
+#import gilab::tracing::{light_visible, has_flag, FLAG_LIGHTS}
 #import gilab::surface_cache_lighting::{cache_tiles}
 #import gilab::surface_cache::{atlas_direct, atlas_index, cache_texel}
 

@@ -1,6 +1,6 @@
 // The surface cache's own passes (src/parts/surface_cache/): the tiles to relight (a header with
 // this frame's share, then the tiles), the indirect-light probes on 4x4 texel tiles. They run at bind group 2, the group of the scene
-// representation they trace (gilab::lumen: its uniform and distance field), to which the cache
+// representation they trace (gilab::tracing: its uniform and distance field), to which the cache
 // adds these bindings and its lookup's (shaders/parts/surface_cache/shared.wgsl). Layout must
 // match `SurfaceCache::entries`.
 #define_import_path gilab::surface_cache_lighting

@@ -8,7 +8,7 @@
 #import gilab::sampling::sample_cosine_hemisphere
 #import gilab::counters::{flush_counts, no_counts, RAY_CACHE}
 #import gilab::rng::{rng_init, rand, rand_pair, STREAM_LUMEN_PROBE}
-#import gilab::lumen::{trace_scene, hit_radiance}
+#import gilab::tracing::{trace_scene, hit_radiance}
 #import gilab::surface_cache_lighting::{cache_tiles, probes, Probe}
 #import gilab::surface_cache::{cache_texel}
 #import gilab::sky::sky_radiance

@@ -12,7 +12,7 @@
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts, RAY_CACHE}
 #import gilab::rng::{rng_init, rand_pair, STREAM_LUMEN_WORLD}
-#import gilab::lumen::{trace_scene, hit_radiance}
+#import gilab::tracing::{trace_scene, hit_radiance}
 #import gilab::equal_area::cell_dir
 #import gilab::world_cache::{wc, world_lists, world_cache, world_header, world_slot_coord, world_probe_pos, world_slots, world_spacing, world_res, world_updates, world_list_offset, world_frames_index, WORLD_RES, WORLD_CELLS, WORLD_STATE_NEW, WORLD_STATE_OLD}
 #import gilab::sky::sky_radiance

@@ -6,9 +6,9 @@
 //! The part owns the cards (`cards.rs`), the atlas textures and lighting buffers, the capture
 //! raster passes (`capture.rs`), the `cache direct`, `cache probes` and `cache indirect` passes,
 //! the world ReGIR clipmap its texels may take their lights from (`cache_direct = "regir"`) and
-//! the cards' scene-change handling. Its passes trace rays through a scene representation they
-//! do not own: `gilab::lumen`'s `trace_scene` and `light_visible` (the distance field or the
-//! BVH, by the holder's uniform), at bind group 2. So the cache's resources sit in its holder's
+//! the cards' scene-change handling. Its passes trace rays through the scene-tracing part
+//! ([`crate::parts::tracing`]: `gilab::tracing`'s `trace_scene` and `light_visible`, the distance
+//! field or the BVH by the holder's uniform), at bind group 2. So the cache's resources sit in its holder's
 //! group 2 beside that representation, at fixed binding numbers ([`SurfaceCache::layout_entries`],
 //! [`SurfaceCache::entries`]):
 //!
@@ -27,6 +27,7 @@ mod capture;
 pub mod cards;
 
 use crate::gpu::{timing::PassTimer, Gpu};
+use crate::parts::tracing::{self, BvhOnly};
 use crate::parts::world_cache::{WorldCache, WorldCachePipelines, WorldCacheSettings};
 use crate::parts::world_regir::{WorldRegir, WorldRegirSettings};
 use crate::render::pipelines::init_buffer;
@@ -86,15 +87,15 @@ pub fn texture_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
 /// `CacheParams` of shaders/parts/surface_cache/lighting.wgsl, the tile list's header.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-struct CacheParamsGpu {
-    atlas_size: u32,
-    card_count: u32,
-    direct_tile_first: u32,
-    direct_tile_count: u32,
-    direct_tiles_total: u32,
-    probe_tile_first: u32,
-    probe_tile_count: u32,
-    probe_tiles_total: u32,
+pub struct CacheParamsGpu {
+    pub atlas_size: u32,
+    pub card_count: u32,
+    pub direct_tile_first: u32,
+    pub direct_tile_count: u32,
+    pub direct_tiles_total: u32,
+    pub probe_tile_first: u32,
+    pub probe_tile_count: u32,
+    pub probe_tiles_total: u32,
 }
 
 /// What sizes and drives the cache (Lumen's `atlas_size`, `*_texels_per_frame`, `cache_direct`).
@@ -163,8 +164,8 @@ const PRIORITY_RUNS: usize = 15;
 struct Standalone {
     world: Option<WorldCacheSettings>,
     layout: Option<wgpu::BindGroupLayout>,
-    /// Lumen's tracing uniform (BVH mode) and placeholders for its distance field.
-    trace: Option<(wgpu::Buffer, Vec<wgpu::Buffer>)>,
+    /// The scene-tracing bindings without a distance field (BVH mode).
+    trace: Option<BvhOnly>,
     bind_group: Option<wgpu::BindGroup>,
     world_cache: Option<(WorldCache, WorldCachePipelines)>,
     lookup: Option<wgpu::BindGroup>,
@@ -244,11 +245,8 @@ impl SurfaceCache {
             indirect_texels_per_frame: texels,
             cache_light: light,
         });
-        let lumen = crate::techniques::lumen::LumenSettings::from_params(
-            &crate::render::params::Params::new("lumen", crate::techniques::lumen::PARAMS),
-        );
         cache.standalone = Some(Standalone {
-            world: world.then(|| lumen.world_cache_settings()),
+            world: world.then_some(crate::parts::world_cache::DEFAULTS),
             layout: None,
             trace: None,
             bind_group: None,
@@ -846,8 +844,7 @@ impl SurfaceCache {
     /// Its group 2: Lumen's tracing uniform and distance-field bindings (placeholders: it
     /// traces the BVH) and the cache's entries.
     fn standalone_layout(gpu: &Gpu) -> wgpu::BindGroupLayout {
-        let mut entries = vec![pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE)];
-        entries.extend(TRACE_BINDINGS.map(|b| pipelines::storage_entry(b, b == 11)));
+        let mut entries = tracing::layout_entries();
         entries.extend(Self::layout_entries());
         pipelines::layout(gpu, "surface cache", &entries)
     }
@@ -881,24 +878,9 @@ impl SurfaceCache {
         }
         let data = &ctx.scene.data;
         let sky = ctx.scene.sky.max_element() > 0.0 && data.features.sky_visible;
-        {
-            use crate::techniques::lumen::{FLAG_BVH, FLAG_LIGHTS, FLAG_SKY};
-            let lights = data.features.light_count() > 0;
-            st.flags =
-                FLAG_BVH | if sky { FLAG_SKY } else { 0 } | if lights { FLAG_LIGHTS } else { 0 };
-        }
+        st.flags = BvhOnly::flags(sky, data.features.light_count() > 0);
         if st.trace.is_none() {
-            let uniform = init_buffer(
-                gpu,
-                "surface cache tracing",
-                &[0u8; std::mem::size_of::<crate::techniques::lumen::LumenParamsGpu>()],
-                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            );
-            let unused = TRACE_BINDINGS
-                .iter()
-                .map(|_| pipelines::storage_buffer(gpu, "surface cache: no distance field", 16))
-                .collect();
-            st.trace = Some((uniform, unused));
+            st.trace = Some(BvhOnly::new(gpu, "surface cache tracing"));
         }
         if refresh == Refresh::Build {
             self.reset(gpu);
@@ -915,22 +897,10 @@ impl SurfaceCache {
         let Some(st) = self.standalone.as_ref() else {
             return;
         };
-        let (Some(layout), Some((uniform, unused))) = (&st.layout, &st.trace) else {
+        let (Some(layout), Some(trace)) = (&st.layout, &st.trace) else {
             return;
         };
-        let mut all = vec![wgpu::BindGroupEntry {
-            binding: 0,
-            resource: uniform.as_entire_binding(),
-        }];
-        all.extend(
-            TRACE_BINDINGS
-                .iter()
-                .zip(unused)
-                .map(|(&binding, b)| wgpu::BindGroupEntry {
-                    binding,
-                    resource: b.as_entire_binding(),
-                }),
-        );
+        let mut all = trace.entries();
         all.extend(entries);
         let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("surface cache"),
@@ -964,16 +934,10 @@ impl SurfaceCache {
         let Some(st) = self.standalone.as_ref() else {
             return;
         };
-        let (Some(group), Some((uniform, _))) = (st.bind_group.clone(), &st.trace) else {
+        let (Some(group), Some(trace)) = (st.bind_group.clone(), &st.trace) else {
             return;
         };
-        let params = crate::techniques::lumen::LumenParamsGpu {
-            flags: st.flags,
-            ..Default::default()
-        };
-        ctx.gpu
-            .queue
-            .write_buffer(uniform, 0, bytemuck::bytes_of(&params));
+        trace.write(ctx.gpu, st.flags);
         self.record_passes(ctx, enc, timer, &group);
         let st = self.standalone.as_mut().expect("standalone");
         if let (Some(s), Some((w, pipes))) = (st.world, st.world_cache.as_mut()) {
@@ -990,9 +954,6 @@ impl SurfaceCache {
         v
     }
 }
-
-/// Bindings of Lumen's group 2 that its tracing reads besides the cache's: the distance field.
-const TRACE_BINDINGS: [u32; 8] = [4, 5, 6, 7, 8, 9, 10, 11];
 
 /// The card buffers (cards, object cards, triangle objects, tiles after a `CacheParamsGpu`
 /// header), the capture index buffer, and the tile counts.
@@ -1044,4 +1005,66 @@ fn card_buffers(gpu: &Gpu, c: &CardSet) -> ([wgpu::Buffer; 4], wgpu::Buffer, u32
         nd,
         np,
     )
+}
+
+/// `lumen-cards`, and `lumen-world` when it keeps a world radiance cache.
+impl crate::parts::gi_cache::GiCache for SurfaceCache {
+    fn key(&self) -> crate::parts::gi_cache::CacheKey {
+        let (size, budget) = self.sized();
+        crate::parts::gi_cache::CacheKey {
+            name: if self.has_world() {
+                "lumen-world"
+            } else {
+                "lumen-cards"
+            },
+            size,
+            budget,
+            light: self.cache_light(),
+        }
+    }
+
+    fn build(&mut self, ctx: &RenderContext) -> Result<()> {
+        SurfaceCache::build(self, ctx)
+    }
+
+    fn record(
+        &mut self,
+        ctx: &RenderContext,
+        enc: &mut wgpu::CommandEncoder,
+        timer: &mut PassTimer,
+    ) {
+        SurfaceCache::record(self, ctx, enc, timer)
+    }
+
+    fn lookup(&self) -> Option<&wgpu::BindGroup> {
+        SurfaceCache::lookup(self)
+    }
+
+    fn passes(&self, f: &SceneFeatures) -> Vec<PassInfo> {
+        SurfaceCache::passes(self, f)
+    }
+
+    fn reader(&self, gpu: &Gpu, group: u32) -> (Vec<(&'static str, u32)>, wgpu::BindGroupLayout) {
+        let world = self.has_world();
+        let mut defs = vec![
+            if world {
+                ("GI_TERMINATE_WORLD", 1)
+            } else {
+                ("GI_TERMINATE_CACHE", 1)
+            },
+            lookup_defs(group)[0],
+        ];
+        if world {
+            defs.push(crate::parts::world_cache::lookup_defs(group)[0]);
+        }
+        (defs, SurfaceCache::lookup_layout(gpu, world))
+    }
+
+    fn cache_regir_coverage(&self, gpu: &Gpu) -> Result<crate::parts::world_regir::Coverage> {
+        SurfaceCache::cache_regir_coverage(self, gpu)
+    }
+
+    fn surface_cache(&self) -> Option<&SurfaceCache> {
+        Some(self)
+    }
 }

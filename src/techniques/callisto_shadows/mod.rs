@@ -139,12 +139,12 @@ const CALLISTO_AND_RESTIR_FILES: [&str; 11] = [
     SHADOWS,
     MEAN,
     RESOLVE,
-    "restir/regir_mark.wgsl",
-    "restir/regir_build.wgsl",
-    "restir/initial_temporal.wgsl",
-    "restir/spatial.wgsl",
-    "restir/gi_temporal.wgsl",
-    "restir/gi_spatial.wgsl",
+    "parts/restir/regir_mark.wgsl",
+    "parts/restir/regir_build.wgsl",
+    "parts/restir/initial_temporal.wgsl",
+    "parts/restir/spatial.wgsl",
+    "parts/restir/gi_temporal.wgsl",
+    "parts/restir/gi_spatial.wgsl",
     "parts/restir_direct.wgsl",
 ];
 
@@ -154,7 +154,7 @@ const SHADER_FILES: [&str; 37] = crate::render::concat_files(
         OWN_SHADER_FILES,
         crate::parts::surface_cache::SURFACE_CACHE_FILES,
     ),
-    crate::techniques::surfels::SURFEL_CACHE_FILES,
+    crate::parts::surfel_cache::SURFEL_CACHE_FILES,
 );
 
 impl CallistoShadows {

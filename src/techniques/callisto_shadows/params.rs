@@ -169,7 +169,7 @@ const OWN_PARAMS: [ParamSpec; 19] = [
         what: "where ReSTIR GI's sample paths end when gi is on, as in the restir technique: traced to the end, or at their first hit in Lumen's surface cache, Lumen's world radiance cache or the surfels (the cache parts, with restir's default atlas, update share and surfel ray budget)",
         higher: "lumen-cards, lumen-world or surfels: multi-bounce light at about one bounce's price, biased by the cache",
         lower: "path: unbiased, every bounce traced",
-        kind: ParamKind::Choice(&["path", "lumen-cards", "lumen-world", "surfels"]),
+        kind: ParamKind::Choice(&crate::parts::restir::GiTerminate::NAMES),
         default: 0.0,
     },
     ParamSpec {

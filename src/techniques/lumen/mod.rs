@@ -43,12 +43,12 @@
 //! binds the surface cache's resources into its group 2, where its tracing and final gather read
 //! them, and its passes trace through Lumen's scene representation (that group).
 
-mod params;
+pub mod params;
 pub mod screen_probes;
 pub mod sdf;
 
 use crate::render::pipelines::init_buffer;
-pub use params::{LumenParamsGpu, LumenSettings, FLAG_BVH, FLAG_LIGHTS, FLAG_SKY, PARAMS};
+pub use params::{LumenSettings, TracingParamsGpu, FLAG_BVH, FLAG_LIGHTS, FLAG_SKY, PARAMS};
 pub use screen_probes::ProbeStats;
 use screen_probes::{ProbePipelines, ScreenProbes};
 
@@ -90,7 +90,7 @@ const FILL_PASS_NAMES: [&str; MAX_LEVELS] = [
 /// Queries one call can answer.
 pub const QUERY_CAPACITY: usize = 1 << 16;
 const BRICK_BYTES: u64 = 512 * 4;
-/// A brick's voxel lighting behind the distances in the pool (shaders/lumen/shared.wgsl,
+/// A brick's voxel lighting behind the distances in the pool (shaders/parts/tracing/shared.wgsl,
 /// `voxel_word_index`): 4^3 lighting voxels x 6 directions, visibility then radiance.
 const VOXEL_LIGHTING_BYTES: u64 = 2 * 64 * 6 * 4;
 
@@ -180,7 +180,7 @@ struct Resources {
     /// `pixel_direct` for the reflections part's filter to write (planes 1 and 2).
     specular_bind_group: wgpu::BindGroup,
     args: wgpu::Buffer,
-    gpu_params: LumenParamsGpu,
+    gpu_params: TracingParamsGpu,
     /// The world radiance cache (a part: `crate::parts::world_cache`), read by the screen
     /// probes and, through the surface-cache part, by ReSTIR GI's `lumen-world` paths.
     world: WorldCache,
@@ -453,7 +453,7 @@ impl Lumen {
         };
         let gather = [ctx.extent[0].div_ceil(ds), ctx.extent[1].div_ceil(ds)];
         let buf = |label: &str, size: u64| pipelines::storage_buffer(gpu, label, size.max(16));
-        let gpu_params = LumenParamsGpu {
+        let gpu_params = TracingParamsGpu {
             resolution: s.clipmap_resolution,
             bricks_per_axis: clip.bricks_per_axis(),
             pool_bricks,

@@ -2,6 +2,8 @@
 
 use crate::render::params::{ParamKind, ParamSpec, Params};
 
+use crate::parts::world_cache::DEFAULTS as WORLD_CACHE_DEFAULTS;
+
 /// Lumen's own parameters; [`PARAMS`] adds the reflections part's.
 const OWN_PARAMS: [ParamSpec; 29] = [
     ParamSpec {
@@ -122,7 +124,7 @@ const OWN_PARAMS: [ParamSpec; 29] = [
         higher: "more exact nearby light, longer rays",
         lower: "more light from the coarser world cache",
         kind: ParamKind::Float { min: 0.05, max: 1000.0 },
-        default: 2.0,
+        default: WORLD_CACHE_DEFAULTS.distance as f64,
     },
     ParamSpec {
         name: "world_cache_levels",
@@ -130,7 +132,7 @@ const OWN_PARAMS: [ParamSpec; 29] = [
         higher: "reach farther from the camera",
         lower: "less memory",
         kind: ParamKind::Int { min: 1, max: 4 },
-        default: 3.0,
+        default: WORLD_CACHE_DEFAULTS.levels as f64,
     },
     ParamSpec {
         name: "world_cache_probes",
@@ -138,7 +140,7 @@ const OWN_PARAMS: [ParamSpec; 29] = [
         higher: "wider coverage at the same spacing, more memory",
         lower: "less memory, lookups fall to coarser levels sooner",
         kind: ParamKind::Int { min: 4, max: 32 },
-        default: 16.0,
+        default: WORLD_CACHE_DEFAULTS.probes as f64,
     },
     ParamSpec {
         name: "world_probes_per_frame",
@@ -146,7 +148,7 @@ const OWN_PARAMS: [ParamSpec; 29] = [
         higher: "the world cache fills and follows light changes sooner",
         lower: "fewer cache rays per frame",
         kind: ParamKind::Int { min: 0, max: 4096 },
-        default: 128.0,
+        default: WORLD_CACHE_DEFAULTS.probes_per_frame as f64,
     },
     ParamSpec {
         name: "world_cache_history",
@@ -154,7 +156,7 @@ const OWN_PARAMS: [ParamSpec; 29] = [
         higher: "less noise in the world cache",
         lower: "less lag behind the surface cache (a cold start or a light change)",
         kind: ParamKind::Int { min: 1, max: 16 },
-        default: 1.0,
+        default: WORLD_CACHE_DEFAULTS.history as f64,
     },
     ParamSpec {
         name: "spatial_filter",
@@ -374,44 +376,14 @@ impl LumenSettings {
     }
 }
 
-/// One clipmap of `LumenParams` (shaders/lumen/shared.wgsl).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct LevelGpu {
-    pub origin: [f32; 4],
-    pub brick_origin: [i32; 4],
-    pub update: [u32; 4],
-}
+pub use crate::parts::tracing::{
+    LevelGpu, TracingParamsGpu, FLAG_BVH, FLAG_LIGHTS, FLAG_SKY, FLAG_VOXEL_LIGHTING,
+};
 
-/// `LumenParams` of shaders/lumen/shared.wgsl.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct LumenParamsGpu {
-    pub levels: [LevelGpu; 6],
-    pub resolution: u32,
-    pub levels_built: u32,
-    pub bricks_per_axis: u32,
-    pub pool_bricks: u32,
-    pub flags: u32,
-    pub rays_per_pixel: u32,
-    pub gather_downsample: u32,
-    pub gather_width: u32,
-    pub gather_height: u32,
-    pub dirty_box_count: u32,
-    pub sign_rays: u32,
-    pub query_count: u32,
-    pub slice_depth: f32,
-    pub query_mode: u32,
-    pub pad: [u32; 2],
-}
-
-pub const FLAG_BVH: u32 = 1;
-pub const FLAG_SKY: u32 = 2;
+// Lumen's own bits of the tracing uniform's flags (shaders/lumen/shared.wgsl); the tracing
+// part's are 1, 2, 16 and 128.
 pub const FLAG_ACCUMULATE: u32 = 4;
 pub const FLAG_DEBUG: u32 = 8;
-pub const FLAG_LIGHTS: u32 = 16;
 pub const FLAG_DIRECT_RESTIR: u32 = 32;
 /// Pixels add the reflections part's specular light.
 pub const FLAG_REFLECTIONS: u32 = 64;
-/// SDF hits without a card answer read the voxel lighting.
-pub const FLAG_VOXEL_LIGHTING: u32 = 128;

@@ -32,23 +32,14 @@
 //! Samples live in the light's own measure (area for triangles, solid angle for sky directions),
 //! so reuse across pixels needs no Jacobian. With a sky class, GI sample rays that escape add
 //! nothing: direct sky light is ReSTIR DI's.
-//! Shaders: shaders/restir/*.wgsl, shared state in shaders/restir/shared.wgsl. Files: `di.rs`,
-//! `gi.rs`, `regir.rs` (the parts), `lighting.rs` (their composition, reusable by another
-//! technique), `params.rs` (the parameter table), this file (the technique: parts + shading).
+//! The lighting core (DI, GI, ReGIR, their parameters, buffers and bind group) is the part
+//! [`crate::parts::restir`] (shaders/parts/restir/), which other families hold too; this
+//! technique is that core plus its shading pass (shaders/restir/shade.wgsl).
 
-mod di;
-mod gi;
-mod lighting;
-mod params;
-mod regir;
-
-pub use di::RESERVOIR_BYTES;
-pub use gi::GI_RESERVOIR_BYTES;
-pub use lighting::RestirLighting;
-pub use params::{
-    CandidateVisibility, GiTerminate, RestirParamsGpu, RestirSettings, MAX_SPATIAL, PARAMS,
+pub use crate::parts::restir::{
+    CandidateVisibility, GiTerminate, RestirLighting, RestirParamsGpu, RestirSettings,
+    GI_RESERVOIR_BYTES, MAX_SPATIAL, PARAMS, REGIR_DIMS, REGIR_SLOT_BYTES, RESERVOIR_BYTES,
 };
-pub use regir::{REGIR_DIMS, REGIR_SLOT_BYTES};
 
 use crate::gpu::{timing::PassTimer, Gpu};
 use crate::render::params::Params;
@@ -57,16 +48,9 @@ use crate::render::{pipelines, DebugView, PassInfo, RenderContext, Technique};
 use crate::scene::features::SceneFeatures;
 use anyhow::Result;
 
-/// ReSTIR's own entry files.
-pub const OWN_SHADER_FILES: [&str; 7] = [
-    "restir/regir_mark.wgsl",
-    "restir/regir_build.wgsl",
-    "restir/initial_temporal.wgsl",
-    "restir/spatial.wgsl",
-    "restir/gi_temporal.wgsl",
-    "restir/gi_spatial.wgsl",
-    "restir/shade.wgsl",
-];
+/// The technique's entry files: the lighting core's and its shading pass.
+pub const OWN_SHADER_FILES: [&str; 7] =
+    crate::render::concat_files(crate::parts::restir::SHADER_FILES, ["restir/shade.wgsl"]);
 
 /// ReSTIR's files and the cache parts' (compiled only with `gi_terminate = "lumen-cards"` or
 /// `"surfels"`).
@@ -75,7 +59,7 @@ const SHADER_FILES: [&str; 29] = crate::render::concat_files(
         OWN_SHADER_FILES,
         crate::parts::surface_cache::SURFACE_CACHE_FILES,
     ),
-    crate::techniques::surfels::SURFEL_CACHE_FILES,
+    crate::parts::surfel_cache::SURFEL_CACHE_FILES,
 );
 
 /// The `restir` technique: [`RestirLighting`] (DI, GI, ReGIR) and a shading pass that turns its

@@ -3,8 +3,8 @@
 //! over squared distance), rebuilt every frame; DI draws its initial candidates from the cell.
 //! Each frame a mark pass flags the cells under the pixels, and the build fills only those
 //! (a slot's random stream depends on its index alone, so the result equals a full build's).
-//! Runs only where the scene has many lights (rule 3). Shaders: shaders/restir/regir_mark.wgsl,
-//! shaders/restir/regir_build.wgsl.
+//! Runs only where the scene has many lights (rule 3). Shaders: shaders/parts/restir/regir_mark.wgsl,
+//! shaders/parts/restir/regir_build.wgsl.
 
 use super::lighting::RestirLighting;
 use super::RestirSettings;
@@ -13,7 +13,7 @@ use crate::render::{pipelines, PassInfo, RenderContext};
 use crate::scene::features::SceneFeatures;
 use anyhow::Result;
 
-/// Bytes of `RegirSlot` in shaders/restir/shared.wgsl.
+/// Bytes of `RegirSlot` in shaders/parts/restir/shared.wgsl.
 pub const REGIR_SLOT_BYTES: u64 = 16;
 /// ReGIR grid: REGIR_DIMS^3 cells around the camera.
 pub const REGIR_DIMS: u32 = 16;
@@ -37,8 +37,8 @@ impl Regir {
         layout: &wgpu::BindGroupLayout,
     ) -> Result<(wgpu::ComputePipeline, wgpu::ComputePipeline)> {
         Ok((
-            ctx.pipeline("restir/regir_mark.wgsl", layout)?,
-            ctx.pipeline("restir/regir_build.wgsl", layout)?,
+            ctx.pipeline("parts/restir/regir_mark.wgsl", layout)?,
+            ctx.pipeline("parts/restir/regir_build.wgsl", layout)?,
         ))
     }
 

@@ -6,7 +6,7 @@ use crate::render::params::{ParamKind, ParamSpec, Params};
 /// Spatial neighbours per pixel at most (`MAX_NEIGHBOURS` in the spatial passes).
 pub const MAX_SPATIAL: u32 = 8;
 
-/// Matches `RestirParams` in shaders/restir/shared.wgsl.
+/// Matches `RestirParams` in shaders/parts/restir/shared.wgsl.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct RestirParamsGpu {
@@ -167,7 +167,7 @@ const OWN_PARAMS: [ParamSpec; 25] = [
         what: "where a GI sample path ends: path (traced to gi_bounces), or at its first hit (hit gi_bounces with a cache) in a radiance cache that holds the further bounces, built and updated in the same frame: lumen-cards (Lumen's surface cache; the seed's connection), lumen-world (Lumen's world radiance cache seen from the hit: one BSDF ray to the probes' TMin, the surface cache where it hits, the world probes past it) or surfels (the surfels' irradiance where surfels cover the hit, the path traced on where none do)",
         higher: "a cache: multi-bounce light at the price of one ray per path, biased by the cache (coarse texels or surfels, diffuse only, lag; lumen-cards: no light where no card covers a hit)",
         lower: "path: unbiased with gi_bounces = 0, every bounce traced",
-        kind: ParamKind::Choice(&["path", "lumen-cards", "lumen-world", "surfels"]),
+        kind: ParamKind::Choice(&GiTerminate::NAMES),
         default: 0.0,
     },
     ParamSpec {

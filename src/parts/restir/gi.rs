@@ -2,25 +2,25 @@
 //! whose first hit becomes a reservoir sample (`gi_temporal`, with temporal reuse), then spatial
 //! reuse in the area measure (`gi_spatial`). Its reservoirs (`gilab::restir::gi_reservoirs`) and
 //! the sky each sample ray reached (`gi_sky`) are what a shading pass turns into indirect light
-//! (`gi_contribution`, `gi_visible`). Shaders: shaders/restir/{gi_temporal,gi_spatial}.wgsl.
+//! (`gi_contribution`, `gi_visible`). Shaders: shaders/parts/restir/{gi_temporal,gi_spatial}.wgsl.
 
 use super::lighting::{PassFiles, PassPair, RestirLighting};
 use super::params::GiTerminate;
 use crate::gpu::{timing::PassTimer, Gpu};
-use crate::parts::world_regir::WorldRegirSettings;
+use crate::parts::gi_cache::{CacheKey, GiCache};
 use crate::parts::{SurfaceCache, SurfelCache};
 use crate::render::{pipelines, PassInfo, RenderContext};
 use anyhow::Result;
 
-/// Bytes of `GiReservoir` in shaders/restir/shared.wgsl.
+/// Bytes of `GiReservoir` in shaders/parts/restir/shared.wgsl.
 pub const GI_RESERVOIR_BYTES: u64 = 64;
 const TEMPORAL: &str = "gi_temporal";
 const SPATIAL: &str = "gi_spatial";
 
 /// `gi_temporal`, then `gi_spatial`.
 pub(super) const PASSES: PassFiles = [
-    (TEMPORAL, "restir/gi_temporal.wgsl"),
-    (SPATIAL, "restir/gi_spatial.wgsl"),
+    (TEMPORAL, "parts/restir/gi_temporal.wgsl"),
+    (SPATIAL, "parts/restir/gi_spatial.wgsl"),
 ];
 
 #[derive(Default)]
@@ -37,119 +37,24 @@ pub struct Gi {
 
 /// Sample paths that end in a cache (the part and the pass that reads it).
 pub(super) struct CacheTermination {
-    pub(super) cache: GiCache,
+    pub(super) cache: Box<dyn GiCache>,
     pub(super) temporal: wgpu::ComputePipeline,
 }
 
-/// The caches a GI sample path can end in: parts, each with a lookup at bind group CACHE_GROUP.
-/// `Cards` serves `lumen-cards` and, built with its world radiance cache, `lumen-world`.
-pub(super) enum GiCache {
-    Cards(Box<SurfaceCache>),
-    Surfels(Box<SurfelCache>),
-}
-
-/// What a cache is made with: the termination, its sizes (atlas and texel budget, or surfel
-/// rays) and how it picks lights (`cache_direct`); a different key builds a new cache.
-type CacheKey = (GiTerminate, u32, u32, WorldRegirSettings);
-
-impl GiCache {
-    fn new(key: CacheKey, cache_update: f32) -> Result<GiCache> {
-        Ok(match key.0 {
-            GiTerminate::Surfels => GiCache::Surfels(Box::new(SurfelCache::new(key.1, key.3)?)),
-            t => GiCache::Cards(Box::new(SurfaceCache::new(
-                key.1,
-                cache_update,
-                key.3,
-                t == GiTerminate::LumenWorld,
-            )?)),
-        })
-    }
-
-    fn key(&self) -> CacheKey {
-        match self {
-            GiCache::Cards(c) => (
-                if c.has_world() {
-                    GiTerminate::LumenWorld
-                } else {
-                    GiTerminate::LumenCards
-                },
-                c.sized().0,
-                c.sized().1,
-                c.cache_light(),
-            ),
-            GiCache::Surfels(c) => (GiTerminate::Surfels, c.sized(), 0, c.cache_light()),
-        }
-    }
-
-    fn build(&mut self, ctx: &RenderContext) -> Result<()> {
-        match self {
-            GiCache::Cards(c) => c.build(ctx),
-            GiCache::Surfels(c) => c.build(ctx),
-        }
-    }
-
-    fn record(
-        &mut self,
-        ctx: &RenderContext,
-        enc: &mut wgpu::CommandEncoder,
-        timer: &mut PassTimer,
-    ) {
-        match self {
-            GiCache::Cards(c) => c.record(ctx, enc, timer),
-            GiCache::Surfels(c) => c.record(ctx, enc, timer),
-        }
-    }
-
-    fn cache_regir_coverage(&self, gpu: &Gpu) -> Result<crate::parts::world_regir::Coverage> {
-        match self {
-            GiCache::Cards(c) => c.cache_regir_coverage(gpu),
-            GiCache::Surfels(c) => c.cache_regir_coverage(gpu),
-        }
-    }
-
-    fn lookup(&self) -> Option<&wgpu::BindGroup> {
-        match self {
-            GiCache::Cards(c) => c.lookup(),
-            GiCache::Surfels(c) => c.lookup(),
-        }
-    }
-
-    fn passes(&self, f: &crate::scene::features::SceneFeatures) -> Vec<PassInfo> {
-        match self {
-            GiCache::Cards(c) => c.passes(f),
-            GiCache::Surfels(c) => c.passes(f),
-        }
-    }
-
-    /// The temporal pass's shader defs (path.wgsl's termination and the lookup's group) and
-    /// the lookup's layout.
-    fn reader(&self, gpu: &Gpu) -> (Vec<(&'static str, u32)>, wgpu::BindGroupLayout) {
-        use crate::parts::{surface_cache, surfel_cache, world_cache};
-        match self {
-            GiCache::Cards(c) if c.has_world() => (
-                vec![
-                    ("GI_TERMINATE_WORLD", 1),
-                    surface_cache::lookup_defs(CACHE_GROUP)[0],
-                    world_cache::lookup_defs(CACHE_GROUP)[0],
-                ],
-                SurfaceCache::lookup_layout(gpu, true),
-            ),
-            GiCache::Cards(_) => (
-                vec![
-                    ("GI_TERMINATE_CACHE", 1),
-                    surface_cache::lookup_defs(CACHE_GROUP)[0],
-                ],
-                SurfaceCache::lookup_layout(gpu, false),
-            ),
-            GiCache::Surfels(_) => (
-                vec![
-                    ("GI_TERMINATE_SURFELS", 1),
-                    surfel_cache::lookup_defs(CACHE_GROUP)[0],
-                ],
-                SurfelCache::lookup_layout(gpu),
-            ),
-        }
-    }
+/// The caches a GI sample path can end in, by `gi_terminate` (the constructor table: a new
+/// cache is one line here). The surface cache serves `lumen-cards` and, built with its world
+/// radiance cache, `lumen-world`.
+fn new_cache(terminate: GiTerminate, key: CacheKey, cache_update: f32) -> Result<Box<dyn GiCache>> {
+    Ok(match terminate {
+        GiTerminate::Surfels => Box::new(SurfelCache::new(key.size, key.light)?),
+        GiTerminate::LumenCards | GiTerminate::LumenWorld => Box::new(SurfaceCache::new(
+            key.size,
+            cache_update,
+            key.light,
+            terminate == GiTerminate::LumenWorld,
+        )?),
+        GiTerminate::Path => anyhow::bail!("gi_terminate = \"path\" ends in no cache"),
+    })
 }
 
 /// The bind group the temporal pass reads the cache through.
@@ -224,10 +129,13 @@ impl RestirLighting {
         let old = self.gi.cache.take();
         let (mut cache, old_temporal) = match old {
             Some(c) if c.cache.key() == key => (c.cache, Some(c.temporal)),
-            _ => (GiCache::new(key, self.settings.cache_update)?, None),
+            _ => (
+                new_cache(self.settings.gi_terminate, key, self.settings.cache_update)?,
+                None,
+            ),
         };
         let built = cache.build(ctx).and_then(|()| {
-            let (defs, lookup_layout) = cache.reader(ctx.gpu);
+            let (defs, lookup_layout) = cache.reader(ctx.gpu, CACHE_GROUP);
             let shaders = ctx.shaders.with_defs(&defs);
             let layout = self.layout(ctx.gpu).clone();
             pipelines::compute_pipeline(
@@ -259,10 +167,8 @@ impl RestirLighting {
         if !(self.settings.gi && self.settings.gi_terminate.cache()) {
             return None;
         }
-        match &self.gi.cache.as_ref()?.cache {
-            GiCache::Cards(c) => Some((c.lookup()?, c.has_world())),
-            GiCache::Surfels(_) => None,
-        }
+        let c = self.gi.cache.as_ref()?.cache.surface_cache()?;
+        Some((c.lookup()?, c.has_world()))
     }
 
     /// The lookup counts of the world ReGIR clipmap that lights the cache the GI paths end in
@@ -281,14 +187,15 @@ impl RestirLighting {
     /// The cache the parameters ask for.
     fn cache_key(&self) -> CacheKey {
         let s = &self.settings;
-        match s.gi_terminate {
-            GiTerminate::Surfels => (GiTerminate::Surfels, s.cache_ray_budget, 0, s.cache_light),
-            t => (
-                t,
-                s.cache_atlas_size,
-                SurfaceCache::budget(s.cache_update),
-                s.cache_light,
-            ),
+        let (size, budget) = match s.gi_terminate {
+            GiTerminate::Surfels => (s.cache_ray_budget, 0),
+            _ => (s.cache_atlas_size, SurfaceCache::budget(s.cache_update)),
+        };
+        CacheKey {
+            name: s.gi_terminate.name(),
+            size,
+            budget,
+            light: s.cache_light,
         }
     }
 

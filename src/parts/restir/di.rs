@@ -2,14 +2,14 @@
 //! reservoirs with temporal reuse (`initial_temporal`), then spatial reuse (`spatial`). Its
 //! final reservoirs (`gilab::restir::reservoirs`, this frame's segment) hold one light sample per
 //! pixel with its contribution weight W; a shading pass turns them into direct light with one
-//! visibility ray (`contribution`, `visible`). Shaders: shaders/restir/{initial_temporal,spatial}.wgsl.
+//! visibility ray (`contribution`, `visible`). Shaders: shaders/parts/restir/{initial_temporal,spatial}.wgsl.
 
 use super::lighting::{PassFiles, PassPair, RestirLighting};
 use super::{CandidateVisibility, RestirSettings};
 use crate::render::{pipelines, PassInfo};
 use crate::scene::features::SceneFeatures;
 
-/// Bytes of `Reservoir` in shaders/restir/shared.wgsl.
+/// Bytes of `Reservoir` in shaders/parts/restir/shared.wgsl.
 pub const RESERVOIR_BYTES: u64 = 32;
 const INITIAL: &str = "initial_temporal";
 const SPATIAL: &str = "spatial";
@@ -34,8 +34,8 @@ impl LightClasses {
 
 /// `initial_temporal`, then `spatial`.
 pub(super) const PASSES: PassFiles = [
-    (INITIAL, "restir/initial_temporal.wgsl"),
-    (SPATIAL, "restir/spatial.wgsl"),
+    (INITIAL, "parts/restir/initial_temporal.wgsl"),
+    (SPATIAL, "parts/restir/spatial.wgsl"),
 ];
 
 #[derive(Default)]

@@ -165,7 +165,7 @@ impl SurfelSettings {
     }
 }
 
-/// `SurfelParams` of shaders/surfels/shared.wgsl.
+/// `SurfelParams` of shaders/parts/surfels/shared.wgsl.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct SurfelParamsGpu {
@@ -190,7 +190,7 @@ pub const FLAG_SKY: u32 = 8;
 pub const FLAG_ACCUMULATE: u32 = 16;
 /// Pixels add the reflections part's specular light.
 pub const FLAG_REFLECTIONS: u32 = 32;
-/// Cache-only mode (`Surfels::surfel_cache`): apply marks the surfels the pixels see (what
+/// Cache-only mode (`SurfelCore::surfel_cache`): apply marks the surfels the pixels see (what
 /// recycling keeps) and writes no pixel.
 pub const FLAG_CACHE_ONLY: u32 = 64;
 /// Irradiance sharing between neighbouring surfels before the estimator.

@@ -1,4 +1,4 @@
-//! GPU exclusive prefix sums (shaders/surfels/scan.wgsl) over the surfel technique's fixed-size
+//! GPU exclusive prefix sums (shaders/parts/surfels/scan.wgsl) over the surfel technique's fixed-size
 //! arrays: one timed pass of three dispatches per scan, the total written after the last value.
 
 use crate::gpu::{shaders::ShaderLibrary, timing::PassTimer, Gpu};
@@ -10,7 +10,7 @@ const BLOCK: u32 = 1024;
 /// Most blocks `scan_blocks` handles in its single workgroup (256 threads x 16).
 const MAX_BLOCKS: u32 = 4096;
 
-pub const ENTRY: &str = "surfels/scan.wgsl";
+pub const ENTRY: &str = "parts/surfels/scan.wgsl";
 
 pub struct ScanPipelines {
     layout: wgpu::BindGroupLayout,

@@ -1,0 +1,57 @@
+//! The one interface of a radiance cache that GI sample paths end in (ReSTIR GI's
+//! `gi_terminate`, in `restir` and `callisto-shadows`): the holder builds it, records its passes
+//! inside the frame that reads it, and composes its reading pass with the cache's shader defs
+//! (`common/path.wgsl`'s termination and the lookup's bind group), binding the cache's lookup.
+//! Implemented by the surface cache (`lumen-cards`, `lumen-world`) and the surfel cache
+//! (`surfels`). A new cache implements this trait and adds one line to the constructor table
+//! in `parts/restir/gi.rs` (docs/parts.md).
+
+use crate::gpu::{timing::PassTimer, Gpu};
+use crate::parts::world_regir::{Coverage, WorldRegirSettings};
+use crate::render::{PassInfo, RenderContext};
+use crate::scene::features::SceneFeatures;
+use anyhow::Result;
+
+/// What a cache is made with: its `gi_terminate` name, its sizes (atlas and texel budget, or
+/// surfel rays) and how it picks lights (`cache_direct`); a different key builds a new cache.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CacheKey {
+    pub name: &'static str,
+    pub size: u32,
+    pub budget: u32,
+    pub light: WorldRegirSettings,
+}
+
+pub trait GiCache {
+    fn key(&self) -> CacheKey;
+
+    /// Builds its pipelines and resources (on error the previous ones stay).
+    fn build(&mut self, ctx: &RenderContext) -> Result<()>;
+
+    /// This frame's cache work, before the passes that read it.
+    fn record(
+        &mut self,
+        ctx: &RenderContext,
+        enc: &mut wgpu::CommandEncoder,
+        timer: &mut PassTimer,
+    );
+
+    /// The lookup's bind group: valid until the next `build`.
+    fn lookup(&self) -> Option<&wgpu::BindGroup>;
+
+    /// Its passes, for the holder's pass list.
+    fn passes(&self, f: &SceneFeatures) -> Vec<PassInfo>;
+
+    /// Shader defs of a pass that reads the cache with its lookup at bind group `group`, and
+    /// the lookup's layout.
+    fn reader(&self, gpu: &Gpu, group: u32) -> (Vec<(&'static str, u32)>, wgpu::BindGroupLayout);
+
+    /// The world ReGIR clipmap's lookup counts (`cache_direct = "regir"`; tests).
+    fn cache_regir_coverage(&self, gpu: &Gpu) -> Result<Coverage>;
+
+    /// The surface cache, when this is one: another part reads its cards (the reflections'
+    /// hits in a family whose GI ends there).
+    fn surface_cache(&self) -> Option<&crate::parts::SurfaceCache> {
+        None
+    }
+}

@@ -1,0 +1,1010 @@
+//! # The surfel core (GIBS)
+//!
+//! One core, two thin holders: the `surfels` technique (`crate::techniques::surfels`) and the
+//! surfel cache other families' rays end in ([`crate::parts::SurfelCache`]).
+//!
+//! "Global Illumination based on Surfels" (GIBS; EA SEED / Frostbite, SIGGRAPH 2021,
+//! shared/seeds/001): the scene is discretised on the fly into surfels spawned from the G-buffer
+//! (here the engine's primary surfaces); each surfel integrates the irradiance arriving at it
+//! with rays, and pixels gather the surfels around them. Everything runs on the GPU from fixed
+//! buffers; nothing is read back inside a frame. Per frame:
+//!
+//! 1. `recycle` + `push`: the seed's recycling heuristic (pool fill, frames since the surfel
+//!    lit a visible pixel, distance, over-coverage) against a random number; recycled slots go
+//!    back onto the free stack.
+//! 2. `coverage` + `spawn`: per 16x16 tile the least-covered pixel spawns a surfel when its
+//!    coverage is below `coverage_target` times a random number; its slot is popped from the
+//!    free stack. Surfel = position, normal, radius, albedo, object id (the triangle).
+//! 3. `prepare` + `scatter` + `sort_cells`: radii for this frame (a constant fraction of the
+//!    image height, at most half the cell side), then the non-linear grid is rebuilt: count,
+//!    prefix sum, scatter into every cell a surfel's bounding box overlaps, and a per-cell sort
+//!    so gathers are deterministic. Each surfel also requests rays (age, variance, visibility).
+//! 4. `allocate` + `ray_owner`: the global `ray_budget` is split in proportion to requests.
+//! 5. `trace`: guided (or cosine) rays; at the hit NEE plus the surfel irradiance there
+//!    (multi-bounce), a path where no surfel covers the hit, the sky on a miss.
+//! 6. `integrate`: multiscale mean estimator (or running mean), guiding map, radial depth.
+//! 7. `direct`: per-pixel direct light (NEE, or ReSTIR DI with `direct = "restir"`).
+//! 8. `apply`: gather, emission + direct + albedo x irradiance / pi, debug views, accumulation.
+//!
+//! Positions and orders come from prefix sums (`scan.rs`), not per-thread atomics, so a fixed
+//! seed gives bit-identical images. Shaders: shaders/parts/surfels/*.wgsl (shared state in
+//! shaders/parts/surfels/shared.wgsl). Files: `params.rs` (the table), `scan.rs`, this file.
+
+pub mod params;
+mod scan;
+
+pub use params::{SurfelParamsGpu, SurfelSettings, MAX_RAYS_PER_SURFEL, PARAMS};
+
+use crate::gpu::{readback, timing::PassTimer, Gpu};
+use crate::parts::reflections::HitCache;
+use crate::parts::{Reflections, RestirDirect, WorldRegir};
+use crate::render::params::Params;
+use crate::render::primary::FrameInputs;
+use crate::render::{pipelines, DebugView, PassInfo, RenderContext};
+use crate::scene::features::SceneFeatures;
+use anyhow::Result;
+use params::*;
+use scan::{ScanJob, ScanPipelines};
+
+/// Cells of the grid: the 32^3 centre grid and six 32x32x64 trapezoids (shared.wgsl).
+pub const GRID_CELLS: u32 = 32 * 32 * 32 + 6 * 32 * 32 * 64;
+/// Screen tiles are 16x16 pixels (one spawn candidate each).
+pub const TILE: u32 = 16;
+/// Bytes per surfel of each per-slot buffer (shared.wgsl's structs).
+pub const SURFEL_BYTES: u64 = 48;
+pub const STATE_BYTES: u64 = 64;
+pub const POOL_BYTES: u64 = 48;
+const GUIDE_WORDS: u64 = 9;
+const DEPTH_TEXELS: u64 = 16;
+/// Bytes per ray of the results buffer (two vec4).
+const RAY_RESULT_BYTES: u64 = 32;
+/// The centre grid spans this fraction of the scene's diagonal.
+const GRID_FRACTION: f32 = 0.1;
+
+const ENTRIES: [(&str, &str); 14] = [
+    ("recycle", "parts/surfels/recycle.wgsl"),
+    ("push", "parts/surfels/push.wgsl"),
+    ("coverage", "parts/surfels/coverage.wgsl"),
+    ("spawn", "parts/surfels/spawn.wgsl"),
+    ("prepare", "parts/surfels/prepare.wgsl"),
+    ("scatter", "parts/surfels/scatter.wgsl"),
+    ("sort_cells", "parts/surfels/sort_cells.wgsl"),
+    ("allocate", "parts/surfels/allocate.wgsl"),
+    ("trace", "parts/surfels/trace.wgsl"),
+    ("estimate", "parts/surfels/estimate.wgsl"),
+    ("integrate", "parts/surfels/integrate.wgsl"),
+    ("direct", "parts/surfels/direct_nee.wgsl"),
+    ("apply gather", "parts/surfels/apply_gather.wgsl"),
+    ("apply", "parts/surfels/apply.wgsl"),
+];
+const RAY_OWNER: &str = "parts/surfels/ray_owner.wgsl";
+
+/// The surfels' entry files and their parts' (direct light, reflections), for hot reload.
+const SHADER_FILES: [&str; 26] = crate::render::concat_files(
+    crate::render::concat_files::<21, 4, 25>(
+        crate::render::concat_files::<16, 5, 21>(
+            SURFEL_CACHE_FILES,
+            crate::parts::restir_direct::SHADER_FILES,
+        ),
+        crate::parts::reflections::SHADER_FILES,
+    ),
+    crate::parts::world_regir::SHADER_FILES,
+);
+
+/// Every entry file the surfels compile without their parts: what the surfel-cache part
+/// (`crate::parts::SurfelCache`, this technique in cache-only mode) builds.
+pub const SURFEL_CACHE_FILES: [&str; 16] = [
+    "parts/surfels/recycle.wgsl",
+    "parts/surfels/push.wgsl",
+    "parts/surfels/coverage.wgsl",
+    "parts/surfels/spawn.wgsl",
+    "parts/surfels/prepare.wgsl",
+    "parts/surfels/scatter.wgsl",
+    "parts/surfels/sort_cells.wgsl",
+    "parts/surfels/allocate.wgsl",
+    "parts/surfels/ray_owner.wgsl",
+    "parts/surfels/trace.wgsl",
+    "parts/surfels/estimate.wgsl",
+    "parts/surfels/integrate.wgsl",
+    "parts/surfels/direct_nee.wgsl",
+    "parts/surfels/apply_gather.wgsl",
+    "parts/surfels/apply.wgsl",
+    "parts/surfels/scan.wgsl",
+];
+
+/// Pipelines in ENTRIES order, plus the ones with other layouts.
+struct Pipelines {
+    passes: Vec<wgpu::ComputePipeline>,
+    ray_owner: wgpu::ComputePipeline,
+    scan: ScanPipelines,
+}
+
+impl Pipelines {
+    fn get(&self, name: &str) -> &wgpu::ComputePipeline {
+        let i = ENTRIES
+            .iter()
+            .position(|(n, _)| *n == name)
+            .expect("a known pass");
+        &self.passes[i]
+    }
+}
+
+/// The bindings of group 2 that the irradiance lookup (`gilab::surfels::gather`) reads: the
+/// reflections part's trace pass binds only these (with all 20, a stage would bind more than
+/// the 32 storage buffers it may).
+const LOOKUP_BINDINGS: [u32; 7] = [0, 1, 2, 5, 7, 10, 14];
+
+/// Shader defs of a pipeline that reads the surfels' irradiance (`gilab::surfels::gather`) at
+/// bind group `group`, bound with [`lookup_layout`] and [`SurfelCore::lookup_bind_group`].
+pub fn lookup_defs(group: u32) -> [(&'static str, u32); 1] {
+    [("SURFELS_GROUP", group)]
+}
+
+/// Layout of the irradiance lookup's bind group (the LOOKUP_BINDINGS of group 2).
+pub fn lookup_layout(gpu: &Gpu) -> wgpu::BindGroupLayout {
+    let entries: Vec<wgpu::BindGroupLayoutEntry> = LOOKUP_BINDINGS
+        .iter()
+        .map(|&b| match b {
+            0 => pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE),
+            _ => pipelines::storage_entry(b, false),
+        })
+        .collect();
+    pipelines::layout(gpu, "surfel lookup", &entries)
+}
+
+/// Layouts, created once so pipelines built against them stay valid across resource rebuilds.
+struct Layouts {
+    surfels: wgpu::BindGroupLayout,
+    /// Group 3 of `ray_owner`: the trace pass's indirect arguments (writable only there).
+    args: wgpu::BindGroupLayout,
+    /// Group 3 of the direct-light part's pass: the per-pixel direct light it writes.
+    direct: wgpu::BindGroupLayout,
+    /// Group 3 of the reflections part's filter: the per-pixel specular light it writes.
+    specular: wgpu::BindGroupLayout,
+    scan: wgpu::BindGroupLayout,
+}
+
+/// Buffers and bind groups sized by the parameters and the image.
+struct Resources {
+    params_buffer: wgpu::Buffer,
+    bind_group: wgpu::BindGroup,
+    args_bind_group: wgpu::BindGroup,
+    direct_bind_group: wgpu::BindGroup,
+    specular_bind_group: wgpu::BindGroup,
+    /// The irradiance lookup's bindings for the reflections part's trace pass.
+    lookup_bind_group: wgpu::BindGroup,
+    args: wgpu::Buffer,
+    /// Every per-slot, per-cell and per-ray buffer, cleared on reset.
+    clear_on_reset: Vec<wgpu::Buffer>,
+    surfels: wgpu::Buffer,
+    pool: wgpu::Buffer,
+    free_stack: wgpu::Buffer,
+    cell_offsets: wgpu::Buffer,
+    cell_cursor: wgpu::Buffer,
+    cell_surfels: wgpu::Buffer,
+    states: wgpu::Buffer,
+    debug: wgpu::Buffer,
+    /// Direct light per pixel (this frame's; the NEE pass or the direct-light part writes it).
+    pixel_direct: wgpu::Buffer,
+    scans: [ScanJob; 4],
+    gpu_params: SurfelParamsGpu,
+    tiles: [u32; 2],
+}
+
+/// The GPU pool's counters, read back for tests and the viewer (never inside a frame).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PoolCounts {
+    pub capacity: u32,
+    pub free: u32,
+    pub live: u32,
+    /// Slots whose radius marks them live (counted over the surfel buffer).
+    pub live_slots: u32,
+    pub spawned_last_frame: u32,
+    pub recycled_last_frame: u32,
+}
+
+/// Per-surfel integrator state read back for tests (irradiance, variance).
+#[derive(Clone, Copy, Debug)]
+pub struct SurfelSnapshot {
+    pub irradiance: [f32; 3],
+    pub variance: [f32; 3],
+    pub rays_total: f32,
+}
+
+pub struct SurfelCore {
+    params: Params,
+    pub settings: SurfelSettings,
+    layouts: Option<Layouts>,
+    pipelines: Option<Pipelines>,
+    res: Option<Resources>,
+    /// The direct-light part for `direct = "restir"` (built the first time it is needed).
+    restir_direct: RestirDirect,
+    /// The reflections part (built the first time a scene with a specular layer needs it).
+    reflections: Reflections,
+    features: SceneFeatures,
+    /// Largest component of the sky radiance.
+    sky_radiance: f32,
+    extent: [u32; 2],
+    /// Cache-only mode (`SurfelCore::surfel_cache`): surfels spawned, traced and integrated, no
+    /// direct light, reflections or apply (another technique reads their irradiance).
+    cache_only: bool,
+    /// The world ReGIR clipmap ray hits take their lights from (`cache_direct = "regir"`;
+    /// built the first time it is asked for).
+    world_regir: WorldRegir,
+    /// Whether the trace pipeline was composed with the clipmap's lookup.
+    trace_regir: bool,
+}
+
+impl Default for SurfelCore {
+    fn default() -> Self {
+        let params = Params::new("surfels", PARAMS);
+        SurfelCore {
+            settings: SurfelSettings::from_params(&params),
+            params,
+            layouts: None,
+            pipelines: None,
+            res: None,
+            restir_direct: RestirDirect::default(),
+            reflections: Reflections::default(),
+            features: SceneFeatures::default(),
+            sky_radiance: 0.0,
+            extent: [0, 0],
+            cache_only: false,
+            world_regir: WorldRegir::default(),
+            trace_regir: false,
+        }
+    }
+}
+
+impl SurfelCore {
+    /// The surfels as a cache for another technique (`crate::parts::SurfelCache`): the pool,
+    /// grid, rays and integration of every frame, none of the pixels' shading. Reflections off.
+    pub fn surfel_cache() -> SurfelCore {
+        let mut s = SurfelCore {
+            cache_only: true,
+            ..SurfelCore::default()
+        };
+        let mut t = toml::Table::new();
+        t.insert("reflections".into(), "none".into());
+        s.set_params(&t).expect("valid surfel cache parameters");
+        s
+    }
+
+    /// The irradiance lookup's bind group (valid until the next resource rebuild).
+    pub fn lookup_bind_group(&self) -> Option<&wgpu::BindGroup> {
+        self.res.as_ref().map(|r| &r.lookup_bind_group)
+    }
+}
+
+impl SurfelCore {
+    fn layouts(&mut self, gpu: &Gpu) -> &Layouts {
+        self.layouts.get_or_insert_with(|| {
+            let mut entries = vec![pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE)];
+            for b in 1..=20 {
+                entries.push(pipelines::storage_entry(b, false));
+            }
+            Layouts {
+                surfels: pipelines::layout(gpu, "surfels", &entries),
+                args: pipelines::layout(
+                    gpu,
+                    "surfel ray args",
+                    &[pipelines::storage_entry(0, false)],
+                ),
+                direct: self.restir_direct.output_layout(gpu).clone(),
+                specular: self.reflections.output_layout(gpu).clone(),
+                scan: scan::layout(gpu),
+            }
+        })
+    }
+
+    /// Misses see the sky wherever its radiance is non-zero: surfels persist across camera
+    /// moves, so "reachable from the default camera" (SceneFeatures::sky_visible) is not enough.
+    fn sky_term(&self) -> bool {
+        self.sky_radiance > 0.0
+    }
+
+    /// The shader's switches for these settings and this scene.
+    fn flags(&self, ctx: &RenderContext) -> u32 {
+        let s = &self.settings;
+        let mut flags = 0;
+        for (on, flag) in [
+            (s.guiding, FLAG_GUIDING),
+            (s.radial_depth, FLAG_RADIAL_DEPTH),
+            (s.msme, FLAG_MSME),
+            (ctx.scene.sky.max_element() > 0.0, FLAG_SKY),
+            (s.accumulate, FLAG_ACCUMULATE),
+            (self.reflections_active(), FLAG_REFLECTIONS),
+            (self.cache_only, FLAG_CACHE_ONLY),
+            (s.sharing, FLAG_SHARING),
+            (s.quarter_apply && !self.cache_only, FLAG_QUARTER_APPLY),
+        ] {
+            if on {
+                flags |= flag;
+            }
+        }
+        flags
+    }
+
+    /// Rays per pixel per frame the technique spends besides surfel rays: the shared camera
+    /// ray and (with lights) the direct light's: one shadow ray with NEE, ReSTIR DI's with the
+    /// part.
+    fn fixed_rays_per_pixel(&self) -> f64 {
+        let reflections = if self.reflections_active() {
+            self.reflections.rays_per_pixel()
+        } else {
+            0.0
+        };
+        1.0 + reflections
+            + if self.features.light_count() == 0 {
+                0.0
+            } else if self.settings.direct_restir {
+                self.restir_direct.rays_per_pixel()
+            } else {
+                1.0
+            }
+    }
+
+    /// The reflections part runs: `reflections = "traced"` on a scene with a specular layer.
+    fn reflections_active(&self) -> bool {
+        self.settings.reflections && self.features.min_specular_roughness.is_some()
+    }
+
+    /// Builds the reflections part when it is needed and not built (its hits get direct light
+    /// and the surfels' irradiance, read from this technique's group 2 at the part's cache
+    /// group; `rebuild`: a shader change rebuilds it if built), and passes it the settings.
+    fn prepare_reflections(&mut self, ctx: &RenderContext, rebuild: bool) -> Result<()> {
+        self.reflections.settings = self.settings.reflection.clone();
+        let needed =
+            self.settings.reflections && ctx.scene.data.features.min_specular_roughness.is_some();
+        if (needed && !self.reflections.is_built()) || (rebuild && self.reflections.is_built()) {
+            let layout = lookup_layout(ctx.gpu);
+            self.reflections
+                .build(ctx, Some(HitCache::Surfels(&layout)))?;
+        }
+        if self.reflections.is_built() {
+            self.reflections.build_resources(ctx);
+        }
+        Ok(())
+    }
+
+    /// Builds the direct-light part for `direct = "restir"` if not built yet (its resources
+    /// follow the image and the scene when it is).
+    /// Lookups the world ReGIR clipmap served, for tests and reports.
+    pub fn cache_regir_coverage(&self, gpu: &Gpu) -> Result<crate::parts::world_regir::Coverage> {
+        self.world_regir.coverage(gpu)
+    }
+
+    fn ensure_restir(&mut self, ctx: &RenderContext) -> Result<()> {
+        if self.settings.direct_restir && !self.restir_direct.is_built() {
+            self.restir_direct.build(ctx)?;
+            self.restir_direct.build_resources(ctx);
+        } else if self.restir_direct.is_built() {
+            self.restir_direct.build_resources(ctx);
+        }
+        Ok(())
+    }
+
+    fn build_resources(&mut self, ctx: &RenderContext) -> Result<()> {
+        let gpu = ctx.gpu;
+        self.features = ctx.scene.data.features.clone();
+        self.sky_radiance = ctx.scene.sky.max_element();
+        self.extent = ctx.extent;
+        let (surfel_layout, args_layout, direct_layout, specular_layout) = {
+            let l = self.layouts(gpu);
+            (
+                l.surfels.clone(),
+                l.args.clone(),
+                l.direct.clone(),
+                l.specular.clone(),
+            )
+        };
+        let s = &self.settings;
+        let max = s.max_surfels as u64;
+        let pixels = ctx.extent[0] as u64 * ctx.extent[1] as u64;
+        let tiles = [ctx.extent[0].div_ceil(TILE), ctx.extent[1].div_ceil(TILE)];
+        let tile_count = tiles[0] * tiles[1];
+        let max_binding = gpu.device.limits().max_storage_buffer_binding_size;
+        let ray_capacity =
+            ((s.ray_budget as u64 * 5 / 4 + 1024).min(max_binding / RAY_RESULT_BYTES)) as u32;
+        let f = &self.features;
+        let diagonal = glam::Vec3::from(f.bounds_max) - glam::Vec3::from(f.bounds_min);
+        let flags = self.flags(ctx);
+        let gpu_params = SurfelParamsGpu {
+            max_surfels: s.max_surfels,
+            ray_budget: s.ray_budget,
+            ray_capacity,
+            flags,
+            coverage_target: s.coverage_target,
+            surfel_size: s.surfel_size,
+            grid_half_extent: (diagonal.length() * GRID_FRACTION).max(1e-3),
+            tiles_x: tiles[0],
+            tiles: tile_count,
+            cells: GRID_CELLS,
+            max_rays_per_surfel: MAX_RAYS_PER_SURFEL,
+            pad: 0,
+        };
+        let buf = |label: &str, size: u64| pipelines::storage_buffer(gpu, label, size);
+        let params_buffer = wgpu::util::DeviceExt::create_buffer_init(
+            &gpu.device,
+            &wgpu::util::BufferInitDescriptor {
+                label: Some("surfel params"),
+                contents: bytemuck::bytes_of(&gpu_params),
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            },
+        );
+        let surfels = buf("surfels", max * SURFEL_BYTES);
+        let states = buf("surfel states", max * STATE_BYTES);
+        let pool = buf("surfel pool", POOL_BYTES);
+        let free_stack = buf("surfel free stack", max * 4);
+        let seen = buf("surfel seen", max * 12);
+        let guide = buf("surfel guiding maps", max * GUIDE_WORDS * 4);
+        let depth = buf("surfel depth maps", max * DEPTH_TEXELS * 8);
+        let slot_scan = buf("surfel slot scan", (max + 1) * 4);
+        let tile_scan = buf("surfel tile scan", (tile_count as u64 + 1) * 4);
+        let cell_offsets = buf("surfel cell offsets", (GRID_CELLS as u64 + 1) * 4);
+        let ray_offsets = buf("surfel ray offsets", (max + 1) * 4);
+        let tile_pixel = buf("surfel tile pixel", tile_count as u64 * 4);
+        let cell_cursor = buf("surfel cell cursor", GRID_CELLS as u64 * 4);
+        let cell_surfels = buf("surfel cell lists", max * 8 * 4);
+        let ray_owner = buf("surfel ray owner", ray_capacity as u64 * 4);
+        let ray_results = buf("surfel ray results", ray_capacity as u64 * RAY_RESULT_BYTES);
+        // Per pixel, then (quarter-area apply) per 2x2 block: the gathered irradiance.
+        let blocks = ctx.extent[0].div_ceil(2) as u64 * ctx.extent[1].div_ceil(2) as u64;
+        let pixel_direct = buf("surfel pixel direct", (pixels + blocks) * 16);
+        // Two planes of the surfels' views, a third for the reflections part's.
+        let debug = buf("surfel debug", 3 * pixels * 16);
+        let pixel_specular = buf("surfel pixel specular", 2 * pixels * 16);
+        let frame_estimates = buf("surfel frame estimates", max * 16);
+        let args = pipelines::indirect_args_buffer(gpu, "surfel trace args", 1);
+        let bind_group = pipelines::buffers_bind_group(
+            gpu,
+            "surfels",
+            &surfel_layout,
+            &[
+                &params_buffer,
+                &surfels,
+                &states,
+                &pool,
+                &free_stack,
+                &seen,
+                &guide,
+                &depth,
+                &slot_scan,
+                &tile_scan,
+                &cell_offsets,
+                &ray_offsets,
+                &tile_pixel,
+                &cell_cursor,
+                &cell_surfels,
+                &ray_owner,
+                &ray_results,
+                &pixel_direct,
+                &debug,
+                &pixel_specular,
+                &frame_estimates,
+            ],
+        );
+        let args_bind_group =
+            pipelines::buffers_bind_group(gpu, "surfel ray args", &args_layout, &[&args]);
+        let direct_bind_group =
+            pipelines::buffers_bind_group(gpu, "surfel direct", &direct_layout, &[&pixel_direct]);
+        let specular_bind_group = pipelines::buffers_bind_group(
+            gpu,
+            "surfel specular",
+            &specular_layout,
+            &[&pixel_specular],
+        );
+        let lookup_buffers = [
+            &params_buffer,
+            &surfels,
+            &states,
+            &seen,
+            &depth,
+            &cell_offsets,
+            &cell_surfels,
+        ];
+        let lookup_entries: Vec<wgpu::BindGroupEntry> = LOOKUP_BINDINGS
+            .iter()
+            .zip(lookup_buffers)
+            .map(|(&binding, b)| wgpu::BindGroupEntry {
+                binding,
+                resource: b.as_entire_binding(),
+            })
+            .collect();
+        let lookup_bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("surfel lookup"),
+            layout: &lookup_layout(gpu),
+            entries: &lookup_entries,
+        });
+        let Some(p) = &self.pipelines else {
+            anyhow::bail!("surfel pipelines are built before their resources");
+        };
+        let blocks = buf(
+            "surfel scan blocks",
+            4 * scan::block_buffer_len(GRID_CELLS.max(s.max_surfels).max(tile_count)),
+        );
+        let scans = [
+            p.scan
+                .job(gpu, "scan: recycled", s.max_surfels, &slot_scan, &blocks)?,
+            p.scan
+                .job(gpu, "scan: spawns", tile_count, &tile_scan, &blocks)?,
+            p.scan
+                .job(gpu, "scan: cells", GRID_CELLS, &cell_offsets, &blocks)?,
+            p.scan
+                .job(gpu, "scan: rays", s.max_surfels, &ray_offsets, &blocks)?,
+        ];
+        self.res = Some(Resources {
+            params_buffer,
+            bind_group,
+            args_bind_group,
+            direct_bind_group,
+            specular_bind_group,
+            lookup_bind_group,
+            args,
+            clear_on_reset: vec![
+                surfels.clone(),
+                states.clone(),
+                seen,
+                guide,
+                depth,
+                slot_scan,
+                tile_scan,
+                cell_offsets.clone(),
+                ray_offsets,
+                tile_pixel,
+                cell_cursor.clone(),
+                cell_surfels.clone(),
+                pool.clone(),
+                pixel_direct.clone(),
+                debug.clone(),
+            ],
+            pixel_direct,
+            surfels,
+            pool,
+            free_stack,
+            cell_offsets,
+            cell_surfels,
+            cell_cursor,
+            states,
+            debug,
+            scans,
+            gpu_params,
+            tiles,
+        });
+        Ok(())
+    }
+
+    /// The pool's counters and the number of slots that hold a surfel (tests: live + free =
+    /// capacity, and the live count matches the slots).
+    pub fn pool_counts(&self, gpu: &Gpu) -> Result<Option<PoolCounts>> {
+        let Some(r) = &self.res else {
+            return Ok(None);
+        };
+        let words: Vec<u32> = readback::read_buffer(gpu, &r.pool, 12)?;
+        let surfels: Vec<[f32; 12]> =
+            readback::read_buffer(gpu, &r.surfels, r.gpu_params.max_surfels as usize)?;
+        Ok(Some(PoolCounts {
+            capacity: r.gpu_params.max_surfels,
+            free: words[0],
+            live: words[1],
+            live_slots: surfels.iter().filter(|s| s[3] > 0.0).count() as u32,
+            spawned_last_frame: words[3],
+            recycled_last_frame: words[4],
+        }))
+    }
+
+    /// The grid's cell lists as `sort_cells` left them: each cell's slots (tests: sorted).
+    pub fn cell_lists(&self, gpu: &Gpu) -> Result<Vec<Vec<u32>>> {
+        let Some(r) = &self.res else {
+            return Ok(Vec::new());
+        };
+        let offsets: Vec<u32> =
+            readback::read_buffer(gpu, &r.cell_offsets, GRID_CELLS as usize + 1)?;
+        let total = offsets[GRID_CELLS as usize] as usize;
+        let lists: Vec<u32> = readback::read_buffer(gpu, &r.cell_surfels, total.max(1))?;
+        Ok(offsets
+            .windows(2)
+            .filter(|w| w[1] > w[0])
+            .map(|w| lists[w[0] as usize..w[1] as usize].to_vec())
+            .collect())
+    }
+
+    /// This frame's direct light per pixel (no emission), as `apply` adds it.
+    pub fn pixel_direct(&self, gpu: &Gpu) -> Result<Option<Vec<[f32; 4]>>> {
+        let Some(r) = &self.res else {
+            return Ok(None);
+        };
+        let pixels = (self.extent[0] * self.extent[1]) as usize;
+        readback::read_buffer(gpu, &r.pixel_direct, pixels).map(Some)
+    }
+
+    /// Every live surfel's position and normal, and the triangle it sits on (BVH order + 1,
+    /// 0: none): tests check that surfels on moving objects move with them.
+    pub fn surfel_positions(&self, gpu: &Gpu) -> Result<Vec<(glam::Vec3, glam::Vec3, u32)>> {
+        let Some(r) = &self.res else {
+            return Ok(Vec::new());
+        };
+        let surfels: Vec<[f32; 12]> =
+            readback::read_buffer(gpu, &r.surfels, r.gpu_params.max_surfels as usize)?;
+        Ok(surfels
+            .iter()
+            .filter(|s| s[3] > 0.0)
+            .map(|s| {
+                (
+                    glam::Vec3::new(s[0], s[1], s[2]),
+                    glam::Vec3::new(s[4], s[5], s[6]),
+                    s[7].to_bits(),
+                )
+            })
+            .collect())
+    }
+
+    /// Every live surfel's integrator state.
+    pub fn surfel_states(&self, gpu: &Gpu) -> Result<Vec<SurfelSnapshot>> {
+        let Some(r) = &self.res else {
+            return Ok(Vec::new());
+        };
+        let n = r.gpu_params.max_surfels as usize;
+        let surfels: Vec<[f32; 12]> = readback::read_buffer(gpu, &r.surfels, n)?;
+        let states: Vec<[f32; 16]> = readback::read_buffer(gpu, &r.states, n)?;
+        Ok(surfels
+            .iter()
+            .zip(&states)
+            .filter(|(s, st)| s[3] > 0.0 && st[3] > 0.0)
+            .map(|(_, st)| SurfelSnapshot {
+                irradiance: [st[0], st[1], st[2]],
+                variance: [st[8], st[9], st[10]],
+                rays_total: st[3],
+            })
+            .collect())
+    }
+}
+
+/// What the holders call: the technique's trait methods, and the cache's frame.
+impl SurfelCore {
+    pub fn inputs(&self) -> FrameInputs {
+        FrameInputs {
+            primary_surfaces: true,
+        }
+    }
+
+    pub fn passes(&self, f: &SceneFeatures) -> Vec<PassInfo> {
+        let s = &self.settings;
+        let pass = |name, runs, why: String| PassInfo { name, runs, why };
+        let lights = f.light_count() > 0;
+        let mut v = vec![
+            pass("recycle", true, "recycling heuristic (pool fill, frames unseen, distance, over-coverage); free stack push".into()),
+            pass("coverage", true, "per 16x16 tile: least-covered pixel, randomised spawn threshold".into()),
+            pass("spawn", true, format!("pop from the free stack of {} slots", s.max_surfels)),
+            pass("grid", true, "radius update, ray requests, non-linear grid rebuilt: count, prefix sum, scatter, per-cell sort".into()),
+            WorldRegir::pass_info(&s.cache_light, f),
+            pass("allocate", true, format!("{} rays per frame split by request (at most {MAX_RAYS_PER_SURFEL} per surfel)", s.ray_budget)),
+            pass(
+                "trace",
+                true,
+                format!(
+                    "{} directions; NEE at hits{}; surfel irradiance at hits (multi-bounce), a path where none covers the hit",
+                    if s.guiding { "guided (6x6 map, mixed with cosine)" } else { "cosine" },
+                    if !lights { " skipped: no lights" } else if s.cache_light.regir && f.many_lights { " (light from the world ReGIR clipmap)" } else { " (light by power)" }
+                ),
+            ),
+            pass("estimate", true, format!("each surfel's frame estimate (mean of its rays){}; radial depth {}", if s.sharing { " for irradiance sharing" } else { "" }, if s.radial_depth { "on" } else { "off" })),
+            pass("integrate", true, format!("{}{}; guiding map", if s.sharing { "irradiance sharing with the cell's surfels (gather weights, by uncertainty), then " } else { "" }, if s.msme { "multiscale mean estimator" } else { "plain running mean (msme off)" })),
+        ];
+        v.push(pass(
+            "sky",
+            self.sky_term(),
+            if self.sky_term() {
+                format!(
+                    "surfel rays that escape see the sky (reachable from the default camera: {})",
+                    f.sky_visible
+                )
+            } else {
+                "sky black: misses add nothing".into()
+            },
+        ));
+        if self.cache_only {
+            v.push(pass(
+                "apply",
+                true,
+                "cache-only: marks the surfels the pixels see (recycling keeps them), shades no pixel".into(),
+            ));
+            return v;
+        }
+        if s.direct_restir {
+            v.extend(self.restir_direct.passes(f));
+        }
+        v.push(pass(
+            "direct",
+            lights,
+            if !lights {
+                "no lights in the pool".into()
+            } else if s.direct_restir {
+                RestirDirect::describe()
+            } else {
+                "NEE: one light by power, one shadow ray".into()
+            },
+        ));
+        if s.quarter_apply {
+            v.push(pass("apply gather", true, "once per 2x2 block: gather the cell's surfels (distance, normal, depth), cell average where weight < 1".into()));
+            v.push(pass("apply", true, "irradiance upsampled from the 4 nearest block samples (bilinear x depth x normal; a pixel none matches gathers itself); accumulate".into()));
+        } else {
+            v.push(pass("apply", true, "gather the cell's surfels (distance, normal, depth), cell average where weight < 1; accumulate".into()));
+        }
+        v.extend(self.reflections.family_passes(s.reflections, f));
+        v
+    }
+
+    pub fn build(&mut self, ctx: &RenderContext) -> Result<()> {
+        let gpu = ctx.gpu;
+        let (surfel_layout, args_layout, scan_layout) = {
+            let l = self.layouts(gpu);
+            (l.surfels.clone(), l.args.clone(), l.scan.clone())
+        };
+        // Every pipeline first: on an error nothing is replaced.
+        let mut passes = Vec::new();
+        for (name, entry) in ENTRIES {
+            if name == "trace" {
+                passes.push(WorldRegir::lighting_pipeline(
+                    ctx,
+                    entry,
+                    &surfel_layout,
+                    self.settings.cache_light.regir,
+                )?);
+                continue;
+            }
+            passes.push(ctx.pipeline(entry, &surfel_layout)?);
+        }
+        let ray_owner = pipelines::compute_pipeline(
+            gpu,
+            ctx.shaders,
+            RAY_OWNER,
+            &[
+                &ctx.scene.layout,
+                ctx.frame_layout,
+                &surfel_layout,
+                &args_layout,
+            ],
+        )?;
+        let scan = ScanPipelines::build(gpu, ctx.shaders, &scan_layout)?;
+        // The direct-light part is rebuilt too (shader change); if that fails, its old
+        // pipelines and the old surfel pipelines stay.
+        if self.restir_direct.is_built() || self.settings.direct_restir {
+            self.restir_direct.build(ctx)?;
+            self.restir_direct.build_resources(ctx);
+        }
+        self.prepare_reflections(ctx, true)?;
+        self.world_regir.prepare(ctx, &self.settings.cache_light)?;
+        self.trace_regir = self.settings.cache_light.regir;
+        self.pipelines = Some(Pipelines {
+            passes,
+            ray_owner,
+            scan,
+        });
+        // A rebuild after a scene edit or a shader change keeps the surfels and their history
+        // (the scene's flags, such as which lights exist, are refreshed); a new size starts over.
+        match &self.res {
+            Some(r) if self.extent == ctx.extent => {
+                let mut p = r.gpu_params;
+                p.flags = self.flags(ctx);
+                gpu.queue
+                    .write_buffer(&r.params_buffer, 0, bytemuck::bytes_of(&p));
+                self.features = ctx.scene.data.features.clone();
+                self.sky_radiance = ctx.scene.sky.max_element();
+            }
+            _ => {
+                self.build_resources(ctx)?;
+                self.reset_history(gpu);
+            }
+        }
+        Ok(())
+    }
+
+    pub fn apply_params(&mut self, ctx: &RenderContext) -> Result<()> {
+        self.ensure_restir(ctx)?;
+        self.prepare_reflections(ctx, false)?;
+        self.world_regir.prepare(ctx, &self.settings.cache_light)?;
+        if self.trace_regir != self.settings.cache_light.regir {
+            let layout = self.layouts(ctx.gpu).surfels.clone();
+            let pipeline = WorldRegir::lighting_pipeline(
+                ctx,
+                "parts/surfels/trace.wgsl",
+                &layout,
+                self.settings.cache_light.regir,
+            )?;
+            if let Some(p) = self.pipelines.as_mut() {
+                let i = ENTRIES
+                    .iter()
+                    .position(|(n, _)| *n == "trace")
+                    .expect("trace");
+                p.passes[i] = pipeline;
+            }
+            self.trace_regir = self.settings.cache_light.regir;
+        }
+        self.build_resources(ctx)?;
+        self.reset_history(ctx.gpu);
+        Ok(())
+    }
+
+    pub fn reset_history(&mut self, gpu: &Gpu) {
+        let Some(r) = &self.res else {
+            return;
+        };
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        for b in &r.clear_on_reset {
+            enc.clear_buffer(b, 0, None);
+        }
+        gpu.submit("surfels: history reset", enc.finish());
+        // Every slot free, popped from the top: slot 0 first.
+        let max = r.gpu_params.max_surfels;
+        let stack: Vec<u32> = (0..max).rev().collect();
+        gpu.queue
+            .write_buffer(&r.free_stack, 0, bytemuck::cast_slice(&stack));
+        gpu.queue
+            .write_buffer(&r.pool, 0, bytemuck::cast_slice(&[max, 0u32]));
+        self.restir_direct.reset(gpu);
+        self.reflections.reset(gpu);
+    }
+
+    pub fn render(
+        &mut self,
+        ctx: &RenderContext,
+        enc: &mut wgpu::CommandEncoder,
+        timer: &mut PassTimer,
+    ) {
+        let (Some(p), Some(r)) = (&self.pipelines, &self.res) else {
+            return;
+        };
+        let bg = &r.bind_group;
+        let max = r.gpu_params.max_surfels;
+        let per_slot = [max.div_ceil(64), 1, 1];
+        let pass = |enc: &mut wgpu::CommandEncoder,
+                    timer: &mut PassTimer,
+                    name: &'static str,
+                    groups: [u32; 3]| {
+            pipelines::technique_pass(ctx, enc, timer, name, p.get(name), &[bg], groups);
+        };
+        pass(enc, timer, "recycle", per_slot);
+        p.scan.record(enc, timer, &r.scans[0]);
+        pass(enc, timer, "push", per_slot);
+        pass(enc, timer, "coverage", [r.tiles[0], r.tiles[1], 1]);
+        p.scan.record(enc, timer, &r.scans[1]);
+        pass(enc, timer, "spawn", [r.gpu_params.tiles.div_ceil(64), 1, 1]);
+        // The coverage pass above read last frame's grid; this frame's is built from here.
+        enc.clear_buffer(&r.cell_offsets, 0, None);
+        enc.clear_buffer(&r.cell_cursor, 0, None);
+        pass(enc, timer, "prepare", per_slot);
+        p.scan.record(enc, timer, &r.scans[2]);
+        pass(enc, timer, "scatter", per_slot);
+        pass(enc, timer, "sort_cells", [GRID_CELLS.div_ceil(64), 1, 1]);
+        pass(enc, timer, "allocate", per_slot);
+        p.scan.record(enc, timer, &r.scans[3]);
+        pipelines::technique_pass(
+            ctx,
+            enc,
+            timer,
+            "ray_owner",
+            &p.ray_owner,
+            &[bg, &r.args_bind_group],
+            per_slot,
+        );
+        let regir = self.world_regir.record_for_pass(
+            ctx,
+            enc,
+            timer,
+            self.trace_regir,
+            self.features.many_lights,
+        );
+        let groups: Vec<&wgpu::BindGroup> = [
+            Some(&ctx.scene.bind_group),
+            Some(ctx.frame_bind_group),
+            Some(bg),
+            regir,
+        ]
+        .into_iter()
+        .flatten()
+        .collect();
+        pipelines::list_pass(enc, timer, "trace", p.get("trace"), &groups, &r.args, 0);
+        pass(enc, timer, "estimate", per_slot);
+        pass(enc, timer, "integrate", per_slot);
+        let image = [ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1];
+        if self.cache_only {
+            // Marks the surfels the pixels see: recycling frees the ones no pixel saw.
+            pass(enc, timer, "apply", image);
+            return;
+        }
+        if self.settings.direct_restir && self.restir_direct.is_built() {
+            self.restir_direct
+                .record(ctx, enc, timer, &r.direct_bind_group);
+        } else {
+            pass(enc, timer, "direct", image);
+        }
+        if self.reflections_active() && self.reflections.is_built() {
+            self.reflections.record(
+                ctx,
+                enc,
+                timer,
+                Some(&r.lookup_bind_group),
+                (&r.specular_bind_group, 0),
+                true,
+            );
+            self.reflections.copy_debug(enc, ctx.extent, &r.debug, 2);
+        }
+        if self.settings.quarter_apply {
+            let blocks = [ctx.extent[0].div_ceil(2), ctx.extent[1].div_ceil(2)];
+            pass(
+                enc,
+                timer,
+                "apply gather",
+                [blocks[0].div_ceil(8), blocks[1].div_ceil(8), 1],
+            );
+        }
+        pass(enc, timer, "apply", image);
+    }
+
+    pub fn debug_views(&self) -> Vec<DebugView> {
+        let view = |name, channel, is_id| DebugView {
+            name,
+            channel,
+            is_id,
+        };
+        let mut v = vec![
+            view("surfel (colour per id)", 0, true),
+            view("coverage", 1, false),
+            view("rays per surfel", 2, false),
+            view("MSME relative variance", 3, false),
+            view("grid cell / cascade", 4, true),
+            view("surfel age (frames)", 5, false),
+        ];
+        v.extend(crate::parts::reflections::debug_views(2));
+        v
+    }
+
+    pub fn debug_buffer(&self) -> Option<&wgpu::Buffer> {
+        self.res.as_ref().map(|r| &r.debug)
+    }
+
+    pub fn param_set(&self) -> &Params {
+        &self.params
+    }
+
+    pub fn set_params(&mut self, params: &toml::Table) -> Result<()> {
+        self.params.set("surfels", params)?;
+        self.settings = SurfelSettings::from_params(&self.params);
+        Ok(())
+    }
+
+    pub fn shader_files(&self) -> &'static [&'static str] {
+        &SHADER_FILES
+    }
+
+    /// Surfels spawn over the first frames (and hits outside their cover trace paths then):
+    /// the cost per surfel ray settles after a few dozen frames.
+    pub fn calibration_frames(&self) -> u32 {
+        16
+    }
+
+    pub fn params_for_ray_budget(
+        &self,
+        rays_per_pixel: f64,
+        measured: Option<f64>,
+    ) -> Option<toml::Table> {
+        // Each surfel ray costs itself plus what its hit traces (a shadow ray, a path where the
+        // cache does not cover): measured at the current budget (which the allocation always
+        // spends in full), else 2.
+        let pixels = (self.extent[0] as f64 * self.extent[1] as f64).max(1.0);
+        let fixed = self.fixed_rays_per_pixel();
+        let current = self.settings.ray_budget as f64 / pixels;
+        let per_ray = measured
+            .filter(|m| *m > fixed && current > 0.0)
+            .map(|m| ((m - fixed) / current).clamp(1.0, 16.0))
+            .unwrap_or(2.0);
+        let budget = (((rays_per_pixel - fixed).max(0.0) / per_ray) * pixels).round();
+        let budget = budget.clamp(0.0, 16_000_000.0) as i64;
+        (budget != self.settings.ray_budget as i64).then(|| {
+            let mut t = toml::Table::new();
+            t.insert("ray_budget".into(), budget.into());
+            t
+        })
+    }
+}
