@@ -374,7 +374,21 @@ fn surfel_hits_lit_by_regir() {
     let (power, _) = render("power");
     let (regir, coverage) = render("regir");
     let (again, _) = render("regir");
+    // The seed's reservoir at the hit (8 power-sampled candidates, one winner): unbiased, so
+    // the same energy as power within noise, no clipmap read (issue 57).
+    let (reservoir, reservoir_coverage) = render("reservoir");
     let (ep, er) = (energy(&power), energy(&regir));
+    let es = energy(&reservoir);
+    eprintln!(
+        "surfels on many-lights 32², 8 frames: energy {es:.4} (reservoir, {:+.2}% against power)",
+        (es / ep - 1.0) * 100.0
+    );
+    assert_eq!(reservoir.non_finite_count(), 0);
+    assert!((es / ep - 1.0).abs() < 0.05, "{es} vs {ep}");
+    assert_eq!(
+        reservoir_coverage.lookups, 0,
+        "the reservoir reads no clipmap"
+    );
     eprintln!(
         "surfels on many-lights 32², 8 frames: energy {ep:.4} (power) vs {er:.4} (ReGIR, {:+.2}%); clipmap served {} of {} hit lookups",
         (er / ep - 1.0) * 100.0,
@@ -430,4 +444,41 @@ fn restir_gi_caches_lit_by_regir() {
         assert!(coverage.served_share() > 0.5, "{terminate}: {coverage:?}");
         assert!((er / ep - 1.0).abs() < 0.1, "{terminate}: {er} vs {ep}");
     }
+}
+
+/// Issue 57: ReSTIR GI's sample paths end in the surfels (`gi_terminate = "surfels"`) wherever
+/// the surfels cover the hit. On the Cornell box at 128² (restir's defaults otherwise), after
+/// 64 frames: at least 80% of the paths that hit a surface end in the cache (the open front
+/// lets about a third of the sample rays escape: they hit nothing and end in no cache). The
+/// engine counts its GI paths' lookups (the surfel cache's own rays are not counted).
+#[test]
+fn gi_paths_end_in_the_surfels() {
+    let size = [128, 128];
+    let mut p = toml::Table::new();
+    p.insert("gi_terminate".into(), "surfels".into());
+    let mut e = engine("restir", p, builtin::cornell(), size, 1);
+    for _ in 0..64 {
+        e.render_frame().unwrap();
+    }
+    let a = e.ray_counts().unwrap().cache_lookups;
+    for _ in 0..8 {
+        e.render_frame().unwrap();
+    }
+    let w = e.ray_counts().unwrap().cache_lookups.since(&a);
+    let paths = 8.0 * (size[0] * size[1]) as f64;
+    let ended = w.covered() as f64 / w.total() as f64;
+    eprintln!(
+        "restir, gi_terminate = surfels, cornell 128², frames 64-72: {:.1}% of the GI paths hit a surface; {:.1}% of those end in the surfels ({:.1}% of all paths); {}",
+        100.0 * w.total() as f64 / paths,
+        100.0 * ended,
+        100.0 * w.covered() as f64 / paths,
+        w.summary()
+    );
+    common::targets::check(
+        "restir-gi-paths-end-in-surfels",
+        common::targets::Better::Higher,
+        0.80,
+        ended,
+        "share of ReSTIR GI paths hitting a surface that end in the surfels, cornell 128², frames 64-72",
+    );
 }

@@ -60,6 +60,19 @@ fn surfels_furnace_matches_closed_form() {
         );
         assert!((v / 5.0 - 1.0).abs() < 0.03, "channel {c}: {v}");
     }
+    // Issue 57: the furnace converges within 1% (the 3% above is issue 38's bound).
+    let worst = img
+        .mean()
+        .iter()
+        .map(|v| (v / 5.0 - 1.0).abs())
+        .fold(0.0, f64::max);
+    common::targets::check(
+        "surfels-furnace-1pct",
+        common::targets::Better::Lower,
+        0.01,
+        worst,
+        "|radiance / 5 - 1|, worst channel, surfel furnace 48² after 112 + 16 frames",
+    );
     assert_eq!(e.ray_counts().unwrap().invalid_samples, 0);
 }
 
@@ -73,9 +86,22 @@ fn surfels_converge_near_reference_on_cornell() {
     let mut e = engine("surfels", toml::Table::new(), builtin::cornell(), size, 1);
     // 96 frames (256 before 2026-11-26, then 128, for CI time): measured at 256, energy 0.986
     // and relMSE 9.5e-4, at 128 0.976 and 3.4e-3, against bounds of 5% and 2e-2.
-    frames(&mut e, 96);
+    // The coverage of the surfels' ray hits is read over frames 64-96, after the pool has
+    // filled (issue 57's target: 90% of the hits the camera sees, at 128² after 64 frames).
+    frames(&mut e, 64);
+    let before = e.ray_counts().unwrap().cache_lookups;
+    frames(&mut e, 32);
     let img = e.read_output().unwrap();
     let rays = e.ray_counts().unwrap();
+    let window = rays.cache_lookups.since(&before);
+    eprintln!("surfels, cornell 128², frames 64-96: {}", window.summary());
+    common::targets::check(
+        "surfels-seen-hits-covered-cornell",
+        common::targets::Better::Higher,
+        0.90,
+        window.covered_seen().unwrap(),
+        "share of surfel-ray hits the camera sees that surfels cover, cornell 128², frames 64-96",
+    );
     let ratio = energy(&img) / energy(&truth);
     let m = metrics::compare(&img, &truth).unwrap();
     eprintln!(
@@ -85,6 +111,14 @@ fn surfels_converge_near_reference_on_cornell() {
         rays.named()
     );
     assert!((ratio - 1.0).abs() < 0.05, "energy ratio {ratio}");
+    // Issue 57: Cornell within 3% of the reference (the 5% above is the older bound).
+    common::targets::check(
+        "surfels-cornell-energy-3pct",
+        common::targets::Better::Lower,
+        0.03,
+        (ratio - 1.0).abs(),
+        "|energy / reference - 1| of the surfels at their defaults, cornell 128², 96 frames",
+    );
     assert!(m.rel_mse < 0.02, "relMSE {}", m.rel_mse);
     assert_eq!(rays.invalid_samples, 0);
     common::assert_energy_and_error_controls_fail(&img, &truth, 0.05, 0.02);
@@ -494,7 +528,8 @@ fn ray_budget_is_honoured() {
     }
 }
 
-/// The debug views: ids, coverage, rays, variance, cells and ages present and sane.
+/// The debug views: ids, coverage, rays, variance, cells, ages and ray-hit coverage present and
+/// sane.
 #[test]
 fn debug_views_show_surfels() {
     let mut e = engine(
@@ -506,10 +541,10 @@ fn debug_views_show_surfels() {
     );
     frames(&mut e, 16);
     let names: Vec<&str> = e.technique.debug_views().iter().map(|v| v.name).collect();
-    // Six of the surfels' own, then the reflections part's four (plane 2).
-    assert_eq!(names.len(), 10, "{names:?}");
+    // Seven of the surfels' own, then the reflections part's four (plane 2).
+    assert_eq!(names.len(), 11, "{names:?}");
     assert!(
-        names[6..].iter().all(|n| n.starts_with("reflections: ")),
+        names[7..].iter().all(|n| n.starts_with("reflections: ")),
         "{names:?}"
     );
     let data = e.read_debug().unwrap().unwrap();
@@ -528,6 +563,19 @@ fn debug_views_show_surfels() {
     assert!(
         ch(5).iter().all(|v| *v <= 17.0),
         "ages within the frames rendered"
+    );
+    // Ray-hit coverage class: 1 surfels, 2 cell average, 3 none, 0 where no surface or no
+    // gather wrote (quarter apply writes its block pixels). After 16 frames at 64² with
+    // `surfel_size = 0.06` most of the box is covered by surfels.
+    let classes = ch(6);
+    assert!(
+        classes.iter().all(|v| [0.0, 1.0, 2.0, 3.0].contains(v)),
+        "classes"
+    );
+    let by_surfels = classes.iter().filter(|v| **v == 1.0).count();
+    assert!(
+        by_surfels > px / 4,
+        "pixels covered by surfels: {by_surfels}"
     );
 }
 
@@ -630,4 +678,80 @@ fn quarter_area_apply_against_full() {
         leak_quarter < 1.5 * leak_full + 1e-3,
         "leak quarter {leak_quarter} full {leak_full}"
     );
+}
+
+/// Issue 57's coverage target on the courtyard (sun, sky, open top) at the defaults, 128²:
+/// after 64 frames, at least 90% of the surfel-ray hits the camera sees are covered by surfels
+/// (their footprints, or the cell average). Hits the camera does not see are counted apart:
+/// the seed spawns surfels only where the camera looks, so those continue as paths (printed).
+#[test]
+fn surfel_ray_hits_on_seen_surfaces_are_covered_on_the_courtyard() {
+    let mut e = engine(
+        "surfels",
+        toml::Table::new(),
+        builtin::courtyard(15.0, 1.0, 1.0),
+        [128, 128],
+        1,
+    );
+    frames(&mut e, 64);
+    let before = e.ray_counts().unwrap().cache_lookups;
+    frames(&mut e, 16);
+    let rays = e.ray_counts().unwrap();
+    let window = rays.cache_lookups.since(&before);
+    eprintln!(
+        "surfels, courtyard 128², frames 64-80: {}",
+        window.summary()
+    );
+    assert!(window.seen() > 0 && window.unseen() > 0, "{window:?}");
+    common::targets::check(
+        "surfels-seen-hits-covered-courtyard",
+        common::targets::Better::Higher,
+        0.90,
+        window.covered_seen().unwrap(),
+        "share of surfel-ray hits the camera sees that surfels cover, courtyard 128², frames 64-80",
+    );
+    assert_eq!(rays.invalid_samples, 0);
+}
+
+/// Issue 57: light sampling at the surfels' ray hits on `many-lights` (1,024 lights), the
+/// three `cache_direct` choices at the defaults otherwise, 64², after 15 frames: the surfels'
+/// own noise (mean relative variance of their ray estimates, the MSME's, over surfels with 16
+/// rays or more; the surfels are the same in all three, spawning does not read irradiance), the
+/// mean surfel irradiance, and one frame's image (no accumulation) against a 256-spp reference.
+/// A measurement (`--ignored --nocapture`), written up in docs/surfels.md.
+#[test]
+#[ignore]
+fn light_sampling_at_surfel_hits_on_many_lights() {
+    let size = [64, 64];
+    let scene = builtin::many_lights(1024, 7);
+    let truth = shared_reference(scene.clone(), size, 256, 5, 0, 0);
+    for mode in ["power", "regir", "reservoir"] {
+        let mut p = toml::Table::new();
+        p.insert("cache_direct".into(), mode.into());
+        p.insert("accumulate".into(), false.into());
+        let mut e = engine("surfels", p, scene.clone(), size, 1);
+        frames(&mut e, 15);
+        let img = e.read_output().unwrap();
+        let m = metrics::compare(&img, &truth).unwrap();
+        let rays = e.ray_counts().unwrap();
+        let states = surfels(&e).surfel_states(&e.gpu).unwrap();
+        let sampled: Vec<_> = states.iter().filter(|s| s.rays_total >= 16.0).collect();
+        let lum = |c: [f32; 3]| luminance(c.map(|v| v as f64));
+        let rel_var = sampled
+            .iter()
+            .map(|s| lum(s.variance) / lum(s.irradiance).powi(2).max(1e-12))
+            .sum::<f64>()
+            / sampled.len().max(1) as f64;
+        let mean_e =
+            sampled.iter().map(|s| lum(s.irradiance)).sum::<f64>() / sampled.len().max(1) as f64;
+        eprintln!(
+            "surfels, many-lights 64², cache_direct = {mode}, 15 frames: {} surfels, mean relative variance {rel_var:.4}, mean irradiance {mean_e:.4}; frame 15 alone: relMSE {:.4e}, energy {:.4} of the reference, {:.2} rays/px/frame, {:.1} ms GPU/frame",
+            sampled.len(),
+            m.rel_mse,
+            energy(&img) / energy(&truth),
+            rays.total() as f64 / (64.0 * 64.0 * 15.0),
+            e.total_gpu_ms / 15.0
+        );
+        assert_eq!(img.non_finite_count(), 0);
+    }
 }

@@ -24,6 +24,12 @@ const COUNT_CACHE_MISS_SEEN: u32 = 11u;
 const COUNT_CACHE_ENTRY_UNSEEN: u32 = 12u;
 const COUNT_CACHE_COARSE_UNSEEN: u32 = 13u;
 const COUNT_CACHE_MISS_UNSEEN: u32 = 14u;
+// Outcomes of a cache lookup for count_cache_lookup (0: no lookup); + CACHE_UNSEEN when the
+// camera does not see the hit.
+const CACHE_ENTRY: u32 = 1u;
+const CACHE_COARSE: u32 = 2u;
+const CACHE_MISS: u32 = 3u;
+const CACHE_UNSEEN: u32 = 3u;
 // Not a ray: samples whose radiance was NaN/Inf and was dropped. Tests require it to stay 0.
 const COUNT_INVALID_SAMPLES: u32 = 15u;
 const COUNTER_KINDS: u32 = 16u;
@@ -41,6 +47,20 @@ var<workgroup> wg_counts: array<atomic<u32>, 16>;
 fn add_to_workgroup(kind: u32, v: u32) {
     if v > 0u {
         atomicAdd(&wg_counts[kind], v);
+    }
+}
+
+// Counts one cache lookup by its outcome (CACHE_* above, + CACHE_UNSEEN; 0 counts nothing),
+// with constant indices (see flush_counts).
+fn count_cache_lookup(counts: ptr<function, array<u32, 16>>, outcome: u32) {
+    switch outcome {
+        case 1u: { (*counts)[COUNT_CACHE_ENTRY_SEEN] += 1u; }
+        case 2u: { (*counts)[COUNT_CACHE_COARSE_SEEN] += 1u; }
+        case 3u: { (*counts)[COUNT_CACHE_MISS_SEEN] += 1u; }
+        case 4u: { (*counts)[COUNT_CACHE_ENTRY_UNSEEN] += 1u; }
+        case 5u: { (*counts)[COUNT_CACHE_COARSE_UNSEEN] += 1u; }
+        case 6u: { (*counts)[COUNT_CACHE_MISS_UNSEEN] += 1u; }
+        default: {}
     }
 }
 

@@ -33,7 +33,7 @@
 #ifdef GI_TERMINATE_SURFELS
 #import gilab::math::INV_PI
 #import gilab::brdf::{diffuse_color, specular_albedo_average}
-#import gilab::surfels::{gather, gather_covers, gathered_irradiance, grid_center_for}
+#import gilab::surfels::{gather, gather_covers, gather_outcome, gathered_irradiance, grid_center_for}
 #endif
 
 // Hard safety cap on path length. With Russian roulette survival <= 0.95 the chance of
@@ -59,6 +59,9 @@ struct PathResult {
     first_normal: vec3<f32>,
     // The first hit's triangle (BVH order), NO_HIT on a miss: reuse follows it when it moves.
     first_tri: u32,
+    // Where the path looked its cache up (GI_TERMINATE_SURFELS): the outcome for
+    // gilab::counters::count_cache_lookup, 0 without a lookup.
+    cache_outcome: u32,
 }
 
 struct NextEvent {
@@ -195,7 +198,7 @@ fn add_contribution(out: ptr<function, PathResult>, c: vec3<f32>, depth: u32) {
 // `skip_first_emission` the emission of the first hit is left out (ReSTIR GI: direct light
 // from emitters is ReSTIR DI's job).
 fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, max_depth: u32, skip_first_emission: bool, options: PathOptions) -> PathResult {
-    var out = PathResult(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0), 0u, 0u, 0u, vec4<f32>(0.0), vec3<f32>(0.0), NO_HIT);
+    var out = PathResult(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0), 0u, 0u, 0u, vec4<f32>(0.0), vec3<f32>(0.0), NO_HIT, 0u);
     var origin = origin_in;
     var dir = dir_in;
     var throughput = vec3<f32>(1.0);
@@ -326,6 +329,7 @@ fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, 
         // no surfel covers a hit: the path is traced on to the end, unbiased there.
         if depth + 1u >= max_bounces {
             let g = gather(surf.position, surf.normal, grid_center_for(frame.camera_pos.xyz), false);
+            out.cache_outcome = gather_outcome(g, surf.position);
             if gather_covers(g) {
                 let direct = next_event(surf, wo, rng, 0.0, false, options.light_candidates);
                 out.shadow_rays += direct.shadow_rays;

@@ -45,10 +45,10 @@ const STAT_SLOTS: u64 = 64;
 pub const PARAMS: [ParamSpec; 3] = [
     ParamSpec {
         name: "cache_direct",
-        what: "how the cache picks the light for each point it lights (card texels, surfel ray hits): by power from the whole light pool, or from the world-space ReGIR clipmap's cell at the point (seed 003, ReGIR lighting the cache; runs only with many lights)",
-        higher: "regir: lights near the point are picked far more often: lower noise on many lights, one build pass per frame",
+        what: "how the cache picks the light for each point it lights (card texels, surfel ray hits): by power from the whole light pool, from the world-space ReGIR clipmap's cell at the point (seed 003, ReGIR lighting the cache; runs only with many lights), or by a reservoir of 8 power-sampled candidates resampled by their unshadowed contribution at the point (seed 001's light sampling at a surfel ray's hit)",
+        higher: "regir: lights near the point are picked far more often: lower noise on many lights, one build pass per frame; reservoir: the candidate that lights the point most wins, 8 light evaluations per point, no build pass",
         lower: "power: no build pass; a point far from the bright lights gets mostly useless samples",
-        kind: ParamKind::Choice(&["power", "regir"]),
+        kind: ParamKind::Choice(&["power", "regir", "reservoir"]),
         default: 0.0,
     },
     ParamSpec {
@@ -73,6 +73,8 @@ pub const PARAMS: [ParamSpec; 3] = [
 pub struct WorldRegirSettings {
     /// `cache_direct = "regir"`.
     pub regir: bool,
+    /// `cache_direct = "reservoir"` (`CACHE_RESERVOIR` in shaders/parts/cache_light.wgsl).
+    pub reservoir: bool,
     pub slots: u32,
     pub lookup_candidates: u32,
 }
@@ -82,10 +84,7 @@ impl WorldRegirSettings {
     /// cache it holds (ReSTIR GI's termination caches).
     pub fn to_table(self) -> toml::Table {
         let mut t = toml::Table::new();
-        t.insert(
-            "cache_direct".into(),
-            if self.regir { "regir" } else { "power" }.into(),
-        );
+        t.insert("cache_direct".into(), self.name().into());
         t.insert("cache_regir_slots".into(), (self.slots as i64).into());
         t.insert(
             "cache_regir_candidates".into(),
@@ -94,9 +93,21 @@ impl WorldRegirSettings {
         t
     }
 
+    /// The `cache_direct` choice.
+    pub fn name(&self) -> &'static str {
+        if self.regir {
+            "regir"
+        } else if self.reservoir {
+            "reservoir"
+        } else {
+            "power"
+        }
+    }
+
     pub fn from_params(p: &Params) -> WorldRegirSettings {
         WorldRegirSettings {
             regir: p.u32("cache_direct") == 1,
+            reservoir: p.u32("cache_direct") == 2,
             slots: p.u32("cache_regir_slots").max(1),
             lookup_candidates: p.u32("cache_regir_candidates").max(1),
         }
@@ -194,15 +205,23 @@ impl WorldRegir {
     }
 
     /// A consumer's lighting pipeline (`entry` over the scene, the frame and its own group 2):
-    /// composed with the clipmap's lookup and its bind group at group 3 when `regir`, as
-    /// before otherwise.
+    /// composed with the clipmap's lookup and its bind group at group 3 with `regir`, with
+    /// `CACHE_RESERVOIR` with `reservoir`, as it is otherwise.
     pub fn lighting_pipeline(
         ctx: &RenderContext,
         entry: &str,
         own: &wgpu::BindGroupLayout,
-        regir: bool,
+        light: &WorldRegirSettings,
     ) -> Result<wgpu::ComputePipeline> {
-        if !regir {
+        if light.reservoir {
+            return pipelines::compute_pipeline(
+                ctx.gpu,
+                &ctx.shaders.with_defs(&[("CACHE_RESERVOIR", 1)]),
+                entry,
+                &[&ctx.scene.layout, ctx.frame_layout, own],
+            );
+        }
+        if !light.regir {
             return ctx.pipeline(entry, own);
         }
         pipelines::compute_pipeline(

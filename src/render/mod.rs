@@ -83,6 +83,23 @@ pub struct CacheLookups {
 }
 
 impl CacheLookups {
+    /// The lookups counted since `then` (an earlier read of the same counters).
+    pub fn since(&self, then: &CacheLookups) -> CacheLookups {
+        CacheLookups {
+            entry_seen: self.entry_seen - then.entry_seen,
+            coarse_seen: self.coarse_seen - then.coarse_seen,
+            miss_seen: self.miss_seen - then.miss_seen,
+            entry_unseen: self.entry_unseen - then.entry_unseen,
+            coarse_unseen: self.coarse_unseen - then.coarse_unseen,
+            miss_unseen: self.miss_unseen - then.miss_unseen,
+        }
+    }
+
+    /// Lookups the cache covered (entries or coarse), seen or not.
+    pub fn covered(&self) -> u64 {
+        self.entry_seen + self.coarse_seen + self.entry_unseen + self.coarse_unseen
+    }
+
     pub fn total(&self) -> u64 {
         self.seen() + self.unseen()
     }

@@ -38,11 +38,13 @@ pub const UNMET: &[Unmet] = &[Unmet {
     id: "surfels-default-leak",
     test: "`tests/surfels.rs` `radial_depth_stops_light_leaking_through_thin_walls`",
     quantity: "thin-wall room's interior luminance after the sunlit outside view (reference: 0), \
-               surfels' default quarter-area apply, 48², `ray_budget = 8192`, `surfel_size = 0.06`",
+               8 frames accumulated inside, surfels' default quarter-area apply, 48², \
+               `ray_budget = 8192`, `surfel_size = 0.06` (a transient: frames 9-40 inside, each \
+               alone, read about 0.06 with the spawn tie-break random or to the lowest index)",
     better: Better::Lower,
     target: 0.02,
-    ratchet: 0.0235,
-    measured: 0.02293,
+    ratchet: 0.048,
+    measured: 0.04681,
     date: "2026-11-28",
     issue: 55,
 },
@@ -51,11 +53,11 @@ Unmet {
     test: "`tests/reflections.rs` `surfels_reflect_the_room_in_glossy_metal`",
     quantity: "\\|energy / reference − 1\\| of the surfels at their defaults, metal Cornell box at \
                roughness 0.3, 64², 12 frames' warm-up then 24 accumulated (the Lambert box alone \
-               reads 0.837: the surfels cover a 64² image slowly)",
+               reads 0.875: the surfels cover a 64² image slowly)",
     better: Better::Lower,
     target: 0.10,
-    ratchet: 0.19,
-    measured: 0.1835,
+    ratchet: 0.155,
+    measured: 0.14853,
     date: "2026-11-28",
     issue: 55,
 },

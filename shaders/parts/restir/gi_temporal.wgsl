@@ -4,7 +4,7 @@
 // the reprojected pixel. A mirror's (delta) sample lights its own pixel only.
 #import gilab::rng::{rng_init, rand, rand_pair, STREAM_GI_SAMPLE}
 #import gilab::frame::frame
-#import gilab::counters::{flush_counts, no_counts, RAY_SHADOW, RAY_INDIRECT}
+#import gilab::counters::{flush_counts, no_counts, count_cache_lookup, RAY_SHADOW, RAY_INDIRECT}
 #import gilab::math::{PI, to_world, luminance}
 #import gilab::ray::spawn_ray_origin
 #import gilab::sampling::sample_cosine_hemisphere
@@ -49,6 +49,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 let path = trace_path(spawn_ray_origin(s.pos.xyz, s.geo_specular.xyz, wi), wi, &rng, params.gi_bounces, !bs.is_delta, PathOptions(params.path_light_candidates, params.specular_bounces, params.specular_max_roughness));
                 counts[RAY_INDIRECT] += path.first_rays + path.indirect_rays;
                 counts[RAY_SHADOW] += path.shadow_rays;
+                count_cache_lookup(&counts, path.cache_outcome);
                 if bs.is_delta {
                     // A delta lobe has no density another pixel's reconnection could use: the
                     // sample lights its own pixel only, through the per-pixel term (w = 1: all

@@ -1,6 +1,9 @@
 // Gap detection (one 16x16 workgroup per screen tile): each pixel's surfel coverage from last
-// frame's grid; the tile's least-covered pixel (ties to the lowest index) spawns a surfel when
-// its coverage is below the target times a random number (the seed's randomised threshold).
+// frame's grid; the tile's least-covered pixel spawns a surfel when its coverage is below the
+// target times a random number (the seed's randomised threshold). Ties (every pixel of an empty
+// tile, every pixel of a hole) go to a random pixel of the tie each frame: with ties to the
+// lowest index, surfels lined the top rows of a tile first, half of each footprint over the
+// tile above, and a cold start filled the lower rows last (issue 57, docs/surfels.md).
 // Thread 0 first commits last pass's pushes to the stack counter.
 #import gilab::frame::frame
 #import gilab::rng::{rng_init, rand, STREAM_SURFEL_SPAWN}
@@ -22,6 +25,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(workgroup_id) wg
         atomicSub(&pool.live_count, recycled);
         pool.recycled = recycled;
     }
+    // This frame's tie-break: pixel indices XOR a random byte, the same for the whole tile.
+    var tie_rng = rng_init(wg.xy, frame.frame_index, STREAM_SURFEL_SPAWN, frame.seed ^ 0x9e3779b9u);
+    let tie = u32(rand(&tie_rng) * 256.0) & 255u;
     workgroupBarrier();
     if gid.x < frame.size.x && gid.y < frame.size.y {
         let s = current_surface(gid.y * frame.size.x + gid.x);
@@ -31,7 +37,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(workgroup_id) wg
                 coverage = gather(s.pos.xyz, s.normal_alpha.xyz, pool.grid_center.xyz, false).coverage;
             }
             let q = u32(clamp(coverage, 0.0, 15.0) * 4096.0);
-            atomicMin(&least, (q << 8u) | local_index);
+            atomicMin(&least, (q << 8u) | (local_index ^ tie));
         }
     }
     workgroupBarrier();
@@ -43,7 +49,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(workgroup_id) wg
             let coverage = f32(key >> 8u) / 4096.0;
             var rng = rng_init(wg.xy, frame.frame_index, STREAM_SURFEL_SPAWN, frame.seed);
             if coverage < params.coverage_target * rand(&rng) {
-                let l = key & 255u;
+                let l = (key & 255u) ^ tie;
                 pixel = (wg.y * TILE + l / TILE) * frame.size.x + wg.x * TILE + l % TILE;
             }
         }

@@ -5,6 +5,7 @@
 
 #import gilab::math::{PI, INV_PI, luminance, to_local, to_world, max_component}
 #import gilab::frame::frame
+#import gilab::primary::camera_sees
 
 struct SurfelParams {
     max_surfels: u32,
@@ -382,6 +383,25 @@ fn gather_covers(g: Gather) -> bool {
     return g.weight >= COVERED_WEIGHT || g.cell_weight >= COVERED_WEIGHT;
 }
 
+// A lookup's outcome for the coverage counters (gilab::counters::count_cache_lookup): covered by
+// surfel footprints, by the cell average only, or not, + 3 where the camera does not see p.
+fn gather_outcome(g: Gather, p: vec3<f32>) -> u32 {
+    let o = coverage_class(g);
+    return select(o + 3u, o, camera_sees(p));
+}
+
+// 1: surfel footprints cover the gather (weight >= COVERED_WEIGHT), 2: the cell average only,
+// 3: neither (a ray hit there goes on as a path).
+fn coverage_class(g: Gather) -> u32 {
+    if g.weight >= COVERED_WEIGHT {
+        return 1u;
+    }
+    if g.cell_weight >= COVERED_WEIGHT {
+        return 2u;
+    }
+    return 3u;
+}
+
 // Irradiance at p from a gather: the surfels' weighted mean where they cover p (weight >= 1),
 // topped up with the cell average where they do not (the seed's gap filling). Surfels the depth
 // test rejects still hold the normalisation up (to at most 1): light from behind a wall is
@@ -400,7 +420,7 @@ fn gathered_irradiance(g: Gather) -> vec3<f32> {
 }
 
 // Debug planes: plane 0 = (surfel id, coverage, rays of the surfel, MSME variance), plane 1 =
-// (grid cell, surfel age, 0, 0).
+// (grid cell, surfel age, coverage class of a ray hit at the pixel's surface, 0).
 // Coverage above this multiple of the target counts a pixel as crowded (recycling thins it).
 const CROWDED: f32 = 4.0;
 
@@ -414,7 +434,7 @@ struct GatherDebug {
 // variance; cell, age), and its best surfel counted as lighting `pixels` pixels, crowded or not
 // (recycling's over-coverage test).
 fn note_gather(g: Gather, pixels: u32) -> GatherDebug {
-    var d = GatherDebug(vec4<f32>(0.0, g.coverage, 0.0, 0.0), vec4<f32>(f32(g.cell + 1u), 0.0, 0.0, 0.0));
+    var d = GatherDebug(vec4<f32>(0.0, g.coverage, 0.0, 0.0), vec4<f32>(f32(g.cell + 1u), 0.0, f32(coverage_class(g)), 0.0));
     if g.best != NONE {
         let st = states[g.best];
         let mean = max(luminance(st.mean.xyz), 1e-6);

@@ -8,8 +8,7 @@
 // Emission of the first hit is left out: the pixel's own direct light counts it.
 #import gilab::frame::frame
 #import gilab::math::{PI, INV_PI, luminance, to_world}
-#import gilab::counters::{flush_counts, no_counts, RAY_SURFEL, RAY_SHADOW, RAY_INDIRECT, COUNT_CACHE_ENTRY_SEEN, COUNT_CACHE_COARSE_SEEN, COUNT_CACHE_MISS_SEEN, COUNT_CACHE_ENTRY_UNSEEN, COUNT_CACHE_COARSE_UNSEEN, COUNT_CACHE_MISS_UNSEEN}
-#import gilab::primary::camera_sees
+#import gilab::counters::{flush_counts, no_counts, count_cache_lookup, RAY_SURFEL, RAY_SHADOW, RAY_INDIRECT}
 #import gilab::rng::{Rng, rng_init, rand, rand_pair, STREAM_SURFEL_RAYS}
 #import gilab::sampling::sample_cosine_hemisphere
 #import gilab::bvh::{trace_closest, NO_HIT}
@@ -18,7 +17,7 @@
 #import gilab::ray::{spawn_ray_origin, INFINITE_DISTANCE}
 #import gilab::path::{trace_path, plain_path}
 #import gilab::cache_light::cache_direct_light
-#import gilab::surfels::{params, surfels, states, ray_offsets, ray_owner, ray_results, has_flag, gather, gather_covers, gathered_irradiance, grid_center_for, COVERED_WEIGHT, guide_value, hemi_oct_encode, hemi_oct_decode, hemi_oct_jacobian, texel_of, FLAG_GUIDING, FLAG_SKY, GUIDE_RES, GUIDE_TEXELS, GUIDE_POPULATED, GUIDE_MIX, DEPTH_RES}
+#import gilab::surfels::{params, surfels, states, ray_offsets, ray_owner, ray_results, has_flag, gather, gather_covers, gathered_irradiance, grid_center_for, gather_outcome, guide_value, hemi_oct_encode, hemi_oct_decode, hemi_oct_jacobian, texel_of, FLAG_GUIDING, FLAG_SKY, FLAG_CACHE_ONLY, GUIDE_RES, GUIDE_TEXELS, GUIDE_POPULATED, GUIDE_MIX, DEPTH_RES}
 #import gilab::sky::sky_radiance
 
 
@@ -92,23 +91,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 counts[RAY_SHADOW] += d.shadow_rays;
                 l = d.radiance;
                 let g = gather(h.position, h.normal, grid_center_for(frame.camera_pos.xyz), false);
-                // Coverage accounting (render::CacheLookups), constant counter indices only.
-                let entry = g.weight >= COVERED_WEIGHT;
-                let coarse = !entry && g.cell_weight >= COVERED_WEIGHT;
-                if camera_sees(h.position) {
-                    if entry {
-                        counts[COUNT_CACHE_ENTRY_SEEN] += 1u;
-                    } else if coarse {
-                        counts[COUNT_CACHE_COARSE_SEEN] += 1u;
-                    } else {
-                        counts[COUNT_CACHE_MISS_SEEN] += 1u;
-                    }
-                } else if entry {
-                    counts[COUNT_CACHE_ENTRY_UNSEEN] += 1u;
-                } else if coarse {
-                    counts[COUNT_CACHE_COARSE_UNSEEN] += 1u;
-                } else {
-                    counts[COUNT_CACHE_MISS_UNSEEN] += 1u;
+                // Counted for the surfels technique; as a cache (ReSTIR GI's paths end in it) the
+                // engine counts its reader's lookups instead.
+                if !has_flag(FLAG_CACHE_ONLY) {
+                    count_cache_lookup(&counts, gather_outcome(g, h.position));
                 }
                 if gather_covers(g) {
                     // The specular layer's energy reflected diffusely, as Lumen's cache albedo.

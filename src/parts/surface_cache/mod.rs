@@ -196,8 +196,8 @@ pub struct SurfaceCache {
     /// The world ReGIR clipmap the texels take their lights from (`cache_direct = "regir"`;
     /// built the first time it is asked for).
     world_regir: WorldRegir,
-    /// Whether the "cache direct" pipeline was composed with the clipmap's lookup.
-    direct_regir: bool,
+    /// The `cache_direct` the "cache direct" pipeline was composed for.
+    direct_light: &'static str,
     standalone: Option<Standalone>,
 }
 
@@ -221,7 +221,7 @@ impl SurfaceCache {
             scene_materials: Vec::new(),
             features: SceneFeatures::default(),
             world_regir: WorldRegir::default(),
-            direct_regir: false,
+            direct_light: "power",
             standalone: None,
         }
     }
@@ -387,13 +387,13 @@ impl SurfaceCache {
             .capture_layout
             .get_or_insert_with(|| capture::layout(ctx.gpu))
             .clone();
-        let regir = self.settings.cache_light.regir;
-        let direct = WorldRegir::lighting_pipeline(ctx, PASSES[0].1, group2, regir)?;
+        let direct =
+            WorldRegir::lighting_pipeline(ctx, PASSES[0].1, group2, &self.settings.cache_light)?;
         let probes = ctx.pipeline(PASSES[1].1, group2)?;
         let indirect = ctx.pipeline(PASSES[2].1, group2)?;
         let (capture, capture_clear) = capture::pipelines(ctx, &capture_layout)?;
         self.world_regir.prepare(ctx, &self.settings.cache_light)?;
-        self.direct_regir = regir;
+        self.direct_light = self.settings.cache_light.name();
         self.pipelines = Some(Pipelines {
             capture,
             capture_clear,
@@ -410,13 +410,18 @@ impl SurfaceCache {
         group2: &wgpu::BindGroupLayout,
     ) -> Result<()> {
         self.world_regir.prepare(ctx, &self.settings.cache_light)?;
-        let regir = self.settings.cache_light.regir;
-        if self.direct_regir != regir {
-            let pipeline = WorldRegir::lighting_pipeline(ctx, PASSES[0].1, group2, regir)?;
+        let light = self.settings.cache_light.name();
+        if self.direct_light != light {
+            let pipeline = WorldRegir::lighting_pipeline(
+                ctx,
+                PASSES[0].1,
+                group2,
+                &self.settings.cache_light,
+            )?;
             if let Some(p) = self.pipelines.as_mut() {
                 p.lighting[0] = pipeline;
             }
-            self.direct_regir = regir;
+            self.direct_light = light;
         }
         Ok(())
     }
@@ -686,7 +691,7 @@ impl SurfaceCache {
                 ctx,
                 enc,
                 timer,
-                self.direct_regir,
+                self.direct_light == "regir",
                 self.features.many_lights,
             )
         } else {

@@ -231,8 +231,8 @@ pub struct SurfelCore {
     /// The world ReGIR clipmap ray hits take their lights from (`cache_direct = "regir"`;
     /// built the first time it is asked for).
     world_regir: WorldRegir,
-    /// Whether the trace pipeline was composed with the clipmap's lookup.
-    trace_regir: bool,
+    /// The `cache_direct` the trace pipeline was composed for.
+    trace_light: &'static str,
 }
 
 impl Default for SurfelCore {
@@ -251,7 +251,7 @@ impl Default for SurfelCore {
             extent: [0, 0],
             cache_only: false,
             world_regir: WorldRegir::default(),
-            trace_regir: false,
+            trace_light: "power",
         }
     }
 }
@@ -685,7 +685,7 @@ impl SurfelCore {
                 format!(
                     "{} directions; NEE at hits{}; surfel irradiance at hits (multi-bounce), a path where none covers the hit",
                     if s.guiding { "guided (6x6 map, mixed with cosine)" } else { "cosine" },
-                    if !lights { " skipped: no lights" } else if s.cache_light.regir && f.many_lights { " (light from the world ReGIR clipmap)" } else { " (light by power)" }
+                    if !lights { " skipped: no lights" } else if s.cache_light.regir && f.many_lights { " (light from the world ReGIR clipmap)" } else if s.cache_light.reservoir { " (light by a reservoir of 8 candidates)" } else { " (light by power)" }
                 ),
             ),
             pass("estimate", true, format!("each surfel's frame estimate (mean of its rays){}; radial depth {}", if s.sharing { " for irradiance sharing" } else { "" }, if s.radial_depth { "on" } else { "off" })),
@@ -749,7 +749,7 @@ impl SurfelCore {
                     ctx,
                     entry,
                     &surfel_layout,
-                    self.settings.cache_light.regir,
+                    &self.settings.cache_light,
                 )?);
                 continue;
             }
@@ -775,7 +775,7 @@ impl SurfelCore {
         }
         self.prepare_reflections(ctx, true)?;
         self.world_regir.prepare(ctx, &self.settings.cache_light)?;
-        self.trace_regir = self.settings.cache_light.regir;
+        self.trace_light = self.settings.cache_light.name();
         self.pipelines = Some(Pipelines {
             passes,
             ray_owner,
@@ -804,13 +804,13 @@ impl SurfelCore {
         self.ensure_restir(ctx)?;
         self.prepare_reflections(ctx, false)?;
         self.world_regir.prepare(ctx, &self.settings.cache_light)?;
-        if self.trace_regir != self.settings.cache_light.regir {
+        if self.trace_light != self.settings.cache_light.name() {
             let layout = self.layouts(ctx.gpu).surfels.clone();
             let pipeline = WorldRegir::lighting_pipeline(
                 ctx,
                 "parts/surfels/trace.wgsl",
                 &layout,
-                self.settings.cache_light.regir,
+                &self.settings.cache_light,
             )?;
             if let Some(p) = self.pipelines.as_mut() {
                 let i = ENTRIES
@@ -819,7 +819,7 @@ impl SurfelCore {
                     .expect("trace");
                 p.passes[i] = pipeline;
             }
-            self.trace_regir = self.settings.cache_light.regir;
+            self.trace_light = self.settings.cache_light.name();
         }
         self.build_resources(ctx)?;
         self.reset_history(ctx.gpu);
@@ -892,7 +892,7 @@ impl SurfelCore {
             ctx,
             enc,
             timer,
-            self.trace_regir,
+            self.trace_light == "regir",
             self.features.many_lights,
         );
         let groups: Vec<&wgpu::BindGroup> = [
@@ -955,6 +955,13 @@ impl SurfelCore {
             view("MSME relative variance", 3, false),
             view("grid cell / cascade", 4, true),
             view("surfel age (frames)", 5, false),
+            // What a surfel ray (or a GI path ending in the surfels) hitting this pixel's
+            // surface finds: the gather the rays make, at the pixel (issue 57).
+            view(
+                "ray-hit coverage (1 surfels, 2 cell average, 3 none)",
+                6,
+                true,
+            ),
         ];
         v.extend(crate::parts::reflections::debug_views(2));
         v
