@@ -2,6 +2,7 @@
 //! budgets, scene features and passes) and bottom panel (convergence plots, per-pass GPU
 //! timings, rays/s).
 
+use super::session::Session;
 use super::{ViewerApp, ViewerOptions};
 use crate::compare::tonemap::{GtParams, Operator, View};
 use crate::preset::{DisplayMode, Layout};
@@ -76,151 +77,10 @@ fn side_contents(app: &mut ViewerApp, ui: &mut egui::Ui) {
     };
     let st = &mut app.panels;
 
-    ui.heading("Preset");
-    ui.label(format!(
-        "current: {}",
-        s.preset
-            .path
-            .as_ref()
-            .map_or("built-in default".into(), |p| p.display().to_string())
-    ));
-    ui.horizontal_wrapped(|ui| {
-        for p in &presets {
-            let name = p
-                .file_name()
-                .map(|n| n.to_string_lossy().to_string())
-                .unwrap_or_default();
-            if ui
-                .button(&name)
-                .on_hover_text(p.display().to_string())
-                .clicked()
-            {
-                st.load_path = p.display().to_string();
-                let _ = s.load_preset_file(p);
-            }
-        }
-    });
-    ui.horizontal(|ui| {
-        ui.add(
-            egui::TextEdit::singleline(&mut st.load_path)
-                .desired_width(200.0)
-                .hint_text("preset path"),
-        );
-        if ui.button("Load").clicked() {
-            let _ = s.load_preset_file(&PathBuf::from(st.load_path.trim()));
-        }
-    });
-    ui.horizontal(|ui| {
-        ui.add(egui::TextEdit::singleline(&mut st.save_path).desired_width(200.0));
-        if ui.button("Save preset").clicked() {
-            if let Err(e) = s.save_preset(&PathBuf::from(st.save_path.trim())) {
-                s.errors.insert("save".into(), format!("{e:#}"));
-            }
-        }
-    });
-
-    if let Some((scale, duration)) = s.playback() {
-        // The scene moves (issue 36): one clock for every pane.
-        ui.separator();
-        ui.heading("Animation");
-        let space =
-            !ui.ctx().egui_wants_keyboard_input() && ui.input(|i| i.key_pressed(egui::Key::Space));
-        ui.horizontal(|ui| {
-            let label = if s.playing {
-                "Pause (Space)"
-            } else {
-                "Play (Space)"
-            };
-            if ui.button(label).clicked() || space {
-                s.playing = !s.playing;
-            }
-            ui.label(format!("x{scale} (scene.time_scale)"));
-        });
-        let mut t = if duration > 0.0 {
-            s.scene_time.rem_euclid(duration)
-        } else {
-            s.scene_time
-        };
-        let slider =
-            ui.add(egui::Slider::new(&mut t, 0.0..=duration.max(1e-3)).text("scene time (s)"));
-        // Only the user's scrub (a slider also reports a change when it clamps the value).
-        if slider.changed() && (slider.dragged() || slider.has_focus()) {
-            s.playing = false;
-            s.set_scene_time(t);
-        }
-        if scale == 0.0 {
-            ui.label("time_scale is 0: the slider poses the scene; Play plays it at x0 (set scene.time_scale)");
-        }
-    }
-
-    ui.separator();
-    ui.heading("View");
-    ui.horizontal_wrapped(|ui| {
-        for l in Layout::ALL {
-            ui.radio_value(&mut s.layout, l, l.label());
-        }
-    });
-    let labels: Vec<String> = s.runs.iter().map(|r| r.label().to_string()).collect();
-    for i in 0..s.layout.pane_count() {
-        let pane = &mut s.panes[i];
-        ui.horizontal(|ui| {
-            egui::ComboBox::from_label(format!("Pane {} technique", i + 1))
-                .selected_text(labels.get(pane.run).cloned().unwrap_or_default())
-                .show_ui(ui, |ui| {
-                    for (k, l) in labels.iter().enumerate() {
-                        ui.selectable_value(&mut pane.run, k, l);
-                    }
-                });
-        });
-        egui::ComboBox::from_label(format!("Pane {} display", i + 1))
-            .selected_text(pane.display.label())
-            .show_ui(ui, |ui| {
-                for m in DisplayMode::ALL {
-                    ui.selectable_value(&mut pane.display, m, m.label());
-                }
-            });
-        if pane.display == DisplayMode::Debug {
-            let views = s.runs[pane.run].engine.technique.debug_views();
-            if views.is_empty() {
-                ui.small("this technique has no debug views");
-            } else {
-                egui::ComboBox::from_label(format!("Pane {} debug view", i + 1))
-                    .selected_text(views.get(pane.debug).map_or("?", |v| v.name))
-                    .show_ui(ui, |ui| {
-                        for (k, v) in views.iter().enumerate() {
-                            ui.selectable_value(&mut pane.debug, k, v.name);
-                        }
-                    });
-            }
-        }
-    }
-
-    ui.separator();
-    ui.heading("Display");
-    let tm = &mut s.preset.preset.tonemap;
-    egui::ComboBox::from_label("Tonemapper")
-        .selected_text(tm.operator.label())
-        .show_ui(ui, |ui| {
-            for op in Operator::ALL {
-                ui.selectable_value(&mut tm.operator, op, op.label());
-            }
-        });
-    ui.add(egui::Slider::new(&mut tm.exposure, -10.0..=10.0).text("Exposure (EV)"));
-    if tm.operator == Operator::Gt {
-        gt_sliders(ui, &mut tm.gt);
-    }
-    egui::ComboBox::from_label("Zone view")
-        .selected_text(tm.view.label())
-        .show_ui(ui, |ui| {
-            for v in View::ALL {
-                ui.selectable_value(&mut tm.view, v, v.label());
-            }
-        })
-        .response
-        .on_hover_text(
-            "17 zones one stop apart, labelled by EV from zone 8, which is 18% grey after exposure. \
-             Regions: toe blue, linear grey, shoulder red.",
-        );
+    preset_section(s, st, &presets, ui);
+    animation_section(s, ui);
+    view_section(s, ui);
+    display_section(s, ui);
 
     ui.separator();
     ui.heading("Techniques");
@@ -424,6 +284,164 @@ fn side_contents(app: &mut ViewerApp, ui: &mut egui::Ui) {
     for line in s.log.iter().rev().take(8) {
         ui.small(line);
     }
+}
+
+/// The preset: the current file, one button per preset of the folder, load and save by path.
+fn preset_section(s: &mut Session, st: &mut PanelState, presets: &[PathBuf], ui: &mut egui::Ui) {
+    ui.heading("Preset");
+    ui.label(format!(
+        "current: {}",
+        s.preset
+            .path
+            .as_ref()
+            .map_or("built-in default".into(), |p| p.display().to_string())
+    ));
+    ui.horizontal_wrapped(|ui| {
+        for p in presets {
+            let name = p
+                .file_name()
+                .map(|n| n.to_string_lossy().to_string())
+                .unwrap_or_default();
+            if ui
+                .button(&name)
+                .on_hover_text(p.display().to_string())
+                .clicked()
+            {
+                st.load_path = p.display().to_string();
+                let _ = s.load_preset_file(p);
+            }
+        }
+    });
+    ui.horizontal(|ui| {
+        ui.add(
+            egui::TextEdit::singleline(&mut st.load_path)
+                .desired_width(200.0)
+                .hint_text("preset path"),
+        );
+        if ui.button("Load").clicked() {
+            let _ = s.load_preset_file(&PathBuf::from(st.load_path.trim()));
+        }
+    });
+    ui.horizontal(|ui| {
+        ui.add(egui::TextEdit::singleline(&mut st.save_path).desired_width(200.0));
+        if ui.button("Save preset").clicked() {
+            if let Err(e) = s.save_preset(&PathBuf::from(st.save_path.trim())) {
+                s.errors.insert("save".into(), format!("{e:#}"));
+            }
+        }
+    });
+}
+
+/// Playback of a moving scene: play/pause (Space) and the scene-time slider, one clock for every pane.
+fn animation_section(s: &mut Session, ui: &mut egui::Ui) {
+    if let Some((scale, duration)) = s.playback() {
+        // The scene moves (issue 36): one clock for every pane.
+        ui.separator();
+        ui.heading("Animation");
+        let space =
+            !ui.ctx().egui_wants_keyboard_input() && ui.input(|i| i.key_pressed(egui::Key::Space));
+        ui.horizontal(|ui| {
+            let label = if s.playing {
+                "Pause (Space)"
+            } else {
+                "Play (Space)"
+            };
+            if ui.button(label).clicked() || space {
+                s.playing = !s.playing;
+            }
+            ui.label(format!("x{scale} (scene.time_scale)"));
+        });
+        let mut t = if duration > 0.0 {
+            s.scene_time.rem_euclid(duration)
+        } else {
+            s.scene_time
+        };
+        let slider =
+            ui.add(egui::Slider::new(&mut t, 0.0..=duration.max(1e-3)).text("scene time (s)"));
+        // Only the user's scrub (a slider also reports a change when it clamps the value).
+        if slider.changed() && (slider.dragged() || slider.has_focus()) {
+            s.playing = false;
+            s.set_scene_time(t);
+        }
+        if scale == 0.0 {
+            ui.label("time_scale is 0: the slider poses the scene; Play plays it at x0 (set scene.time_scale)");
+        }
+    }
+}
+
+/// The layout and, per pane, its technique, display and debug view.
+fn view_section(s: &mut Session, ui: &mut egui::Ui) {
+    ui.separator();
+    ui.heading("View");
+    ui.horizontal_wrapped(|ui| {
+        for l in Layout::ALL {
+            ui.radio_value(&mut s.layout, l, l.label());
+        }
+    });
+    let labels: Vec<String> = s.runs.iter().map(|r| r.label().to_string()).collect();
+    for i in 0..s.layout.pane_count() {
+        let pane = &mut s.panes[i];
+        ui.horizontal(|ui| {
+            egui::ComboBox::from_label(format!("Pane {} technique", i + 1))
+                .selected_text(labels.get(pane.run).cloned().unwrap_or_default())
+                .show_ui(ui, |ui| {
+                    for (k, l) in labels.iter().enumerate() {
+                        ui.selectable_value(&mut pane.run, k, l);
+                    }
+                });
+        });
+        egui::ComboBox::from_label(format!("Pane {} display", i + 1))
+            .selected_text(pane.display.label())
+            .show_ui(ui, |ui| {
+                for m in DisplayMode::ALL {
+                    ui.selectable_value(&mut pane.display, m, m.label());
+                }
+            });
+        if pane.display == DisplayMode::Debug {
+            let views = s.runs[pane.run].engine.technique.debug_views();
+            if views.is_empty() {
+                ui.small("this technique has no debug views");
+            } else {
+                egui::ComboBox::from_label(format!("Pane {} debug view", i + 1))
+                    .selected_text(views.get(pane.debug).map_or("?", |v| v.name))
+                    .show_ui(ui, |ui| {
+                        for (k, v) in views.iter().enumerate() {
+                            ui.selectable_value(&mut pane.debug, k, v.name);
+                        }
+                    });
+            }
+        }
+    }
+}
+
+/// Tonemapping: operator, exposure, the GT curve's sliders and the zone view.
+fn display_section(s: &mut Session, ui: &mut egui::Ui) {
+    ui.separator();
+    ui.heading("Display");
+    let tm = &mut s.preset.preset.tonemap;
+    egui::ComboBox::from_label("Tonemapper")
+        .selected_text(tm.operator.label())
+        .show_ui(ui, |ui| {
+            for op in Operator::ALL {
+                ui.selectable_value(&mut tm.operator, op, op.label());
+            }
+        });
+    ui.add(egui::Slider::new(&mut tm.exposure, -10.0..=10.0).text("Exposure (EV)"));
+    if tm.operator == Operator::Gt {
+        gt_sliders(ui, &mut tm.gt);
+    }
+    egui::ComboBox::from_label("Zone view")
+        .selected_text(tm.view.label())
+        .show_ui(ui, |ui| {
+            for v in View::ALL {
+                ui.selectable_value(&mut tm.view, v, v.label());
+            }
+        })
+        .response
+        .on_hover_text(
+            "17 zones one stop apart, labelled by EV from zone 8, which is 18% grey after exposure. \
+             Regions: toe blue, linear grey, shoulder red.",
+        );
 }
 
 enum Action {

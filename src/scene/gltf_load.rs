@@ -115,78 +115,8 @@ fn load_inner(path: &Path, environment: bool, pose: Option<&PoseRequest>) -> Res
     );
     let file = path.display().to_string();
 
-    // Lenient: an image that cannot be read is skipped (its textures fall back to the factors)
-    // with a warning naming it, instead of refusing the whole scene.
-    // Images no used material reads are not decoded.
-    let mut texture_of_image = Vec::new();
-    for image in doc.images() {
-        if !usage.uses("images", image.index()) {
-            texture_of_image.push(None);
-            continue;
-        }
-        let loaded = gltf::image::Data::from_source(image.source(), base, &buffers)
-            .map_err(|e| anyhow!("{e}"))
-            .and_then(|img| to_rgba8(&img));
-        match loaded {
-            Ok(t) => {
-                texture_of_image.push(Some(scene.textures.len()));
-                scene.textures.push(t);
-            }
-            Err(e) => {
-                let from = match image.source() {
-                    gltf::image::Source::Uri { uri, .. } if !uri.starts_with("data:") => {
-                        format!(" from '{uri}'")
-                    }
-                    _ => String::new(),
-                };
-                log::warn!(
-                    "{file}: image {} ('{}'){from} skipped: {e:#}; textures using it fall back to their factors",
-                    image.index(),
-                    image.name().unwrap_or("unnamed")
-                );
-                texture_of_image.push(None);
-            }
-        }
-    }
-    for m in doc.materials() {
-        let i = m.index().expect("a material of the document has an index");
-        // Only a valid material's texture indices may be followed.
-        let reads_dropped = || {
-            let pbr = m.pbr_metallic_roughness();
-            [
-                pbr.base_color_texture().map(|t| t.texture().index()),
-                pbr.metallic_roughness_texture()
-                    .map(|t| t.texture().index()),
-                m.normal_texture().map(|t| t.texture().index()),
-                m.occlusion_texture().map(|t| t.texture().index()),
-                m.emissive_texture().map(|t| t.texture().index()),
-            ]
-            .into_iter()
-            .flatten()
-            .any(|t| usage.dropped("textures", t))
-        };
-        if usage.dropped("materials", i) || reads_dropped() {
-            // Unused (validation refused the file otherwise): a placeholder keeps the indices.
-            let name = m.name().unwrap_or("unnamed");
-            log::warn!(
-                "{file}: material {i} ('{name}') is unused and invalid or reads an invalid texture: read as plain white"
-            );
-            scene.materials.push(Material::lambert(name, Vec3::ONE));
-            continue;
-        }
-        scene
-            .materials
-            .push(read_material(&m, &texture_of_image, &file)?);
-    }
-    // Primitives without a material get glTF's default material (appended last).
-    let default_material = scene.materials.len() as u32;
-    scene.materials.push(Material {
-        base_color: Vec4::ONE,
-        metallic: 1.0,
-        roughness: 1.0,
-        specular: 1.0,
-        ..Material::lambert("gltf default", Vec3::ONE)
-    });
+    let texture_of_image = read_images(&doc, &usage, base, &buffers, &mut scene, &file);
+    let default_material = read_materials(&doc, &usage, &texture_of_image, &mut scene, &file)?;
 
     let gltf_scene = doc
         .default_scene()
@@ -383,6 +313,104 @@ fn load_inner(path: &Path, environment: bool, pose: Option<&PoseRequest>) -> Res
     }
     scene.validate()?;
     Ok(scene)
+}
+
+/// The images the used materials read, decoded into `scene.textures`: per glTF image, its
+/// texture index, or None (unused, or unreadable: skipped with a warning naming it, so its
+/// textures fall back to their factors instead of refusing the scene).
+fn read_images(
+    doc: &gltf::Document,
+    usage: &Usage,
+    base: Option<&Path>,
+    buffers: &[gltf::buffer::Data],
+    scene: &mut Scene,
+    file: &str,
+) -> Vec<Option<usize>> {
+    // Lenient: an image that cannot be read is skipped (its textures fall back to the factors)
+    // with a warning naming it, instead of refusing the whole scene.
+    // Images no used material reads are not decoded.
+    let mut texture_of_image = Vec::new();
+    for image in doc.images() {
+        if !usage.uses("images", image.index()) {
+            texture_of_image.push(None);
+            continue;
+        }
+        let loaded = gltf::image::Data::from_source(image.source(), base, buffers)
+            .map_err(|e| anyhow!("{e}"))
+            .and_then(|img| to_rgba8(&img));
+        match loaded {
+            Ok(t) => {
+                texture_of_image.push(Some(scene.textures.len()));
+                scene.textures.push(t);
+            }
+            Err(e) => {
+                let from = match image.source() {
+                    gltf::image::Source::Uri { uri, .. } if !uri.starts_with("data:") => {
+                        format!(" from '{uri}'")
+                    }
+                    _ => String::new(),
+                };
+                log::warn!(
+                    "{file}: image {} ('{}'){from} skipped: {e:#}; textures using it fall back to their factors",
+                    image.index(),
+                    image.name().unwrap_or("unnamed")
+                );
+                texture_of_image.push(None);
+            }
+        }
+    }
+    texture_of_image
+}
+
+/// The materials into `scene.materials` (an unused, invalid one as plain white, so indices hold),
+/// then glTF's default material, whose index is returned.
+fn read_materials(
+    doc: &gltf::Document,
+    usage: &Usage,
+    texture_of_image: &[Option<usize>],
+    scene: &mut Scene,
+    file: &str,
+) -> Result<u32> {
+    for m in doc.materials() {
+        let i = m.index().expect("a material of the document has an index");
+        // Only a valid material's texture indices may be followed.
+        let reads_dropped = || {
+            let pbr = m.pbr_metallic_roughness();
+            [
+                pbr.base_color_texture().map(|t| t.texture().index()),
+                pbr.metallic_roughness_texture()
+                    .map(|t| t.texture().index()),
+                m.normal_texture().map(|t| t.texture().index()),
+                m.occlusion_texture().map(|t| t.texture().index()),
+                m.emissive_texture().map(|t| t.texture().index()),
+            ]
+            .into_iter()
+            .flatten()
+            .any(|t| usage.dropped("textures", t))
+        };
+        if usage.dropped("materials", i) || reads_dropped() {
+            // Unused (validation refused the file otherwise): a placeholder keeps the indices.
+            let name = m.name().unwrap_or("unnamed");
+            log::warn!(
+                "{file}: material {i} ('{name}') is unused and invalid or reads an invalid texture: read as plain white"
+            );
+            scene.materials.push(Material::lambert(name, Vec3::ONE));
+            continue;
+        }
+        scene
+            .materials
+            .push(read_material(&m, texture_of_image, file)?);
+    }
+    // Primitives without a material get glTF's default material (appended last).
+    let default_material = scene.materials.len() as u32;
+    scene.materials.push(Material {
+        base_color: Vec4::ONE,
+        metallic: 1.0,
+        roughness: 1.0,
+        specular: 1.0,
+        ..Material::lambert("gltf default", Vec3::ONE)
+    });
+    Ok(default_material)
 }
 
 /// A node's own transform. TRS nodes go through [`Trs::matrix`], as animated ones do, so a pose
