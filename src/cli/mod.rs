@@ -92,6 +92,30 @@ pub enum Command {
         #[command(flatten)]
         overrides: Overrides,
     },
+    /// Runs a study (e.g. presets/studies/headline.toml): every scene's families at their
+    /// settings as real-time renderers, scored per frame against references; writes one report
+    /// folder (summary, Pareto plots, tables per budget, equal-time images, bias table, CSV,
+    /// JSON).
+    Study {
+        /// Study file.
+        file: PathBuf,
+        /// Output folder (default: out/study/<study name>).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Image size of every scene: N or WxH (default: the study's).
+        #[arg(long)]
+        size: Option<String>,
+        /// Multiplies every frame-time budget: a CPU device (lavapipe) at a small size needs
+        /// budgets about 50× a GPU's at 1080p.
+        #[arg(long, default_value_t = 1.0)]
+        budget_scale: f64,
+        /// Reference cache folder.
+        #[arg(long, default_value = "cache/reference")]
+        cache: PathBuf,
+        /// No progress bars or per-scene lines (each scene's converge tables still print).
+        #[arg(long)]
+        quiet: bool,
+    },
     /// Error of image A against reference B (linear HDR): MSE, relMSE, SMAPE, and LDR-FLIP
     /// after the default display transform (ACES, 0 EV).
     Compare { image: PathBuf, reference: PathBuf },
@@ -240,6 +264,34 @@ pub fn run(cli: Cli) -> Result<()> {
                 quiet: false,
             };
             run::converge(gpu, &p, &opts)?;
+            println!("report: {}", out.join("report.md").display());
+            Ok(())
+        }
+        Some(Command::Study {
+            file,
+            out,
+            size,
+            budget_scale,
+            cache,
+            quiet,
+        }) => {
+            use crate::experiment::study;
+            let size = size.as_deref().map(crate::preset::parse_size).transpose()?;
+            let s = study::Study::load(&file, size, budget_scale)?;
+            let gpu = std::sync::Arc::new(Gpu::new(cli.backend)?);
+            if !quiet {
+                println!("adapter: {}", gpu.summary);
+            }
+            let out = out.unwrap_or_else(|| PathBuf::from("out/study").join(&s.name));
+            let opts = study::StudyOptions {
+                out: out.clone(),
+                cache,
+                quiet,
+            };
+            let report = study::run_study(gpu, &s, &opts)?;
+            if !quiet {
+                println!("study took {:.0} s", report.header.wall_seconds);
+            }
             println!("report: {}", out.join("report.md").display());
             Ok(())
         }

@@ -10,5 +10,6 @@ pub mod report;
 pub mod rows;
 pub mod run;
 pub mod spec;
+pub mod study;
 
 pub use spec::{CameraKey, Event, ExperimentSettings, Metric, Mode, Shard, Sweep};

@@ -23,9 +23,9 @@ pub const FILES: [(&str, &str); 4] = [
     ),
 ];
 
-const SIZE: (u32, u32) = (960, 640);
+pub(crate) const SIZE: (u32, u32) = (960, 640);
 
-fn register_font() {
+pub(crate) fn register_font() {
     static ONCE: std::sync::Once = std::sync::Once::new();
     ONCE.call_once(|| {
         // A bundled TTF cannot fail to parse; if it did, plots would lose only their text.
@@ -37,12 +37,12 @@ fn register_font() {
     });
 }
 
-fn err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
+pub(crate) fn err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
     anyhow!("plot: {e:?}")
 }
 
 /// Positive finite range padded to whole decades, for a log axis.
-fn log_range(values: impl Iterator<Item = f64>) -> Option<std::ops::Range<f64>> {
+pub(crate) fn log_range(values: impl Iterator<Item = f64>) -> Option<std::ops::Range<f64>> {
     let (mut lo, mut hi) = (f64::MAX, f64::MIN);
     for v in values.filter(|v| v.is_finite() && *v > 0.0) {
         lo = lo.min(v);
@@ -54,12 +54,12 @@ fn log_range(values: impl Iterator<Item = f64>) -> Option<std::ops::Range<f64>> 
 }
 
 /// Tableau 10: distinct on white, unlike plotters' default palette's pale yellows.
-fn colour(i: usize) -> RGBAColor {
+pub(crate) fn colour(i: usize) -> RGBAColor {
     let c = colorous::TABLEAU10[i % colorous::TABLEAU10.len()];
     RGBAColor(c.r, c.g, c.b, 1.0)
 }
 
-type Chart<'a, X, Y> = ChartContext<'a, BitMapBackend<'a>, Cartesian2d<X, Y>>;
+pub(crate) type Chart<'a, X, Y> = ChartContext<'a, BitMapBackend<'a>, Cartesian2d<X, Y>>;
 
 /// One line per run, in the run's colour, with its legend entry; `keep` drops points a log
 /// axis cannot show.
@@ -86,7 +86,7 @@ where
     Ok(())
 }
 
-fn legend<X: Ranged, Y: Ranged>(chart: &mut Chart<'_, X, Y>) -> Result<()> {
+pub(crate) fn legend<X: Ranged, Y: Ranged>(chart: &mut Chart<'_, X, Y>) -> Result<()> {
     chart
         .configure_series_labels()
         .background_style(WHITE.mix(0.85))
@@ -118,10 +118,10 @@ fn series(s: &Summary, rows: &[Row], x: impl Fn(&Row) -> f64, all_states: bool) 
         .collect()
 }
 
-type Root<'a> = DrawingArea<BitMapBackend<'a>, plotters::coord::Shift>;
+pub(crate) type Root<'a> = DrawingArea<BitMapBackend<'a>, plotters::coord::Shift>;
 
 /// Draws with `draw` on a white canvas and writes the PNG (an empty chart when no data).
-fn png(path: &Path, draw: impl FnOnce(&Root) -> Result<()>) -> Result<()> {
+pub(crate) fn png(path: &Path, draw: impl FnOnce(&Root) -> Result<()>) -> Result<()> {
     let mut buf = vec![255u8; (SIZE.0 * SIZE.1 * 3) as usize];
     {
         let root = BitMapBackend::with_buffer(&mut buf, SIZE).into_drawing_area();

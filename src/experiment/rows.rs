@@ -43,6 +43,10 @@ pub struct Row {
     pub rel_mse: f64,
     pub smape: f64,
     pub flip: f64,
+    /// Mean luminance of the frame over the reference's (1: no energy gained or lost); empty
+    /// where the reference is black.
+    #[serde(default)]
+    pub energy: Option<f64>,
     /// Real-time mode: mean change of the displayed luminance since the previous frame, over
     /// the pixels that reproject (camera motion undone); empty on the first frame.
     #[serde(default)]

@@ -833,6 +833,19 @@ fn masked_flip(
     Ok((mean(1), mean(0)))
 }
 
+/// Mean luminance of `image` over the reference's: the energy a frame gains or loses (None
+/// where the reference is black or either sum is not finite).
+pub fn energy_ratio(image: &Image, reference: &Image) -> Option<f64> {
+    let mean = |img: &Image| {
+        img.rgb
+            .chunks_exact(3)
+            .map(|c| crate::compare::tonemap::luminance([c[0], c[1], c[2]]) as f64)
+            .sum::<f64>()
+    };
+    let (a, b) = (mean(image), mean(reference));
+    (b > 0.0 && a.is_finite() && b.is_finite()).then(|| a / b)
+}
+
 /// One CSV row for a scored frame (the run's identity is filled in by `label_rows`).
 fn score_row(
     image: &Image,
@@ -886,6 +899,7 @@ fn score_row(
         rel_mse: m.rel_mse,
         smape: m.smape,
         flip,
+        energy: energy_ratio(image, reference),
         flicker: None,
         flicker_reference: None,
         scene_time: None,

@@ -400,7 +400,7 @@ pub struct LoadedPreset {
 pub const DEFAULT_PRESET: &str = include_str!("../../presets/cornell.toml");
 
 /// Formats a TOML error as `file:line:column: message` on one line.
-fn toml_error(path: &str, text: &str, e: &toml::de::Error) -> anyhow::Error {
+pub(crate) fn toml_error(path: &str, text: &str, e: &toml::de::Error) -> anyhow::Error {
     let msg = e.message().replace('\n', " ");
     match e.span() {
         Some(span) => {

@@ -6,7 +6,7 @@ use anyhow::{bail, Result};
 use glam::{Vec2, Vec3};
 
 pub const NAMES: &[(&str, &str)] = &[
-    ("cornell", "the classic Cornell box with a ceiling area light (Lambertian walls); `lamp` adds a small back-wall emitter (material `lamp`) of that radiance, 0 = off"),
+    ("cornell", "the classic Cornell box with a ceiling area light (Lambertian walls); `lamp` adds a small back-wall emitter (material `lamp`) of that radiance, 0 = off; `metal_boxes` makes both blocks GGX metal of base colour 1 at that roughness (the Mitsuba comparison's metal box)"),
     ("furnace", "closed sphere seen from inside, Lambertian albedo `albedo`, emission `emission`: radiance E/(1-a) everywhere"),
     ("many-lights", "a pillared hall lit by `lights` (default 1024) small coloured ceiling emitters: the many-light stress case"),
     ("thin-wall", "a sunlit exterior and a closed room of zero-thickness walls; `interior_light` 0 makes any light inside a leak"),
@@ -83,7 +83,17 @@ pub fn build(name: &str, params: &toml::Table) -> Result<Scene> {
                 p.known.push("lamp");
                 None
             };
-            cornell_with_lamp(lamp)
+            let mut scene = cornell_with_lamp(lamp);
+            if params.contains_key("metal_boxes") {
+                let roughness = p.f32("metal_boxes", 0.3)?;
+                if !(0.0..=1.0).contains(&roughness) {
+                    bail!("scene 'cornell': metal_boxes is a roughness in [0, 1], got {roughness}");
+                }
+                scene = with_metal_boxes(scene, roughness);
+            } else {
+                p.known.push("metal_boxes");
+            }
+            scene
         }
         "furnace" => {
             let albedo = p.f32("albedo", 0.8)?;
@@ -118,6 +128,20 @@ pub fn build(name: &str, params: &toml::Table) -> Result<Scene> {
     p.finish()?;
     scene.validate()?;
     Ok(scene)
+}
+
+/// The Cornell box's two blocks as GGX metal of base colour 1 (F = 1) at `roughness`: the metal
+/// box of the Mitsuba comparison (`tests/data/mitsuba/glossy.gltf`), as a scene parameter so that
+/// presets and studies can ask for it.
+pub fn with_metal_boxes(mut s: Scene, roughness: f32) -> Scene {
+    let metal = s.add_material(Material::glossy("metal", Vec3::ONE, 1.0, roughness));
+    for o in s.objects.iter().filter(|o| o.name.ends_with(" box")) {
+        let first = o.first_triangle as usize;
+        for m in &mut s.triangle_material[first..first + o.triangle_count as usize] {
+            *m = metal;
+        }
+    }
+    s
 }
 
 /// The Cornell box after the Cornell program's measured data (units: 1 = 100 mm), with the

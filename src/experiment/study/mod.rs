@@ -1,0 +1,298 @@
+//! `gilab study FILE`: what accuracy costs in time, for every family, in one command. Each
+//! scene of the study file is one real-time `converge` experiment (families × settings × with
+//! and without the denoiser, per-frame references); the study reads their outputs back and
+//! writes one report folder: a summary page, per scene the Pareto plots, a table per budget,
+//! the equal-time images with heatmaps and crops, a bias table across the effect scenes, and
+//! every number as CSV and JSON.
+
+pub mod analysis;
+pub mod figures;
+pub mod markdown;
+pub mod spec;
+
+pub use spec::{Study, StudyFile};
+
+use crate::experiment::run::{self, ConvergeOptions};
+use crate::gpu::Gpu;
+use analysis::SceneResult;
+use anyhow::{Context, Result};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+pub struct StudyOptions {
+    pub out: PathBuf,
+    pub cache: PathBuf,
+    pub quiet: bool,
+}
+
+/// Where and when the study ran: the report's header.
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
+pub struct Header {
+    pub study: String,
+    pub file: String,
+    pub file_sha256: String,
+    pub command: String,
+    pub date_utc: String,
+    pub git_commit: String,
+    pub adapter: crate::gpu::AdapterSummary,
+    /// Graphics clocks seen before and after the runs (MHz, or "unknown").
+    pub clocks: Vec<String>,
+    /// Runs whose clock check failed, of all runs.
+    pub clock_flagged: usize,
+    pub runs: usize,
+    /// Largest |drift| of the calibration kernel over a run.
+    pub max_clock_drift: f64,
+    pub size: [u32; 2],
+    pub frames: u32,
+    pub reference_every: u32,
+    pub reference_spp: u32,
+    pub budgets_ms: Vec<f64>,
+    pub metric: String,
+    pub wall_seconds: f64,
+    /// Scenes in the study file: more than `scenes` holds while the study runs, or when it was
+    /// cut short.
+    pub scenes_planned: usize,
+}
+
+/// `study.json`: the header and every scene's result.
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
+pub struct StudyReport {
+    pub header: Header,
+    pub scenes: Vec<SceneResult>,
+    /// Per scene and budget: the equal-time picture and its crops, relative to the report.
+    pub images: Vec<EqualTimeImage>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct EqualTimeImage {
+    pub scene: String,
+    pub budget_ms: f64,
+    pub image: String,
+    pub crops: String,
+    /// Per family, the run shown (its best within the budget).
+    pub runs: Vec<String>,
+    pub heatmap_log10_range: (f32, f32),
+    /// x, y, side of the crop in pixels.
+    pub crop: (u32, u32, u32),
+}
+
+/// Days since 1970-01-01 to a civil date (Howard Hinnant's algorithm): no date crate needed
+/// for one header line.
+fn date_utc() -> String {
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs()) as i64;
+    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1_460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    format!(
+        "{y:04}-{m:02}-{d:02} {:02}:{:02} UTC",
+        rem / 3600,
+        (rem % 3600) / 60
+    )
+}
+
+/// Runs every scene of the study and writes the report into `opts.out`.
+pub fn run_study(gpu: Arc<Gpu>, study: &Study, opts: &StudyOptions) -> Result<StudyReport> {
+    let started = std::time::Instant::now();
+    let s = &study.file.study;
+    std::fs::create_dir_all(&opts.out)
+        .with_context(|| format!("creating {}", opts.out.display()))?;
+    let mut scenes: Vec<SceneResult> = Vec::new();
+    let mut images = Vec::new();
+    let mut report = StudyReport::default();
+    let mut clocks = std::collections::BTreeSet::new();
+    let (mut runs, mut flagged, mut drift) = (0usize, 0usize, 0f64);
+    for (i, sc) in study.file.scenes.iter().enumerate() {
+        if !opts.quiet {
+            println!(
+                "study {}: scene {}/{} '{}'",
+                study.name,
+                i + 1,
+                study.file.scenes.len(),
+                sc.name
+            );
+        }
+        let p = study.scene_preset(sc)?;
+        let dir = opts.out.join("scenes").join(&sc.name);
+        std::fs::create_dir_all(&dir)?;
+        std::fs::write(dir.join("experiment.toml"), &p.text)?;
+        let summary = run::converge(
+            gpu.clone(),
+            &p,
+            &ConvergeOptions {
+                out: dir.clone(),
+                cache: opts.cache.clone(),
+                shard: None,
+                quiet: opts.quiet,
+            },
+        )
+        .with_context(|| format!("scene '{}'", sc.name))?;
+        let (summary_back, rows) = run::read_output_dir(&dir)?;
+        debug_assert_eq!(summary.runs.len(), summary_back.runs.len());
+        for r in &summary.runs {
+            runs += 1;
+            flagged += usize::from(r.clock_check.flagged);
+            drift = drift.max(r.clock_check.drift.abs());
+            clocks.insert(r.clock_check.clock_before.clone());
+            clocks.insert(r.clock_check.clock_after.clone());
+        }
+        let names = study.run_names(sc);
+        let result = analysis::scene_result(study, sc, &names, &summary_back, &rows);
+        images.extend(scene_figures(study, &result, &summary_back, &opts.out)?);
+        scenes.push(result);
+        // The report so far: a study cut short (a device call's time limit) keeps its scenes.
+        let header = Header {
+            study: study.name.clone(),
+            file: study.path.display().to_string(),
+            file_sha256: run::sha256_hex(&std::fs::read_to_string(&study.path).unwrap_or_default()),
+            command: std::env::args().collect::<Vec<_>>().join(" "),
+            date_utc: date_utc(),
+            git_commit: run::git_commit(),
+            adapter: summary.adapter.clone(),
+            clocks: clocks.iter().cloned().collect(),
+            clock_flagged: flagged,
+            runs,
+            max_clock_drift: drift,
+            size: s.size,
+            frames: s.frames,
+            reference_every: s.reference_every,
+            reference_spp: s.reference_spp,
+            budgets_ms: s.budgets_ms.clone(),
+            metric: s.metric.name().to_string(),
+            wall_seconds: started.elapsed().as_secs_f64(),
+            scenes_planned: study.file.scenes.len(),
+        };
+        report = StudyReport {
+            header,
+            scenes: scenes.clone(),
+            images: images.clone(),
+        };
+        write_report(study, &report, &opts.out)?;
+        if !opts.quiet {
+            println!(
+                "study {}: scene '{}' done, {:.0} s so far",
+                study.name, sc.name, report.header.wall_seconds
+            );
+        }
+    }
+    Ok(report)
+}
+
+/// Per scene: the two Pareto plots and, per budget, the equal-time images.
+fn scene_figures(
+    study: &Study,
+    s: &SceneResult,
+    summary: &run::Summary,
+    out: &Path,
+) -> Result<Vec<EqualTimeImage>> {
+    let budgets = &study.file.study.budgets_ms;
+    let dir = out.join("scenes").join(&s.name);
+    figures::pareto(
+        &dir.join("study-pareto-rel_mse.png"),
+        s,
+        budgets,
+        "relMSE",
+        |r| r.rel_mse,
+    )?;
+    figures::pareto(
+        &dir.join("study-pareto-flip.png"),
+        s,
+        budgets,
+        "FLIP",
+        |r| r.flip,
+    )?;
+    // The reference of the last frame, which every run's last image is compared with.
+    let last = study.file.study.frames - 1;
+    let reference = summary
+        .references
+        .iter()
+        .find(|r| r.frame == Some(last))
+        .with_context(|| format!("scene '{}': no reference for frame {last}", s.name))?;
+    let reference = crate::compare::io::read_exr(Path::new(&reference.cache_file))
+        .with_context(|| format!("reading the reference {}", reference.cache_file))?;
+    let mut images = Vec::new();
+    for &b in budgets {
+        // Per family, its best run within the budget (with or without the denoiser).
+        let mut shown: Vec<(String, crate::compare::Image)> = Vec::new();
+        let mut labels = Vec::new();
+        for family in s
+            .bias
+            .iter()
+            .map(|x| x.family.clone())
+            .chain(s.runs.iter().map(|r| r.family.clone()))
+        {
+            if labels.iter().any(|(f, _): &(String, String)| *f == family) {
+                continue;
+            }
+            let best = s
+                .runs
+                .iter()
+                .filter(|r| r.family == family && r.ms_median <= b && r.error.is_some())
+                .min_by(|x, y| x.error.unwrap().total_cmp(&y.error.unwrap()));
+            if let Some(r) = best {
+                labels.push((family, r.label.clone()));
+                shown.push((
+                    format!("{} ({:.2} ms)", r.label, r.ms_median),
+                    figures::read_image(out, &r.image)?,
+                ));
+            }
+        }
+        if shown.is_empty() {
+            continue;
+        }
+        let stem = format!("equal-time-{}ms", budget_text(b));
+        let image = dir.join(format!("{stem}.png"));
+        let crops = dir.join(format!("{stem}-crops.png"));
+        let (range, crop) =
+            figures::equal_time(&image, &crops, &reference, &shown, &summary.tonemap)?;
+        images.push(EqualTimeImage {
+            scene: s.name.clone(),
+            budget_ms: b,
+            image: format!("scenes/{}/{stem}.png", s.name),
+            crops: format!("scenes/{}/{stem}-crops.png", s.name),
+            runs: labels.into_iter().map(|l| l.1).collect(),
+            heatmap_log10_range: range,
+            crop,
+        });
+    }
+    Ok(images)
+}
+
+/// A budget as file-name text: 4 → "4", 0.5 → "0.5".
+pub fn budget_text(b: f64) -> String {
+    let t = format!("{b}");
+    t.trim_end_matches(".0").to_string()
+}
+
+/// `report.md`, `study.json`, `runs.csv` and `budgets.csv`.
+fn write_report(study: &Study, report: &StudyReport, out: &Path) -> Result<()> {
+    std::fs::write(
+        out.join("study.json"),
+        serde_json::to_string_pretty(report)?,
+    )?;
+    let mut w = csv::Writer::from_path(out.join("runs.csv"))?;
+    for s in &report.scenes {
+        for r in &s.runs {
+            w.serialize(analysis::RunCsv::from(r))?;
+        }
+    }
+    w.flush()?;
+    let mut w = csv::Writer::from_path(out.join("budgets.csv"))?;
+    for s in &report.scenes {
+        for p in &s.picks {
+            w.serialize(p)?;
+        }
+    }
+    w.flush()?;
+    std::fs::write(out.join("report.md"), markdown::report(study, report))?;
+    Ok(())
+}

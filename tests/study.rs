@@ -1,0 +1,432 @@
+//! `gilab study` (issue 59): a tiny study (two scenes, three families, 32², four frames) writes a
+//! report with every table, plot and number, every number finite; its numbers are the ones
+//! `gilab converge` and `gilab bench --preset` give when run alone on the same settings; bad
+//! study files fail with one line that says where.
+
+use gilab::experiment::study::analysis;
+use gilab::experiment::study::StudyReport;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn gilab(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_gilab"))
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into(),
+        String::from_utf8_lossy(&out.stderr).into(),
+    )
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("gilab-study-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+const BUDGETS: [f64; 3] = [20.0, 80.0, 2000.0];
+
+/// Two scenes (the diffuse Cornell box and its metal-box variant at roughness 0.3), three
+/// families (the reference at 1 and 4 paths a frame, ReSTIR with and without the denoiser, the
+/// surfels on the diffuse box only).
+fn tiny_study(dir: &Path) -> PathBuf {
+    let presets = std::fs::canonicalize("presets").unwrap();
+    let text = format!(
+        r#"
+[study]
+size = [32, 32]
+frames = 4
+reference_every = 2
+reference_spp = 16
+budgets_ms = [20, 80, 2000]
+
+[[family]]
+label = "reference"
+technique = "reference"
+denoise = [false]
+[[family.variant]]
+name = "default"
+params = {{ samples_per_frame = 1 }}
+[[family.variant]]
+name = "rich"
+params = {{ samples_per_frame = 4 }}
+
+[[family]]
+label = "restir"
+technique = "restir"
+[[family.variant]]
+name = "default"
+
+[[family]]
+label = "surfels"
+technique = "surfels"
+denoise = [false]
+[[family.variant]]
+name = "default"
+
+[[scene]]
+name = "cornell"
+preset = "{0}/cornell.toml"
+effect = "diffuse"
+
+[[scene]]
+name = "metal"
+preset = "{0}/cornell.toml"
+effect = "metal 0.3"
+set = ["scene.params.metal_boxes=0.3"]
+families = ["reference", "restir"]
+"#,
+        presets.display()
+    );
+    let file = dir.join("tiny.toml");
+    std::fs::write(&file, text).unwrap();
+    file
+}
+
+fn png_size(path: &Path) -> (u32, u32) {
+    let img = image::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    (img.width(), img.height())
+}
+
+#[test]
+fn a_tiny_study_reports_every_table_plot_and_number_and_agrees_with_converge_and_bench() {
+    let dir = tmp("tiny");
+    let file = tiny_study(&dir);
+    let out = dir.join("out");
+    let cache = dir.join("cache");
+    let started = std::time::Instant::now();
+    let (ok, stdout, stderr) = gilab(&[
+        "study",
+        file.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--cache",
+        cache.to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert!(ok, "{stdout}\n{stderr}");
+    println!(
+        "tiny study: {:.1} s of wall time",
+        started.elapsed().as_secs_f64()
+    );
+    let report: StudyReport =
+        serde_json::from_str(&std::fs::read_to_string(out.join("study.json")).unwrap()).unwrap();
+    assert_eq!(report.header.budgets_ms, BUDGETS);
+    assert_eq!(report.header.runs, 5 + 4, "runs counted in the header");
+    assert!(!report.header.git_commit.is_empty() && !report.header.adapter.name.is_empty());
+    assert_eq!(report.scenes.len(), 2);
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    for heading in [
+        "# Study `tiny`",
+        "| adapter |",
+        "| clocks |",
+        "| commit |",
+        "| command |",
+        "| wall time |",
+        "## Summary",
+        "## Bias",
+        "## Scene: cornell (diffuse)",
+        "## Scene: metal (metal 0.3)",
+        "## Files",
+    ] {
+        assert!(md.contains(heading), "report.md lacks '{heading}'");
+    }
+    // Runs per scene: families × settings × denoiser.
+    let expected = [
+        (
+            "cornell",
+            vec![
+                "reference-default",
+                "reference-rich",
+                "restir-default",
+                "restir-default-denoised",
+                "surfels-default",
+            ],
+        ),
+        (
+            "metal",
+            vec![
+                "reference-default",
+                "reference-rich",
+                "restir-default",
+                "restir-default-denoised",
+            ],
+        ),
+    ];
+    for (s, (name, labels)) in report.scenes.iter().zip(&expected) {
+        assert_eq!(&s.name, name);
+        let got: Vec<&str> = s.runs.iter().map(|r| r.label.as_str()).collect();
+        assert_eq!(&got, labels);
+        let bad = analysis::non_finite_numbers(s);
+        assert!(bad.is_empty(), "non-finite numbers: {bad:?}");
+        for r in &s.runs {
+            assert!(
+                r.ms_median > 0.0 && r.rays_per_pixel_per_frame > 0.0,
+                "{r:?}"
+            );
+            assert!(
+                r.energy.is_some() && r.rel_mse.is_some() && r.flip.is_some(),
+                "{r:?}"
+            );
+            assert_eq!(r.scored_frames, 2, "{}: frames 1 and 3 scored", r.label);
+            assert!(!r.passes.is_empty(), "{}: per-pass ms", r.label);
+            assert!(
+                md.contains(&format!("| {} |", r.label)),
+                "{} not in the run table",
+                r.label
+            );
+            assert!(out.join(&r.image).exists(), "{}", r.image);
+        }
+        // Picks: one per budget and curve; winners: one per budget.
+        let curves = analysis::curves(&s.runs).len();
+        assert_eq!(s.picks.len(), BUDGETS.len() * curves, "{name}");
+        assert_eq!(s.winners.len(), BUDGETS.len(), "{name}");
+        // The largest budget fits every run: its winner has the lowest error of all.
+        let best = s
+            .runs
+            .iter()
+            .filter_map(|r| r.error)
+            .fold(f64::INFINITY, f64::min);
+        assert_eq!(s.winners[2].error, Some(best), "{name}: 2 s fits every run");
+        assert!(s.baseline.as_deref() == Some("reference-default"), "{name}");
+        let families = if *name == "cornell" { 3 } else { 2 };
+        assert_eq!(s.bias.len(), families, "{name}: one bias cell per family");
+        for plot in ["study-pareto-rel_mse.png", "study-pareto-flip.png"] {
+            let p = out.join("scenes").join(name).join(plot);
+            assert_eq!(png_size(&p), (960, 640), "{}", p.display());
+            assert!(
+                md.contains(&format!("scenes/{name}/{plot}")),
+                "{plot} not linked"
+            );
+        }
+        assert!(out
+            .join("scenes")
+            .join(name)
+            .join("experiment.toml")
+            .exists());
+    }
+    // The equal-time images: one per scene and budget where a run fits, with their crops.
+    assert!(report.images.len() >= 4, "{:?}", report.images);
+    for img in &report.images {
+        let (w, h) = png_size(&out.join(&img.image));
+        assert!(
+            w >= 192 * (img.runs.len() as u32 + 1) && h >= 2 * 192,
+            "{}",
+            img.image
+        );
+        let (cw, _) = png_size(&out.join(&img.crops));
+        assert!(cw >= 192 * (img.runs.len() as u32 + 1), "{}", img.crops);
+        assert!(md.contains(&img.image) && md.contains(&img.crops));
+        assert!(img.heatmap_log10_range.0 < img.heatmap_log10_range.1);
+    }
+    // Every number of the CSVs parses as a finite number (or is empty: not applicable).
+    for csv_file in ["runs.csv", "budgets.csv"] {
+        let mut r = csv::Reader::from_path(out.join(csv_file)).unwrap();
+        let headers = r.headers().unwrap().clone();
+        let mut rows = 0;
+        for rec in r.records() {
+            let rec = rec.unwrap();
+            rows += 1;
+            for (h, v) in headers.iter().zip(rec.iter()) {
+                if let Ok(x) = v.parse::<f64>() {
+                    assert!(x.is_finite(), "{csv_file}: {h} = {v}");
+                }
+            }
+        }
+        let want = if csv_file == "runs.csv" {
+            9
+        } else {
+            report.scenes.iter().map(|s| s.picks.len()).sum()
+        };
+        assert_eq!(rows, want, "{csv_file}");
+    }
+
+    // The same numbers from `gilab converge` run alone on the scene's experiment file: errors
+    // identical (the runs are deterministic), times within lavapipe's timing noise.
+    let alone = dir.join("alone");
+    let experiment = out.join("scenes/cornell/experiment.toml");
+    let (ok, stdout, stderr) = gilab(&[
+        "converge",
+        experiment.to_str().unwrap(),
+        "--out",
+        alone.to_str().unwrap(),
+        "--cache",
+        cache.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stdout}\n{stderr}");
+    let (summary, rows) = gilab::experiment::run::read_output_dir(&alone).unwrap();
+    let study_scene = &report.scenes[0];
+    for r in &study_scene.runs {
+        let s = summary
+            .runs
+            .iter()
+            .find(|s| s.spec.label == r.label)
+            .unwrap();
+        let mine: Vec<f64> = rows
+            .iter()
+            .filter(|x| x.run == s.spec.index)
+            .map(|x| x.rel_mse)
+            .collect();
+        let median = gilab::experiment::run::median(mine).unwrap();
+        println!(
+            "{}: relMSE study {:.6} alone {median:.6}; ms study {:.2} alone {:.2}",
+            r.label,
+            r.rel_mse.unwrap(),
+            r.ms_median,
+            s.gpu_ms_median
+        );
+        assert_eq!(r.rel_mse, Some(median), "{}: the same error", r.label);
+        assert_eq!(
+            r.rays_per_pixel_per_frame, s.rays_per_pixel_per_frame,
+            "{}: the same rays",
+            r.label
+        );
+        let ratio = r.ms_median / s.gpu_ms_median;
+        assert!(
+            (1.0 / 3.0..3.0).contains(&ratio),
+            "{}: study {:.2} ms against converge alone {:.2} ms",
+            r.label,
+            r.ms_median,
+            s.gpu_ms_median
+        );
+    }
+
+    // And `gilab bench --preset` on the same file: per-technique frame time.
+    let json = dir.join("bench.json");
+    let (ok, stdout, stderr) = gilab(&[
+        "bench",
+        "--preset",
+        experiment.to_str().unwrap(),
+        "--frames",
+        "4",
+        "--warmup",
+        "1",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stdout}\n{stderr}");
+    let bench: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let bench = bench["techniques"]
+        .as_array()
+        .expect("a list of techniques");
+    assert_eq!(bench.len(), study_scene.runs.len());
+    for (b, r) in bench.iter().zip(&study_scene.runs) {
+        let ms = b["frame_median_ms"].as_f64().unwrap();
+        println!("{}: ms study {:.2} bench {ms:.2}", r.label, r.ms_median);
+        assert_eq!(b["label"].as_str(), Some(r.label.as_str()));
+        let ratio = r.ms_median / ms;
+        assert!(
+            (1.0 / 3.0..3.0).contains(&ratio),
+            "{}: study {:.2} ms against bench {ms:.2} ms",
+            r.label,
+            r.ms_median
+        );
+    }
+}
+
+#[test]
+fn bad_study_files_fail_with_one_line_that_says_where() {
+    let dir = tmp("bad");
+    let good = std::fs::read_to_string(tiny_study(&dir)).unwrap();
+    let cases: Vec<(&str, String, &str)> = vec![
+        (
+            "syntax",
+            good.replace("frames = 4", "frames = = 4"),
+            "tiny.toml:4:",
+        ),
+        (
+            "frames",
+            good.replace("frames = 4", "frames = 5"),
+            "multiple of reference_every",
+        ),
+        (
+            "family",
+            good.replace(
+                r#"families = ["reference", "restir"]"#,
+                r#"families = ["lumen"]"#,
+            ),
+            "no family is labelled 'lumen'",
+        ),
+        (
+            "technique",
+            good.replace(r#"technique = "surfels""#, r#"technique = "surfel""#),
+            "family 'surfels'",
+        ),
+        (
+            "parameter",
+            good.replace("samples_per_frame = 4", "samples_per_frames = 4"),
+            "variant 'rich'",
+        ),
+        (
+            "scene parameter",
+            good.replace("metal_boxes=0.3", "metal_boxes=3"),
+            "scene 'metal'",
+        ),
+        (
+            "budget",
+            good.replace("[20, 80, 2000]", "[20, -1]"),
+            "budgets must be positive",
+        ),
+    ];
+    for (what, text, needle) in cases {
+        let f = dir.join("tiny.toml");
+        std::fs::write(&f, text).unwrap();
+        let (ok, _, stderr) = gilab(&["study", f.to_str().unwrap(), "--out", "/nonexistent/x"]);
+        assert!(!ok, "{what}: accepted");
+        assert!(!stderr.contains("panicked"), "{what}: {stderr}");
+        let errors: Vec<&str> = stderr.lines().filter(|l| l.starts_with("error")).collect();
+        assert!(
+            stderr.contains(needle),
+            "{what}: '{needle}' not in: {stderr}"
+        );
+        assert!(!errors.is_empty(), "{what}: {stderr}");
+    }
+}
+
+/// The shipped headline study parses and every family, setting and scene in it checks out
+/// (techniques, parameters, presets, scene parameters), at its own size and at a CPU's.
+#[test]
+fn the_headline_study_file_checks_out() {
+    use gilab::experiment::study::Study;
+    let path = Path::new("presets/studies/headline.toml");
+    let s = Study::load(path, None, 1.0).unwrap_or_else(|e| panic!("{e:#}"));
+    assert_eq!(s.file.study.size, [1920, 1080]);
+    assert_eq!(s.file.study.budgets_ms, [2.0, 4.0, 8.0, 16.0]);
+    let runs: usize = s.file.scenes.iter().map(|sc| s.run_names(sc).len()).sum();
+    let effects: Vec<&str> = s
+        .file
+        .scenes
+        .iter()
+        .filter_map(|sc| sc.effect.as_deref())
+        .collect();
+    println!(
+        "headline: {} scenes, {runs} runs; effects {effects:?}",
+        s.file.scenes.len()
+    );
+    for want in [
+        "cornell",
+        "many-lights",
+        "courtyard",
+        "metal",
+        "mirror",
+        "glossy",
+        "moving",
+    ] {
+        assert!(s.file.scenes.iter().any(|sc| sc.name == want), "{want}");
+    }
+    let small = Study::load(path, Some([128, 72]), 50.0).unwrap();
+    assert_eq!(small.file.study.budgets_ms, [100.0, 200.0, 400.0, 800.0]);
+    assert_eq!(
+        small
+            .scene_preset(&small.file.scenes[0])
+            .unwrap()
+            .preset
+            .render
+            .size,
+        [128, 72]
+    );
+}
