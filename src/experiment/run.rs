@@ -771,41 +771,63 @@ fn evaluate(
     };
     let (w, h) = (first.extent[0], first.extent[1]);
     copies.sort_by_key(|c| c.0);
+    // Read back in frame order, score the frames in parallel (errors, FLIP and the displayed
+    // luminance are per frame: on a many-core host this is most of a run's time after its
+    // frames), then join the order-dependent part (flicker against the previous frame).
+    let mut images = Vec::with_capacity(copies.len());
     for (frame, state, buffer) in copies.drain(..) {
         let px: Vec<[f32; 4]> = crate::gpu::readback::read_buffer(gpu, &buffer, (w * h) as usize)?;
-        let image = Image::from_rgba(w, h, &px);
-        let cost = costs
-            .iter()
-            .find(|c| c.0.report.frame_index == frame)
-            .context("a scored frame without its timing")?;
-        let Some(plan) = plan else {
-            let reference = states[state]
-                .reference
-                .as_ref()
-                .context("a scene state without its reference")?;
-            rows.push(score_row(&image, reference, tonemap, state, frame, cost)?);
-            *last_image = Some(image);
-            continue;
-        };
-        let luminance = realtime::display_luminance(&image, &tonemap);
-        if plan.frame_use(frame) == FrameUse::Scored {
+        images.push((frame, state, Image::from_rgba(w, h, &px)));
+    }
+    use rayon::prelude::*;
+    let scored: Vec<Result<ScoredFrame>> = images
+        .into_par_iter()
+        .map(|(frame, state, image)| {
+            let cost = costs
+                .iter()
+                .find(|c| c.0.report.frame_index == frame)
+                .context("a scored frame without its timing")?;
+            let Some(plan) = plan else {
+                let reference = states[state]
+                    .reference
+                    .as_ref()
+                    .context("a scene state without its reference")?;
+                let (row, _) = score_row(&image, reference, tonemap, state, frame, cost)?;
+                return Ok((frame, image, Some(row), None));
+            };
+            let luminance = realtime::display_luminance(&image, &tonemap);
+            if plan.frame_use(frame) != FrameUse::Scored {
+                return Ok((frame, image, None, Some(luminance)));
+            }
             let reference = plan
                 .references
                 .get(&frame)
                 .context("a scored frame without its reference")?;
-            let mut row = score_row(&image, reference, tonemap, state, frame, cost)?;
-            if let Some((_, prev)) = previous.as_ref().filter(|p| p.0 + 1 == frame) {
-                let map = plan.reprojection.get(&frame).and_then(|m| m.as_deref());
-                row.flicker = realtime::flicker(&luminance, prev, map);
-                row.flicker_reference = plan.reference_flicker.get(&frame).copied();
-            }
+            let (mut row, flip_map) = score_row(&image, reference, tonemap, state, frame, cost)?;
             if let Some(mask) = plan.ghost_masks.get(&frame) {
-                let (ghost, rest) = masked_flip(&image, reference, tonemap, mask)?;
+                let (ghost, rest) = masked_mean(&flip_map, mask);
                 row.ghost_pixels = mask.iter().filter(|m| **m).count() as u32;
                 row.ghost_flip = ghost;
                 row.rest_flip = rest;
             }
             row.scene_time = plan.scene_times.get(&frame).map(|t| *t as f64);
+            Ok((frame, image, Some(row), Some(luminance)))
+        })
+        .collect();
+    for done in scored {
+        let (frame, image, row, luminance) = done?;
+        let Some(luminance) = luminance else {
+            rows.extend(row);
+            *last_image = Some(image);
+            continue;
+        };
+        if let Some(mut row) = row {
+            let plan = plan.context("a real-time frame without its plan")?;
+            if let Some((_, prev)) = previous.as_ref().filter(|p| p.0 + 1 == frame) {
+                let map = plan.reprojection.get(&frame).and_then(|m| m.as_deref());
+                row.flicker = realtime::flicker(&luminance, prev, map);
+                row.flicker_reference = plan.reference_flicker.get(&frame).copied();
+            }
             rows.push(row);
             *last_image = Some(image);
         }
@@ -814,23 +836,21 @@ fn evaluate(
     Ok(())
 }
 
+/// A frame after scoring: its image, its row (frames scored against a reference) and its
+/// displayed luminance (real-time mode, for flicker).
+type ScoredFrame = (u32, Image, Option<Row>, Option<Vec<f32>>);
+
 /// Mean FLIP over the pixels of `mask` and over the others (None where a side has no pixel).
 /// FLIP rather than relMSE: bounded per pixel, so one firefly does not decide a ghost.
-fn masked_flip(
-    image: &Image,
-    reference: &Image,
-    tonemap: crate::compare::tonemap::Settings,
-    mask: &[bool],
-) -> Result<(Option<f64>, Option<f64>)> {
-    let map = flip::ldr_flip_map(image, reference, &tonemap)?;
+fn masked_mean(flip_map: &[f32], mask: &[bool]) -> (Option<f64>, Option<f64>) {
     let (mut sums, mut counts) = ([0.0f64; 2], [0usize; 2]);
-    for (e, m) in map.iter().zip(mask) {
+    for (e, m) in flip_map.iter().zip(mask) {
         let side = usize::from(*m);
         sums[side] += *e as f64;
         counts[side] += 1;
     }
     let mean = |k: usize| (counts[k] > 0).then(|| sums[k] / counts[k] as f64);
-    Ok((mean(1), mean(0)))
+    (mean(1), mean(0))
 }
 
 /// Mean luminance of `image` over the reference's: the energy a frame gains or loses (None
@@ -846,7 +866,8 @@ pub fn energy_ratio(image: &Image, reference: &Image) -> Option<f64> {
     (b > 0.0 && a.is_finite() && b.is_finite()).then(|| a / b)
 }
 
-/// One CSV row for a scored frame (the run's identity is filled in by `label_rows`).
+/// One CSV row for a scored frame (the run's identity is filled in by `label_rows`), and the
+/// frame's FLIP map (its mean is the row's `flip`).
 fn score_row(
     image: &Image,
     reference: &Image,
@@ -854,9 +875,11 @@ fn score_row(
     state: usize,
     frame: u32,
     cost: &(crate::render::engine::FrameResult, f64, f64),
-) -> Result<Row> {
+) -> Result<(Row, Vec<f32>)> {
     let m = metrics::compare(image, reference)?;
-    let flip = flip::ldr_flip(image, reference, &tonemap)?;
+    // flip::ldr_flip's mean, from the map kept for the ghost masks.
+    let flip_map = flip::ldr_flip_map(image, reference, &tonemap)?;
+    let flip = flip_map.iter().map(|&v| v as f64).sum::<f64>() / flip_map.len().max(1) as f64;
     let (done, gpu_cum, wall_cum) = cost;
     let rays = &done.rays;
     let pixels = (image.width * image.height) as f64;
@@ -867,7 +890,7 @@ fn score_row(
             .map_or(0, |i| rays.by_kind[i])
     };
     let report = &done.report;
-    Ok(Row {
+    let row = Row {
         run: 0,
         label: String::new(),
         technique: String::new(),
@@ -912,7 +935,8 @@ fn score_row(
             .map(|(n, ms)| format!("{n}={ms:.4}"))
             .collect::<Vec<_>>()
             .join(";"),
-    })
+    };
+    Ok((row, flip_map))
 }
 
 /// Merges shard folders into one output: checks they come from the same experiment, joins

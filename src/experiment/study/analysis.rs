@@ -216,19 +216,18 @@ pub fn scene_result(
             });
         }
     }
-    let baseline = runs
+    // The reference technique at one path per pixel a frame, without the denoiser.
+    let baseline = summary
+        .runs
         .iter()
-        .find(|r| {
-            r.family == "reference"
-                && !r.denoise
-                && summary
-                    .runs
-                    .iter()
-                    .find(|s| s.spec.label == r.label)
-                    .and_then(|s| s.params.get("samples_per_frame"))
-                    .and_then(|v| v.as_integer())
-                    == Some(1)
+        .filter(|s| s.spec.technique == "reference" && !s.spec.denoise)
+        .find(|s| {
+            s.params
+                .get("samples_per_frame")
+                .and_then(|v| v.as_integer())
+                == Some(1)
         })
+        .and_then(|s| runs.iter().find(|r| r.label == s.spec.label))
         .map(|r| r.label.clone());
     SceneResult {
         name: sc.name.clone(),

@@ -54,11 +54,14 @@ pub fn report(study: &Study, r: &StudyReport) -> String {
     let h = &r.header;
     let mut md = String::new();
     let _ = writeln!(md, "# Study `{}`: what accuracy costs in time\n", h.study);
-    if r.scenes.len() < h.scenes_planned {
+    for (scene, why) in &r.failed {
+        let _ = writeln!(md, "> **Scene `{scene}` failed:** {why}\n");
+    }
+    if r.scenes.len() + r.failed.len() < h.scenes_planned {
         let _ = writeln!(
             md,
             "> **Partial:** {} of the study's {} scenes are done (the study is running, or was cut short).\n",
-            r.scenes.len(),
+            r.scenes.len() + r.failed.len(),
             h.scenes_planned
         );
     }

@@ -62,6 +62,9 @@ pub struct StudyReport {
     pub scenes: Vec<SceneResult>,
     /// Per scene and budget: the equal-time picture and its crops, relative to the report.
     pub images: Vec<EqualTimeImage>,
+    /// Scenes that failed, with why.
+    #[serde(default)]
+    pub failed: Vec<(String, String)>,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -125,19 +128,25 @@ pub fn run_study(gpu: Arc<Gpu>, study: &Study, opts: &StudyOptions) -> Result<St
         let dir = opts.out.join("scenes").join(&sc.name);
         std::fs::create_dir_all(&dir)?;
         std::fs::write(dir.join("experiment.toml"), &p.text)?;
-        let summary = run::converge(
-            gpu.clone(),
-            &p,
-            &ConvergeOptions {
-                out: dir.clone(),
-                cache: opts.cache.clone(),
-                shard: None,
-                quiet: opts.quiet,
-            },
-        )
-        .with_context(|| format!("scene '{}'", sc.name))?;
-        let (summary_back, rows) = run::read_output_dir(&dir)?;
-        debug_assert_eq!(summary.runs.len(), summary_back.runs.len());
+        let options = ConvergeOptions {
+            out: dir.clone(),
+            cache: opts.cache.clone(),
+            shard: None,
+            quiet: opts.quiet,
+        };
+        // A scene that fails (a technique refusing the scene, a GPU fault) is reported and the
+        // study goes on: a long device run keeps the other scenes.
+        let done =
+            run::converge(gpu.clone(), &p, &options).and_then(|_| run::read_output_dir(&dir));
+        let (summary, rows) = match done {
+            Ok(x) => x,
+            Err(e) => {
+                let why = format!("{e:#}");
+                eprintln!("study {}: scene '{}' failed: {why}", study.name, sc.name);
+                report.failed.push((sc.name.clone(), why));
+                continue;
+            }
+        };
         for r in &summary.runs {
             runs += 1;
             flagged += usize::from(r.clock_check.flagged);
@@ -146,8 +155,13 @@ pub fn run_study(gpu: Arc<Gpu>, study: &Study, opts: &StudyOptions) -> Result<St
             clocks.insert(r.clock_check.clock_after.clone());
         }
         let names = study.run_names(sc);
-        let result = analysis::scene_result(study, sc, &names, &summary_back, &rows);
-        images.extend(scene_figures(study, &result, &summary_back, &opts.out)?);
+        let result = analysis::scene_result(study, sc, &names, &summary, &rows);
+        match scene_figures(study, &result, &summary, &opts.out) {
+            Ok(v) => images.extend(v),
+            Err(e) => report
+                .failed
+                .push((sc.name.clone(), format!("its figures: {e:#}"))),
+        }
         scenes.push(result);
         // The report so far: a study cut short (a device call's time limit) keeps its scenes.
         let header = Header {
@@ -175,6 +189,7 @@ pub fn run_study(gpu: Arc<Gpu>, study: &Study, opts: &StudyOptions) -> Result<St
             header,
             scenes: scenes.clone(),
             images: images.clone(),
+            failed: std::mem::take(&mut report.failed),
         };
         write_report(study, &report, &opts.out)?;
         if !opts.quiet {
@@ -184,6 +199,20 @@ pub fn run_study(gpu: Arc<Gpu>, study: &Study, opts: &StudyOptions) -> Result<St
             );
         }
     }
+    if !report.failed.is_empty() && !report.scenes.is_empty() {
+        // The last word on failures, when the last scene was one.
+        write_report(study, &report, &opts.out)?;
+    }
+    anyhow::ensure!(
+        !report.scenes.is_empty(),
+        "every scene failed: {}",
+        report
+            .failed
+            .iter()
+            .map(|(s, e)| format!("{s}: {e}"))
+            .collect::<Vec<_>>()
+            .join("; ")
+    );
     Ok(report)
 }
 
