@@ -430,3 +430,74 @@ fn the_headline_study_file_checks_out() {
         [128, 72]
     );
 }
+
+/// A scene that fails while it runs (here: camera keys out of order, which only the experiment
+/// checks) is reported in the study's report, and the other scenes still run.
+#[test]
+fn a_failing_scene_is_reported_and_the_study_goes_on() {
+    let dir = tmp("failing");
+    let presets = std::fs::canonicalize("presets").unwrap();
+    let text = format!(
+        r#"
+[study]
+size = [16, 16]
+frames = 2
+reference_every = 2
+reference_spp = 4
+budgets_ms = [1000]
+denoise = [false]
+
+[[family]]
+label = "reference"
+technique = "reference"
+[[family.variant]]
+name = "default"
+params = {{ samples_per_frame = 1 }}
+
+[[scene]]
+name = "bad"
+preset = "{0}/cornell.toml"
+[[scene.camera]]
+frame = 1
+position = [2.78, 2.73, -8.0]
+target = [2.78, 2.73, 2.8]
+[[scene.camera]]
+frame = 0
+position = [2.78, 2.73, -7.0]
+target = [2.78, 2.73, 2.8]
+
+[[scene]]
+name = "good"
+preset = "{0}/cornell.toml"
+"#,
+        presets.display()
+    );
+    let file = dir.join("failing.toml");
+    std::fs::write(&file, text).unwrap();
+    let out = dir.join("out");
+    let (ok, stdout, stderr) = gilab(&[
+        "study",
+        file.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--cache",
+        dir.join("cache").to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert!(ok, "one scene ran: the study succeeds\n{stdout}\n{stderr}");
+    assert!(stderr.contains("scene 'bad' failed"), "{stderr}");
+    let report: StudyReport =
+        serde_json::from_str(&std::fs::read_to_string(out.join("study.json")).unwrap()).unwrap();
+    assert_eq!(report.scenes.len(), 1);
+    assert_eq!(report.scenes[0].name, "good");
+    assert_eq!(report.failed.len(), 1);
+    assert_eq!(report.failed[0].0, "bad");
+    assert!(
+        report.failed[0].1.contains("frame order"),
+        "{:?}",
+        report.failed
+    );
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(md.contains("Scene `bad` failed"), "{md}");
+    assert!(!md.contains("Partial"), "every scene was tried: {md}");
+}
