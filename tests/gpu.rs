@@ -318,7 +318,7 @@ fn welford_variance_matches_cpu() {
 /// `engines_share_pipelines_until_a_source_changes`).
 #[test]
 fn parameter_changes_rebuild_no_pipeline() {
-    use gilab::render::pipelines::pipelines_requested;
+    use gilab::render::pipelines::{pipelines_requested, recording_entries};
     let changes: [(&str, toml::Table); 3] = [
         (
             "surfels",
@@ -363,32 +363,56 @@ fn parameter_changes_rebuild_no_pipeline() {
             before,
             "{name}: a parameter change compiled pipelines"
         );
-        engine.rebuild().unwrap();
+        // A rebuild (hot reload) asks again for every pipeline the engine has built: the
+        // entry files it records are exactly those it compiles, and they are what hot reload
+        // watches (`Engine::uses_any_shader`).
+        let recorded = engine.shader_entries().clone();
+        let ((), rebuilt_entries) = recording_entries(|| engine.rebuild().unwrap());
         let rebuilt = pipelines_requested() - before;
-        // The technique's pipelines, and the engine's primary-surface pass when it runs.
-        let mut expected = engine.technique.shader_files().len()
-            + engine.technique.inputs().primary_surfaces as usize;
-        if name == "surfels" {
-            // scan.wgsl holds three entry points; the direct-light part's files (src/parts/)
-            // are listed for hot reload but compiled only with `direct = "restir"`.
-            expected += 2;
-            expected -= gilab::parts::restir_direct::SHADER_FILES.len();
-        }
-        if name == "surfels" || name == "lumen" {
-            // The world ReGIR part's build is compiled only with `cache_direct = "regir"`.
-            expected -= gilab::parts::world_regir::SHADER_FILES.len();
-        }
-        if name == "restir" {
-            // The cache parts' files are listed for hot reload but compiled only with
-            // `gi_terminate = "lumen-cards"` or `"surfels"`.
-            expected -= gilab::parts::surface_cache::SURFACE_CACHE_FILES.len();
-            expected -= gilab::techniques::surfels::SURFEL_CACHE_FILES.len();
-        }
         assert_eq!(
-            rebuilt as usize, expected,
-            "{name}: a rebuild compiles every pipeline"
+            rebuilt_entries, recorded,
+            "{name}: the rebuild compiled other entry files than the engine recorded"
         );
+        assert!(
+            rebuilt as usize >= recorded.len(),
+            "{name}: {rebuilt} pipelines for {} entry files",
+            recorded.len()
+        );
+        let known = gilab::gpu::shaders::ShaderLibrary::discover()
+            .entry_files()
+            .unwrap();
+        for f in &recorded {
+            assert!(known.contains(f), "{name}: {f} is not an entry file");
+        }
     }
+}
+
+/// Hot reload rebuilds an engine when a file it compiled changes, and only then: the entry
+/// files are recorded as pipelines are built, so a part switched on by a parameter (ReSTIR GI
+/// paths ending in the surface cache) and the denoiser join the list when they are built.
+#[test]
+fn hot_reload_watches_what_the_engine_compiled() {
+    let mut engine = common::engine(
+        "restir",
+        toml::Table::new(),
+        builtin::cornell(),
+        [16, 16],
+        1,
+    );
+    let uses = |e: &gilab::render::engine::Engine, f: &str| e.uses_any_shader(&[f.to_string()]);
+    let cache = "parts/surface_cache/direct.wgsl";
+    assert!(uses(&engine, "restir/shade.wgsl"));
+    assert!(uses(&engine, gilab::render::primary::ENTRY));
+    assert!(!uses(&engine, cache), "the surface cache is not built yet");
+    assert!(!uses(&engine, gilab::render::denoise::ATROUS_ENTRY));
+    assert!(!uses(&engine, "lumen/apply.wgsl"));
+    engine
+        .set_params(&toml::toml! { gi_terminate = "lumen-cards" })
+        .unwrap();
+    engine.render_frame().unwrap();
+    assert!(uses(&engine, cache), "the surface cache part was built");
+    engine.set_denoise(true).unwrap();
+    assert!(uses(&engine, gilab::render::denoise::ATROUS_ENTRY));
 }
 
 /// Engines on one device share compiled pipelines (`Gpu::pipelines`): a second engine compiles
@@ -414,13 +438,11 @@ fn engines_share_pipelines_until_a_source_changes() {
         for _ in 0..2 {
             e.render_frame().unwrap();
         }
-        // Every compute pipeline the engine builds: ReSTIR's own (its surface-cache part is
-        // built only with gi_terminate = "lumen-cards") and the primary surfaces'.
-        let mut files: Vec<String> = gilab::techniques::restir::OWN_SHADER_FILES
-            .iter()
-            .map(|f| f.to_string())
-            .collect();
-        files.push(gilab::render::primary::ENTRY.to_string());
+        // Every entry file the engine compiled: ReSTIR's own (its surface-cache part is built
+        // only with gi_terminate = "lumen-cards") and the primary surfaces'.
+        let files: Vec<String> = e.shader_entries().iter().cloned().collect();
+        assert!(files.contains(&gilab::render::primary::ENTRY.to_string()));
+        assert!(files.contains(&"restir/shade.wgsl".to_string()));
         (e.read_output().unwrap(), files)
     };
     let (first, files) = render(ShaderLibrary::discover());

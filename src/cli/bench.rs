@@ -119,9 +119,6 @@ impl Technique for TraceBench {
         }
         Ok(())
     }
-    fn shader_files(&self) -> &'static [&'static str] {
-        &["bench/trace_rays.wgsl"]
-    }
     fn reset_history(&mut self, _: &Gpu) {}
     fn render(
         &mut self,

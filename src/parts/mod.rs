@@ -37,6 +37,10 @@
 //!   `WORLD_REGIR_GROUP`). Used by `lumen`'s card texels and the surfels' ray hits
 //!   (`cache_direct = "regir"`).
 
+use crate::gpu::Gpu;
+use crate::render::RenderContext;
+use anyhow::Result;
+
 pub mod gi_cache;
 pub mod reflections;
 pub mod restir;
@@ -48,6 +52,50 @@ pub mod surfels;
 pub mod tracing;
 pub mod world_cache;
 pub mod world_regir;
+
+/// What every part does, whatever light it computes: the interface its holders (the families)
+/// drive it through. The part owns its pipelines, buffers and bind groups; the holder says
+/// whether it wants the part (its parameters name it) and when shaders changed, and
+/// [`Part::prepare`] does the build bookkeeping each family once repeated by hand.
+pub trait Part {
+    /// What the part's pipelines need from their holder (a lookup layout, a cache): `()` for
+    /// none.
+    type Input<'a>;
+
+    /// Builds its pipelines: all or nothing, so that a failed hot reload keeps the old ones.
+    fn build(&mut self, ctx: &RenderContext, input: Self::Input<'_>) -> Result<()>;
+    /// Buffers sized by the image, the scene and the settings (never a pipeline).
+    fn build_resources(&mut self, ctx: &RenderContext);
+    fn is_built(&self) -> bool;
+    /// Forgets its history (camera cut, parameter change).
+    fn reset(&self, gpu: &Gpu);
+
+    /// Builds the part when the holder wants it and it is not built, builds it again when
+    /// `rebuild` (a shader change) and it is wanted or built, then sizes its resources if
+    /// built. A part switched off stays built (switching it back costs no compile) and is
+    /// not recorded: see [`Part::active`].
+    fn prepare(
+        &mut self,
+        ctx: &RenderContext,
+        wanted: bool,
+        rebuild: bool,
+        input: Self::Input<'_>,
+    ) -> Result<()> {
+        let built = self.is_built();
+        if (wanted || built) && (rebuild || !built) {
+            self.build(ctx, input)?;
+        }
+        if self.is_built() {
+            self.build_resources(ctx);
+        }
+        Ok(())
+    }
+
+    /// Whether the holder's frame records it: wanted and built.
+    fn active(&self, wanted: bool) -> bool {
+        wanted && self.is_built()
+    }
+}
 
 pub use reflections::Reflections;
 pub use restir_direct::RestirDirect;

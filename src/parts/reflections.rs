@@ -19,6 +19,7 @@
 //! sky on a miss (the families reach the sky by rays).
 
 use crate::gpu::{timing::PassTimer, Gpu};
+use crate::parts::Part;
 use crate::render::params::{ParamKind, ParamSpec, Params};
 use crate::render::{pipelines, DebugView, PassInfo, RenderContext};
 use anyhow::Result;
@@ -28,8 +29,6 @@ pub const TRACE: &str = "parts/reflections/trace.wgsl";
 pub const RESOLVE: &str = "parts/reflections/resolve.wgsl";
 pub const TEMPORAL: &str = "parts/reflections/temporal.wgsl";
 pub const FILTER: &str = "parts/reflections/filter.wgsl";
-/// Every entry file of the part: a family that uses it lists them in its `shader_files`.
-pub const SHADER_FILES: [&str; 4] = [TRACE, RESOLVE, TEMPORAL, FILTER];
 const PASS_NAMES: [&str; 4] = [
     "reflection trace",
     "reflection resolve",
@@ -257,102 +256,6 @@ impl Reflections {
         })
     }
 
-    pub fn is_built(&self) -> bool {
-        self.pipelines.is_some()
-    }
-
-    /// Builds the four pipelines (on an error nothing is replaced). `cache`: what the trace
-    /// pass reads at hits (at group [`CACHE_GROUP`]); none: direct light only.
-    pub fn build(&mut self, ctx: &RenderContext, cache: Option<HitCache>) -> Result<()> {
-        let layout = self.layout(ctx.gpu);
-        let output = self.output_layout(ctx.gpu).clone();
-        let base = [&ctx.scene.layout, ctx.frame_layout, &layout];
-        let trace = match cache {
-            Some(hit_cache) => {
-                let (defs, cache_layout) = match hit_cache {
-                    HitCache::SurfaceCache(l) => (
-                        [
-                            ("REFLECTION_CACHE", 1),
-                            crate::parts::surface_cache::lookup_defs(CACHE_GROUP)[0],
-                        ],
-                        l,
-                    ),
-                    HitCache::Surfels(l) => (
-                        [("REFLECTION_SURFELS", 1), ("SURFELS_GROUP", CACHE_GROUP)],
-                        l,
-                    ),
-                };
-                let shaders = ctx.shaders.with_defs(&defs);
-                pipelines::compute_pipeline(
-                    ctx.gpu,
-                    &shaders,
-                    TRACE,
-                    &[&ctx.scene.layout, ctx.frame_layout, &layout, cache_layout],
-                )?
-            }
-            None => pipelines::compute_pipeline(ctx.gpu, ctx.shaders, TRACE, &base)?,
-        };
-        let resolve = pipelines::compute_pipeline(ctx.gpu, ctx.shaders, RESOLVE, &base)?;
-        let temporal = pipelines::compute_pipeline(ctx.gpu, ctx.shaders, TEMPORAL, &base)?;
-        let filter = pipelines::compute_pipeline(
-            ctx.gpu,
-            ctx.shaders,
-            FILTER,
-            &[&ctx.scene.layout, ctx.frame_layout, &layout, &output],
-        )?;
-        self.pipelines = Some([trace, resolve, temporal, filter]);
-        self.with_cache = cache.map(|c| match c {
-            HitCache::SurfaceCache(_) => CacheKind::SurfaceCache,
-            HitCache::Surfels(_) => CacheKind::Surfels,
-        });
-        Ok(())
-    }
-
-    /// Buffers sized by the image and `downsample` (kept while those hold) and the parameters.
-    pub fn build_resources(&mut self, ctx: &RenderContext) {
-        let gpu = ctx.gpu;
-        let ds = self.settings.downsample.max(1);
-        let trace = [ctx.extent[0].div_ceil(ds), ctx.extent[1].div_ceil(ds)];
-        let keep = matches!(&self.buffers, Some(b) if b.extent == ctx.extent && b.trace == trace);
-        if !keep {
-            let px = ctx.extent[0] as u64 * ctx.extent[1] as u64;
-            let samples = trace[0] as u64 * trace[1] as u64 * 3 * 16;
-            let params = gpu.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("reflection params"),
-                size: std::mem::size_of::<ReflectionParamsGpu>() as u64,
-                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
-            let rays = pipelines::storage_buffer(gpu, "reflection rays", samples);
-            let lut = wgpu::util::DeviceExt::create_buffer_init(
-                &gpu.device,
-                &wgpu::util::BufferInitDescriptor {
-                    label: Some("reflection albedo table"),
-                    contents: bytemuck::cast_slice(&albedo_table()),
-                    usage: wgpu::BufferUsages::STORAGE,
-                },
-            );
-            let resolved = pipelines::storage_buffer(gpu, "reflection resolved", px * 32);
-            let history = pipelines::storage_buffer(gpu, "reflection history", px * 64);
-            let debug = pipelines::storage_buffer(gpu, "reflection debug", px * 16);
-            let layout = self.layout(gpu);
-            let bind_group = pipelines::buffers_bind_group(
-                gpu,
-                "reflections",
-                &layout,
-                &[&params, &rays, &lut, &resolved, &history, &debug],
-            );
-            self.buffers = Some(Buffers {
-                params,
-                history,
-                debug,
-                bind_group,
-                extent: ctx.extent,
-                trace,
-            });
-        }
-    }
-
     /// This frame's four passes; `cache`: the lookup bind group (when built with a cache
     /// layout); `output`: the family's output (a bind group of [`Self::output_layout`]) and the
     /// plane (of `pixels` vec4s) the part's two planes start at in it.
@@ -413,15 +316,6 @@ impl Reflections {
         pipelines::technique_pass(ctx, enc, timer, PASS_NAMES[1], resolve, &[bg], image);
         pipelines::technique_pass(ctx, enc, timer, PASS_NAMES[2], temporal, &[bg], image);
         pipelines::technique_pass(ctx, enc, timer, PASS_NAMES[3], filter, &[bg, output], image);
-    }
-
-    /// Forgets the accumulated reflections (camera cut, parameter change).
-    pub fn reset(&self, gpu: &Gpu) {
-        if let Some(b) = &self.buffers {
-            let mut enc = gpu.device.create_command_encoder(&Default::default());
-            enc.clear_buffer(&b.history, 0, None);
-            gpu.submit("reflections: history reset", enc.finish());
-        }
     }
 
     /// The debug planes (rays traced, hit kind, specular luminance, history length) a family
@@ -574,6 +468,117 @@ fn sample_vndf(wo: Vec3, alpha: f32, u: [f32; 2]) -> Vec3 {
     let p2 = (1.0 - s) * (1.0 - p1 * p1).max(0.0).sqrt() + s * r * phi.sin();
     let nh = p1 * t1 + p2 * t2 + (1.0 - p1 * p1 - p2 * p2).max(0.0).sqrt() * vh;
     Vec3::new(alpha * nh.x, alpha * nh.y, nh.z.max(1e-6)).normalize()
+}
+
+/// `Input`: what the trace pass reads at hits (at group [`CACHE_GROUP`]); none: direct light
+/// only.
+impl Part for Reflections {
+    type Input<'a> = Option<HitCache<'a>>;
+
+    fn is_built(&self) -> bool {
+        self.pipelines.is_some()
+    }
+
+    /// Builds the four pipelines (on an error nothing is replaced). `cache`: what the trace
+    /// pass reads at hits (at group [`CACHE_GROUP`]); none: direct light only.
+    fn build(&mut self, ctx: &RenderContext, cache: Option<HitCache<'_>>) -> Result<()> {
+        let layout = self.layout(ctx.gpu);
+        let output = self.output_layout(ctx.gpu).clone();
+        let base = [&ctx.scene.layout, ctx.frame_layout, &layout];
+        let trace = match cache {
+            Some(hit_cache) => {
+                let (defs, cache_layout) = match hit_cache {
+                    HitCache::SurfaceCache(l) => (
+                        [
+                            ("REFLECTION_CACHE", 1),
+                            crate::parts::surface_cache::lookup_defs(CACHE_GROUP)[0],
+                        ],
+                        l,
+                    ),
+                    HitCache::Surfels(l) => (
+                        [("REFLECTION_SURFELS", 1), ("SURFELS_GROUP", CACHE_GROUP)],
+                        l,
+                    ),
+                };
+                let shaders = ctx.shaders.with_defs(&defs);
+                pipelines::compute_pipeline(
+                    ctx.gpu,
+                    &shaders,
+                    TRACE,
+                    &[&ctx.scene.layout, ctx.frame_layout, &layout, cache_layout],
+                )?
+            }
+            None => pipelines::compute_pipeline(ctx.gpu, ctx.shaders, TRACE, &base)?,
+        };
+        let resolve = pipelines::compute_pipeline(ctx.gpu, ctx.shaders, RESOLVE, &base)?;
+        let temporal = pipelines::compute_pipeline(ctx.gpu, ctx.shaders, TEMPORAL, &base)?;
+        let filter = pipelines::compute_pipeline(
+            ctx.gpu,
+            ctx.shaders,
+            FILTER,
+            &[&ctx.scene.layout, ctx.frame_layout, &layout, &output],
+        )?;
+        self.pipelines = Some([trace, resolve, temporal, filter]);
+        self.with_cache = cache.map(|c| match c {
+            HitCache::SurfaceCache(_) => CacheKind::SurfaceCache,
+            HitCache::Surfels(_) => CacheKind::Surfels,
+        });
+        Ok(())
+    }
+
+    /// Buffers sized by the image and `downsample` (kept while those hold) and the parameters.
+    fn build_resources(&mut self, ctx: &RenderContext) {
+        let gpu = ctx.gpu;
+        let ds = self.settings.downsample.max(1);
+        let trace = [ctx.extent[0].div_ceil(ds), ctx.extent[1].div_ceil(ds)];
+        let keep = matches!(&self.buffers, Some(b) if b.extent == ctx.extent && b.trace == trace);
+        if !keep {
+            let px = ctx.extent[0] as u64 * ctx.extent[1] as u64;
+            let samples = trace[0] as u64 * trace[1] as u64 * 3 * 16;
+            let params = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("reflection params"),
+                size: std::mem::size_of::<ReflectionParamsGpu>() as u64,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            let rays = pipelines::storage_buffer(gpu, "reflection rays", samples);
+            let lut = wgpu::util::DeviceExt::create_buffer_init(
+                &gpu.device,
+                &wgpu::util::BufferInitDescriptor {
+                    label: Some("reflection albedo table"),
+                    contents: bytemuck::cast_slice(&albedo_table()),
+                    usage: wgpu::BufferUsages::STORAGE,
+                },
+            );
+            let resolved = pipelines::storage_buffer(gpu, "reflection resolved", px * 32);
+            let history = pipelines::storage_buffer(gpu, "reflection history", px * 64);
+            let debug = pipelines::storage_buffer(gpu, "reflection debug", px * 16);
+            let layout = self.layout(gpu);
+            let bind_group = pipelines::buffers_bind_group(
+                gpu,
+                "reflections",
+                &layout,
+                &[&params, &rays, &lut, &resolved, &history, &debug],
+            );
+            self.buffers = Some(Buffers {
+                params,
+                history,
+                debug,
+                bind_group,
+                extent: ctx.extent,
+                trace,
+            });
+        }
+    }
+
+    /// Forgets the accumulated reflections (camera cut, parameter change).
+    fn reset(&self, gpu: &Gpu) {
+        if let Some(b) = &self.buffers {
+            let mut enc = gpu.device.create_command_encoder(&Default::default());
+            enc.clear_buffer(&b.history, 0, None);
+            gpu.submit("reflections: history reset", enc.finish());
+        }
+    }
 }
 
 #[cfg(test)]

@@ -10,7 +10,8 @@
 
 use crate::gpu::{timing::PassTimer, Gpu};
 use crate::parts::restir::{self, RestirLighting, RestirSettings};
-use crate::render::params::Params;
+use crate::parts::Part;
+use crate::render::params::{ParamKind, ParamSpec, Params};
 use crate::render::{pipelines, PassInfo, RenderContext};
 use crate::scene::features::SceneFeatures;
 use anyhow::Result;
@@ -18,15 +19,51 @@ use anyhow::Result;
 /// The shading pass's entry file.
 pub const SHADE: &str = "parts/restir_direct.wgsl";
 
-/// Every entry file the part compiles (its shading and ReSTIR's DI and ReGIR passes): a family
-/// that uses the part lists them in its `shader_files`, so editing one rebuilds it.
-pub const SHADER_FILES: [&str; 5] = [
-    SHADE,
-    "parts/restir/regir_mark.wgsl",
-    "parts/restir/regir_build.wgsl",
-    "parts/restir/initial_temporal.wgsl",
-    "parts/restir/spatial.wgsl",
-];
+/// The parameter that picks this part in a family.
+pub const PARAM: &str = "direct";
+
+/// The `direct` parameter of a family that can use the part: `choices` is the family's own
+/// direct light, then `"restir"` (this part), the own one the default. The part owns the name
+/// and the reading (`chosen`); the family says what its own choice is.
+pub const fn param(
+    choices: &'static [&'static str],
+    what: &'static str,
+    higher: &'static str,
+    lower: &'static str,
+) -> ParamSpec {
+    assert!(
+        choices.len() == 2 && str_eq(choices[1], "restir"),
+        "direct's choices: the family's own, then \"restir\""
+    );
+    ParamSpec {
+        name: PARAM,
+        what,
+        higher,
+        lower,
+        kind: ParamKind::Choice(choices),
+        default: 0.0,
+    }
+}
+
+/// Whether a family's parameters pick the part (`direct = "restir"`).
+pub fn chosen(p: &Params) -> bool {
+    p.u32(PARAM) == 1
+}
+
+const fn str_eq(a: &str, b: &str) -> bool {
+    let (a, b) = (a.as_bytes(), b.as_bytes());
+    if a.len() != b.len() {
+        return false;
+    }
+    let mut i = 0;
+    while i < a.len() {
+        if a[i] != b[i] {
+            return false;
+        }
+        i += 1;
+    }
+    true
+}
 
 pub struct RestirDirect {
     lighting: RestirLighting,
@@ -66,14 +103,17 @@ impl RestirDirect {
             )
         })
     }
+}
 
-    pub fn is_built(&self) -> bool {
+impl Part for RestirDirect {
+    type Input<'a> = ();
+
+    fn is_built(&self) -> bool {
         self.shade.is_some()
     }
 
-    /// Builds the shading pass and ReSTIR's pipelines (on an error nothing is replaced), then
-    /// the resources.
-    pub fn build(&mut self, ctx: &RenderContext) -> Result<()> {
+    /// Builds the shading pass and ReSTIR's pipelines (on an error nothing is replaced).
+    fn build(&mut self, ctx: &RenderContext, _: ()) -> Result<()> {
         let output = self.output_layout(ctx.gpu).clone();
         let restir_layout = self.lighting.layout(ctx.gpu).clone();
         let shade = pipelines::compute_pipeline(
@@ -88,11 +128,20 @@ impl RestirDirect {
     }
 
     /// Buffers sized by the image and the scene's lights (never a pipeline).
-    pub fn build_resources(&mut self, ctx: &RenderContext) {
-        self.lighting.settings = Self::settings();
+    fn build_resources(&mut self, ctx: &RenderContext) {
+        self.lighting.settings = RestirDirect::settings();
         self.lighting.build_resources(ctx);
     }
 
+    /// Forgets the reservoirs (camera cut, parameter change).
+    fn reset(&self, gpu: &Gpu) {
+        if self.is_built() {
+            self.lighting.reset(gpu);
+        }
+    }
+}
+
+impl RestirDirect {
     /// This frame's ReSTIR DI passes, then the `direct` pass into `output` (a bind group of
     /// [`Self::output_layout`]).
     pub fn record(
@@ -117,13 +166,6 @@ impl RestirDirect {
             &[&restir_bg, output],
             [ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1],
         );
-    }
-
-    /// Forgets the reservoirs (camera cut, parameter change).
-    pub fn reset(&self, gpu: &Gpu) {
-        if self.is_built() {
-            self.lighting.reset(gpu);
-        }
     }
 
     /// ReSTIR's DI and ReGIR passes as the family's pass list shows them (before its `direct`).

@@ -17,7 +17,6 @@ use crate::parts::world_regir::WorldRegirSettings;
 use crate::render::{PassInfo, RenderContext};
 use crate::scene::features::SceneFeatures;
 
-pub use crate::parts::surfels::SURFEL_CACHE_FILES;
 use anyhow::Result;
 
 /// Shader defs of a pipeline that reads the surfels at bind group `group`.

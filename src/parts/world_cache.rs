@@ -24,8 +24,6 @@ pub const PASSES: [(&str, &str); 2] = [
     ("world select", "parts/world_cache/select.wgsl"),
     ("world update", "parts/world_cache/update.wgsl"),
 ];
-/// Its entry files (the lookup, `shared.wgsl`, is a module its readers import).
-pub const SHADER_FILES: [&str; 2] = [PASSES[0].1, PASSES[1].1];
 
 const WORLD_CELLS: u64 = 256;
 /// Words before the lists (`WORLD_LISTS_HEADER`).

@@ -34,8 +34,6 @@ pub const KEEP_FRAMES: u32 = 8;
 /// Light candidates resampled into each reservoir (`REGIR_CANDIDATES_PER_SLOT`).
 pub const CANDIDATES_PER_SLOT: u32 = 32;
 pub const BUILD_FILE: &str = "parts/world_regir/build.wgsl";
-/// The part's entry files (hot reload).
-pub const SHADER_FILES: [&str; 1] = [BUILD_FILE];
 pub const PASS: &str = "cache regir";
 const SLOT_BYTES: u64 = crate::parts::restir::REGIR_SLOT_BYTES;
 /// Pairs of lookup counters (`STAT_SLOTS` in shaders/parts/world_regir/shared.wgsl).

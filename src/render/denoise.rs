@@ -42,7 +42,6 @@ use anyhow::Result;
 pub const TEMPORAL_ENTRY: &str = "denoise/temporal.wgsl";
 pub const VARIANCE_ENTRY: &str = "denoise/variance.wgsl";
 pub const ATROUS_ENTRY: &str = "denoise/atrous.wgsl";
-pub const SHADER_FILES: [&str; 3] = [TEMPORAL_ENTRY, VARIANCE_ENTRY, ATROUS_ENTRY];
 
 /// Pass names in timings and pass lists.
 pub const PASS_TEMPORAL: &str = "denoise temporal";

@@ -126,6 +126,9 @@ pub struct Engine {
     /// Scene time is set from outside (`set_scene_time`: the viewer's clock, shared by its
     /// panes) instead of advancing with this engine's frames.
     pub external_clock: bool,
+    /// Entry files under `shaders/` this engine has compiled (technique, parts, primary
+    /// surfaces, denoiser), recorded as they are built: what hot reload watches.
+    shader_entries: std::collections::BTreeSet<String>,
 }
 
 /// Frames per second of scene time during playback: frame k renders time t0 + k × time_scale /
@@ -153,6 +156,22 @@ impl Engine {
 
     /// Like `new`, for several engines on one uploaded scene (the viewer's panes).
     pub fn with_shared_scene(
+        gpu: Arc<Gpu>,
+        shaders: ShaderLibrary,
+        scene: Arc<Scene>,
+        gpu_scene: Arc<GpuScene>,
+        technique: Box<dyn Technique>,
+        settings: EngineSettings,
+    ) -> Result<Engine> {
+        let (engine, entries) = pipelines::recording_entries(|| {
+            Self::build_with_shared_scene(gpu, shaders, scene, gpu_scene, technique, settings)
+        });
+        let mut engine = engine?;
+        engine.shader_entries = entries;
+        Ok(engine)
+    }
+
+    fn build_with_shared_scene(
         gpu: Arc<Gpu>,
         shaders: ShaderLibrary,
         scene: Arc<Scene>,
@@ -268,6 +287,7 @@ impl Engine {
             last_reaction_ms: 0.0,
             external_clock: false,
             posed_for_frame: false,
+            shader_entries: Default::default(),
         };
         let id = engine.technique.id();
         engine
@@ -315,6 +335,10 @@ impl Engine {
     /// passes are timed in the frame. Off: the engine is as it was without it. History and
     /// accumulation restart. On error nothing changes.
     pub fn set_denoise(&mut self, on: bool) -> Result<()> {
+        self.recording(|e| e.set_denoise_inner(on))
+    }
+
+    fn set_denoise_inner(&mut self, on: bool) -> Result<()> {
         if on == self.denoise() {
             return Ok(());
         }
@@ -425,6 +449,10 @@ impl Engine {
     /// caller, shared between runs) without a full reset: counters, frame count and the
     /// technique's reuse history continue; accumulation restarts (`Technique::on_scene_change`).
     pub fn change_scene(&mut self, scene: Arc<Scene>, gpu_scene: Arc<GpuScene>) -> Result<()> {
+        self.recording(|e| e.change_scene_inner(scene, gpu_scene))
+    }
+
+    fn change_scene_inner(&mut self, scene: Arc<Scene>, gpu_scene: Arc<GpuScene>) -> Result<()> {
         self.finish_frames()?;
         let variant = gpu_scene.data.shader_variant();
         let variant_changed = variant != self.shaders.variant;
@@ -502,7 +530,7 @@ impl Engine {
         self.posed_for_frame = true;
         let start = Instant::now();
         if reposed {
-            self.technique.on_geometry_moved(&render_context!(self))?;
+            self.recording(|e| e.technique.on_geometry_moved(&render_context!(e)))?;
             self.restart_accumulation();
         } else {
             log::debug!("re-posing in place not possible: the scene is uploaded again");
@@ -525,7 +553,7 @@ impl Engine {
     /// rebuilt. History restarts.
     pub fn set_params(&mut self, params: &toml::Table) -> Result<()> {
         self.technique.set_params(params)?;
-        self.technique.apply_params(&render_context!(self))?;
+        self.recording(|e| e.technique.apply_params(&render_context!(e)))?;
         self.gpu.check_errors()?;
         self.reset();
         Ok(())
@@ -572,6 +600,10 @@ impl Engine {
     /// Rebuilds the technique's pipelines from the current shader sources (hot reload).
     /// On error the previous pipelines keep running and history is kept.
     pub fn rebuild(&mut self) -> Result<()> {
+        self.recording(Self::rebuild_inner)
+    }
+
+    fn rebuild_inner(&mut self) -> Result<()> {
         self.rebuild_primary()?;
         if let Some(d) = &mut self.denoiser {
             d.rebuild(&self.gpu, &self.shaders, &self.frame_layout)?;
@@ -582,21 +614,25 @@ impl Engine {
         Ok(())
     }
 
-    /// Whether a change to these entry files affects this engine's technique.
+    /// Whether a change to these entry files affects this engine: whether it has compiled
+    /// any of them (`shader_entries`).
     pub fn uses_any_shader(&self, entries: &[String]) -> bool {
-        let primary = self.primary.is_some().then_some(primary::ENTRY);
-        let denoise: &[&str] = if self.denoise() {
-            &super::denoise::SHADER_FILES
-        } else {
-            &[]
-        };
-        self.technique
-            .shader_files()
-            .iter()
-            .copied()
-            .chain(primary)
-            .chain(denoise.iter().copied())
-            .any(|f| entries.iter().any(|e| e == f))
+        entries.iter().any(|e| self.shader_entries.contains(e))
+    }
+
+    /// Every entry file under `shaders/` this engine has compiled since it was made: its
+    /// technique's and parts' pipelines (those its parameters have asked for so far), the
+    /// primary surfaces' and the denoiser's. A superset of what runs now (a part switched off
+    /// stays listed), which costs at most a needless rebuild on hot reload.
+    pub fn shader_entries(&self) -> &std::collections::BTreeSet<String> {
+        &self.shader_entries
+    }
+
+    /// Runs `f` on the engine, adding the entry files it compiles to `shader_entries`.
+    fn recording<T>(&mut self, f: impl FnOnce(&mut Self) -> T) -> T {
+        let (out, entries) = pipelines::recording_entries(|| f(self));
+        self.shader_entries.extend(entries);
+        out
     }
 
     /// Rays per pixel per frame measured since the last reset.

@@ -222,26 +222,6 @@ impl RenderContext<'_> {
     }
 }
 
-/// Two lists of entry files as one (a technique's `shader_files` and its parts'); `N` must be
-/// `A + B` (checked at compile time where the result is a `const`).
-pub const fn concat_files<const A: usize, const B: usize, const N: usize>(
-    a: [&'static str; A],
-    b: [&'static str; B],
-) -> [&'static str; N] {
-    assert!(A + B == N, "concat_files: N must be A + B");
-    let mut out = [""; N];
-    let mut i = 0;
-    while i < A {
-        out[i] = a[i];
-        i += 1;
-    }
-    while i < N {
-        out[i] = b[i - A];
-        i += 1;
-    }
-    out
-}
-
 /// One GI technique: long-lived pipelines, per-frame recording, linear HDR out.
 pub trait Technique: std::any::Any {
     /// Preset key, CSV column and file-name stem.
@@ -303,8 +283,6 @@ pub trait Technique: std::any::Any {
     fn apply_params(&mut self, _ctx: &RenderContext) -> Result<()> {
         Ok(())
     }
-    /// Entry files under `shaders/` this technique compiles (hot reload rebuilds on change).
-    fn shader_files(&self) -> &'static [&'static str];
     /// The technique's own debug views: each shows one channel of `debug_buffer`.
     fn debug_views(&self) -> Vec<DebugView> {
         Vec::new()

@@ -20,19 +20,37 @@ pub enum ParamKind {
     Choice(&'static [&'static str]),
 }
 
-/// Two parameter tables as one (a technique's own and a part's); `N` must be `A + B`.
-pub const fn concat_params<const A: usize, const B: usize, const N: usize>(
-    a: [ParamSpec; A],
-    b: [ParamSpec; B],
-) -> [ParamSpec; N] {
-    assert!(A + B == N, "concat_params: N must be A + B");
-    assert!(A > 0, "concat_params: the first table is not empty");
-    let mut out = [a[0]; N];
-    let mut i = 0;
-    while i < N {
-        out[i] = if i < A { a[i] } else { b[i - A] };
-        i += 1;
+/// Parameter tables as one: a technique's own and its parts' (`param_table![OWN, PART, ..]`,
+/// each an array or slice of `ParamSpec`). The length is counted at compile time, so adding a
+/// parameter to any table changes no number elsewhere.
+#[macro_export]
+macro_rules! param_table {
+    ($($t:expr),+ $(,)?) => {{
+        const N: usize = 0 $(+ $t.len())+;
+        const TABLE: [$crate::render::params::ParamSpec; N] =
+            $crate::render::params::concat_tables::<N>(&[$(&$t),+]);
+        &TABLE
+    }};
+}
+
+/// The tables one after another (`param_table!`); `N` is their summed length.
+pub const fn concat_tables<const N: usize>(tables: &[&[ParamSpec]]) -> [ParamSpec; N] {
+    assert!(
+        !tables.is_empty() && !tables[0].is_empty(),
+        "the first table is not empty"
+    );
+    let mut out = [tables[0][0]; N];
+    let (mut t, mut i) = (0, 0);
+    while t < tables.len() {
+        let mut k = 0;
+        while k < tables[t].len() {
+            out[i] = tables[t][k];
+            i += 1;
+            k += 1;
+        }
+        t += 1;
     }
+    assert!(i == N, "N is the summed length of the tables");
     out
 }
 

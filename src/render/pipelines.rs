@@ -4,10 +4,40 @@
 use crate::gpu::{pipeline_cache::ComputeKey, shaders::ShaderLibrary, timing::PassTimer, Gpu};
 use anyhow::{anyhow, Result};
 use std::borrow::Cow;
-use std::cell::Cell;
+use std::cell::{Cell, RefCell};
+use std::collections::BTreeSet;
 
 thread_local! {
     static PIPELINES_REQUESTED: Cell<u64> = const { Cell::new(0) };
+    /// Entry files composed on this thread while `recording_entries` runs.
+    static ENTRIES_RECORDED: RefCell<Option<BTreeSet<String>>> = const { RefCell::new(None) };
+}
+
+/// Runs `f` and returns, beside its result, every entry file under `shaders/` whose module or
+/// pipeline it asked for (built or taken from the cache). The engine records what its
+/// technique, parts, primary surfaces and denoiser compile, so hot reload rebuilds an engine
+/// exactly when one of those files (or a module they import) changes: no hand-kept file lists.
+/// Nested calls are recorded by the outer call too.
+pub fn recording_entries<T>(f: impl FnOnce() -> T) -> (T, BTreeSet<String>) {
+    let outer = ENTRIES_RECORDED.with(|r| r.borrow_mut().replace(BTreeSet::new()));
+    let out = f();
+    let inner = ENTRIES_RECORDED
+        .with(|r| std::mem::replace(&mut *r.borrow_mut(), outer))
+        .unwrap_or_default();
+    ENTRIES_RECORDED.with(|r| {
+        if let Some(outer) = r.borrow_mut().as_mut() {
+            outer.extend(inner.iter().cloned());
+        }
+    });
+    (out, inner)
+}
+
+fn note_entry(entry: &str) {
+    ENTRIES_RECORDED.with(|r| {
+        if let Some(set) = r.borrow_mut().as_mut() {
+            set.insert(entry.to_string());
+        }
+    });
 }
 
 /// Compute pipelines this thread has asked for, built or taken from the device's cache
@@ -21,6 +51,7 @@ pub fn shader_module(
     shaders: &ShaderLibrary,
     entry: &str,
 ) -> Result<wgpu::ShaderModule> {
+    note_entry(entry);
     let module = shaders.compose(entry).map_err(|e| anyhow!("{e}"))?;
     module_from(gpu, entry, module)
 }
@@ -56,6 +87,7 @@ pub fn compute_pipeline_at(
     layouts: &[&wgpu::BindGroupLayout],
 ) -> Result<wgpu::ComputePipeline> {
     PIPELINES_REQUESTED.with(|c| c.set(c.get() + 1));
+    note_entry(entry);
     let composed = shaders
         .compose_versioned(entry)
         .map_err(|e| anyhow!("{e}"))?;
@@ -276,4 +308,34 @@ pub fn technique_pass(
     }
     let [x, y, z] = workgroups;
     pass.dispatch_workgroups(x, y, z);
+}
+
+/// The compute passes of a technique or part that share one bind group layout, as an enum:
+/// each variant carries its timing name and entry file, and indexes the pipelines built in
+/// `ALL` order. A pass is looked up by variant, so a misspelt pass is a compile error rather
+/// than a panic at run time.
+///
+/// ```ignore
+/// compute_passes! { enum Pass { Trace => ("trace", "parts/surfels/trace.wgsl") } }
+/// let pipeline = &pipelines[Pass::Trace as usize];
+/// ```
+#[macro_export]
+macro_rules! compute_passes {
+    ($(#[$meta:meta])* $vis:vis enum $E:ident { $($V:ident => ($name:literal, $file:literal)),+ $(,)? }) => {
+        $(#[$meta])*
+        #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+        $vis enum $E { $($V),+ }
+        impl $E {
+            /// Every pass, in pipeline order.
+            $vis const ALL: &'static [$E] = &[$($E::$V),+];
+            /// Its name in timings and pass lists.
+            $vis const fn name(self) -> &'static str {
+                match self { $($E::$V => $name),+ }
+            }
+            /// Its entry file under `shaders/`.
+            $vis const fn file(self) -> &'static str {
+                match self { $($E::$V => $file),+ }
+            }
+        }
+    };
 }

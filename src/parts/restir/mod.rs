@@ -21,13 +21,3 @@ pub use params::{
     CandidateVisibility, GiTerminate, RestirParamsGpu, RestirSettings, MAX_SPATIAL, PARAMS,
 };
 pub use regir::{REGIR_DIMS, REGIR_SLOT_BYTES};
-
-/// The core's entry files (DI, GI and ReGIR passes).
-pub const SHADER_FILES: [&str; 6] = [
-    "parts/restir/regir_mark.wgsl",
-    "parts/restir/regir_build.wgsl",
-    "parts/restir/initial_temporal.wgsl",
-    "parts/restir/spatial.wgsl",
-    "parts/restir/gi_temporal.wgsl",
-    "parts/restir/gi_spatial.wgsl",
-];

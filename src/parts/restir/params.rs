@@ -41,7 +41,7 @@ pub struct RestirParamsGpu {
 /// candidates, max history 8, a few spatial neighbours).
 /// ReSTIR's own parameters; [`PARAMS`] adds the caches' light sampling (`cache_direct`, for the
 /// cache a GI sample path ends in).
-const OWN_PARAMS: [ParamSpec; 25] = [
+const OWN_PARAMS: &[ParamSpec] = &[
     ParamSpec {
         name: "candidates",
         what: "initial RIS candidates per pixel per frame from the local lights (emissive triangles, point, spot), by power or from the ReGIR cell",
@@ -244,10 +244,8 @@ const OWN_PARAMS: [ParamSpec; 25] = [
     },
 ];
 
-pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<25, 3, 28>(
-    OWN_PARAMS,
-    crate::parts::world_regir::PARAMS,
-);
+/// ReSTIR's parameters and the world ReGIR part's (the caches its GI paths may end in).
+pub const PARAMS: &[ParamSpec] = crate::param_table![OWN_PARAMS, crate::parts::world_regir::PARAMS];
 
 /// Which initial candidates are visibility-tested before reuse (biased mode only).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -55,12 +55,6 @@ const PASSES: [(&str, &str); 3] = [
     ("cache probes", "parts/surface_cache/probe.wgsl"),
     ("cache indirect", "parts/surface_cache/indirect.wgsl"),
 ];
-/// The part's entry files (what a holder lists for hot reload).
-pub const SHADER_FILES: [&str; 4] = [capture::FILE, PASSES[0].1, PASSES[1].1, PASSES[2].1];
-/// Every entry file the part compiles on its own (ReSTIR GI's `lumen-cards` and `lumen-world`):
-/// its own and the world radiance cache's.
-pub const SURFACE_CACHE_FILES: [&str; 6] =
-    crate::render::concat_files(SHADER_FILES, crate::parts::world_cache::SHADER_FILES);
 
 /// Budgets are quoted for the seed's 4096^2 atlas.
 const BUDGET_ATLAS: f64 = 4096.0;

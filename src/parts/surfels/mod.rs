@@ -37,6 +37,7 @@ pub use params::{SurfelParamsGpu, SurfelSettings, MAX_RAYS_PER_SURFEL, PARAMS};
 
 use crate::gpu::{readback, timing::PassTimer, Gpu};
 use crate::parts::reflections::HitCache;
+use crate::parts::Part;
 use crate::parts::{Reflections, RestirDirect, WorldRegir};
 use crate::render::params::Params;
 use crate::render::primary::FrameInputs;
@@ -61,58 +62,28 @@ const RAY_RESULT_BYTES: u64 = 32;
 /// The centre grid spans this fraction of the scene's diagonal.
 const GRID_FRACTION: f32 = 0.1;
 
-const ENTRIES: [(&str, &str); 14] = [
-    ("recycle", "parts/surfels/recycle.wgsl"),
-    ("push", "parts/surfels/push.wgsl"),
-    ("coverage", "parts/surfels/coverage.wgsl"),
-    ("spawn", "parts/surfels/spawn.wgsl"),
-    ("prepare", "parts/surfels/prepare.wgsl"),
-    ("scatter", "parts/surfels/scatter.wgsl"),
-    ("sort_cells", "parts/surfels/sort_cells.wgsl"),
-    ("allocate", "parts/surfels/allocate.wgsl"),
-    ("trace", "parts/surfels/trace.wgsl"),
-    ("estimate", "parts/surfels/estimate.wgsl"),
-    ("integrate", "parts/surfels/integrate.wgsl"),
-    ("direct", "parts/surfels/direct_nee.wgsl"),
-    ("apply gather", "parts/surfels/apply_gather.wgsl"),
-    ("apply", "parts/surfels/apply.wgsl"),
-];
+crate::compute_passes! {
+    /// The surfels' passes that share the surfel layout (group 2), in pipeline order.
+    enum Pass {
+        Recycle => ("recycle", "parts/surfels/recycle.wgsl"),
+        Push => ("push", "parts/surfels/push.wgsl"),
+        Coverage => ("coverage", "parts/surfels/coverage.wgsl"),
+        Spawn => ("spawn", "parts/surfels/spawn.wgsl"),
+        Prepare => ("prepare", "parts/surfels/prepare.wgsl"),
+        Scatter => ("scatter", "parts/surfels/scatter.wgsl"),
+        SortCells => ("sort_cells", "parts/surfels/sort_cells.wgsl"),
+        Allocate => ("allocate", "parts/surfels/allocate.wgsl"),
+        Trace => ("trace", "parts/surfels/trace.wgsl"),
+        Estimate => ("estimate", "parts/surfels/estimate.wgsl"),
+        Integrate => ("integrate", "parts/surfels/integrate.wgsl"),
+        Direct => ("direct", "parts/surfels/direct_nee.wgsl"),
+        ApplyGather => ("apply gather", "parts/surfels/apply_gather.wgsl"),
+        Apply => ("apply", "parts/surfels/apply.wgsl"),
+    }
+}
 const RAY_OWNER: &str = "parts/surfels/ray_owner.wgsl";
 
-/// The surfels' entry files and their parts' (direct light, reflections), for hot reload.
-const SHADER_FILES: [&str; 26] = crate::render::concat_files(
-    crate::render::concat_files::<21, 4, 25>(
-        crate::render::concat_files::<16, 5, 21>(
-            SURFEL_CACHE_FILES,
-            crate::parts::restir_direct::SHADER_FILES,
-        ),
-        crate::parts::reflections::SHADER_FILES,
-    ),
-    crate::parts::world_regir::SHADER_FILES,
-);
-
-/// Every entry file the surfels compile without their parts: what the surfel-cache part
-/// (`crate::parts::SurfelCache`, this technique in cache-only mode) builds.
-pub const SURFEL_CACHE_FILES: [&str; 16] = [
-    "parts/surfels/recycle.wgsl",
-    "parts/surfels/push.wgsl",
-    "parts/surfels/coverage.wgsl",
-    "parts/surfels/spawn.wgsl",
-    "parts/surfels/prepare.wgsl",
-    "parts/surfels/scatter.wgsl",
-    "parts/surfels/sort_cells.wgsl",
-    "parts/surfels/allocate.wgsl",
-    "parts/surfels/ray_owner.wgsl",
-    "parts/surfels/trace.wgsl",
-    "parts/surfels/estimate.wgsl",
-    "parts/surfels/integrate.wgsl",
-    "parts/surfels/direct_nee.wgsl",
-    "parts/surfels/apply_gather.wgsl",
-    "parts/surfels/apply.wgsl",
-    "parts/surfels/scan.wgsl",
-];
-
-/// Pipelines in ENTRIES order, plus the ones with other layouts.
+/// Pipelines in `Pass::ALL` order, plus the ones with other layouts.
 struct Pipelines {
     passes: Vec<wgpu::ComputePipeline>,
     ray_owner: wgpu::ComputePipeline,
@@ -120,12 +91,8 @@ struct Pipelines {
 }
 
 impl Pipelines {
-    fn get(&self, name: &str) -> &wgpu::ComputePipeline {
-        let i = ENTRIES
-            .iter()
-            .position(|(n, _)| *n == name)
-            .expect("a known pass");
-        &self.passes[i]
+    fn get(&self, pass: Pass) -> &wgpu::ComputePipeline {
+        &self.passes[pass as usize]
     }
 }
 
@@ -356,15 +323,9 @@ impl SurfelCore {
         self.reflections.settings = self.settings.reflection.clone();
         let needed =
             self.settings.reflections && ctx.scene.data.features.min_specular_roughness.is_some();
-        if (needed && !self.reflections.is_built()) || (rebuild && self.reflections.is_built()) {
-            let layout = lookup_layout(ctx.gpu);
-            self.reflections
-                .build(ctx, Some(HitCache::Surfels(&layout)))?;
-        }
-        if self.reflections.is_built() {
-            self.reflections.build_resources(ctx);
-        }
-        Ok(())
+        let layout = lookup_layout(ctx.gpu);
+        self.reflections
+            .prepare(ctx, needed, rebuild, Some(HitCache::Surfels(&layout)))
     }
 
     /// Builds the direct-light part for `direct = "restir"` if not built yet (its resources
@@ -375,13 +336,8 @@ impl SurfelCore {
     }
 
     fn ensure_restir(&mut self, ctx: &RenderContext) -> Result<()> {
-        if self.settings.direct_restir && !self.restir_direct.is_built() {
-            self.restir_direct.build(ctx)?;
-            self.restir_direct.build_resources(ctx);
-        } else if self.restir_direct.is_built() {
-            self.restir_direct.build_resources(ctx);
-        }
-        Ok(())
+        self.restir_direct
+            .prepare(ctx, self.settings.direct_restir, false, ())
     }
 
     fn build_resources(&mut self, ctx: &RenderContext) -> Result<()> {
@@ -743,17 +699,17 @@ impl SurfelCore {
         };
         // Every pipeline first: on an error nothing is replaced.
         let mut passes = Vec::new();
-        for (name, entry) in ENTRIES {
-            if name == "trace" {
+        for &pass in Pass::ALL {
+            if pass == Pass::Trace {
                 passes.push(WorldRegir::lighting_pipeline(
                     ctx,
-                    entry,
+                    pass.file(),
                     &surfel_layout,
                     &self.settings.cache_light,
                 )?);
                 continue;
             }
-            passes.push(ctx.pipeline(entry, &surfel_layout)?);
+            passes.push(ctx.pipeline(pass.file(), &surfel_layout)?);
         }
         let ray_owner = pipelines::compute_pipeline(
             gpu,
@@ -769,10 +725,8 @@ impl SurfelCore {
         let scan = ScanPipelines::build(gpu, ctx.shaders, &scan_layout)?;
         // The direct-light part is rebuilt too (shader change); if that fails, its old
         // pipelines and the old surfel pipelines stay.
-        if self.restir_direct.is_built() || self.settings.direct_restir {
-            self.restir_direct.build(ctx)?;
-            self.restir_direct.build_resources(ctx);
-        }
+        self.restir_direct
+            .prepare(ctx, self.settings.direct_restir, true, ())?;
         self.prepare_reflections(ctx, true)?;
         self.world_regir.prepare(ctx, &self.settings.cache_light)?;
         self.trace_light = self.settings.cache_light.name();
@@ -808,16 +762,12 @@ impl SurfelCore {
             let layout = self.layouts(ctx.gpu).surfels.clone();
             let pipeline = WorldRegir::lighting_pipeline(
                 ctx,
-                "parts/surfels/trace.wgsl",
+                Pass::Trace.file(),
                 &layout,
                 &self.settings.cache_light,
             )?;
             if let Some(p) = self.pipelines.as_mut() {
-                let i = ENTRIES
-                    .iter()
-                    .position(|(n, _)| *n == "trace")
-                    .expect("trace");
-                p.passes[i] = pipeline;
+                p.passes[Pass::Trace as usize] = pipeline;
             }
             self.trace_light = self.settings.cache_light.name();
         }
@@ -860,24 +810,30 @@ impl SurfelCore {
         let per_slot = [max.div_ceil(64), 1, 1];
         let pass = |enc: &mut wgpu::CommandEncoder,
                     timer: &mut PassTimer,
-                    name: &'static str,
+                    pass: Pass,
                     groups: [u32; 3]| {
-            pipelines::technique_pass(ctx, enc, timer, name, p.get(name), &[bg], groups);
+            let name = pass.name();
+            pipelines::technique_pass(ctx, enc, timer, name, p.get(pass), &[bg], groups);
         };
-        pass(enc, timer, "recycle", per_slot);
+        pass(enc, timer, Pass::Recycle, per_slot);
         p.scan.record(enc, timer, &r.scans[0]);
-        pass(enc, timer, "push", per_slot);
-        pass(enc, timer, "coverage", [r.tiles[0], r.tiles[1], 1]);
+        pass(enc, timer, Pass::Push, per_slot);
+        pass(enc, timer, Pass::Coverage, [r.tiles[0], r.tiles[1], 1]);
         p.scan.record(enc, timer, &r.scans[1]);
-        pass(enc, timer, "spawn", [r.gpu_params.tiles.div_ceil(64), 1, 1]);
+        pass(
+            enc,
+            timer,
+            Pass::Spawn,
+            [r.gpu_params.tiles.div_ceil(64), 1, 1],
+        );
         // The coverage pass above read last frame's grid; this frame's is built from here.
         enc.clear_buffer(&r.cell_offsets, 0, None);
         enc.clear_buffer(&r.cell_cursor, 0, None);
-        pass(enc, timer, "prepare", per_slot);
+        pass(enc, timer, Pass::Prepare, per_slot);
         p.scan.record(enc, timer, &r.scans[2]);
-        pass(enc, timer, "scatter", per_slot);
-        pass(enc, timer, "sort_cells", [GRID_CELLS.div_ceil(64), 1, 1]);
-        pass(enc, timer, "allocate", per_slot);
+        pass(enc, timer, Pass::Scatter, per_slot);
+        pass(enc, timer, Pass::SortCells, [GRID_CELLS.div_ceil(64), 1, 1]);
+        pass(enc, timer, Pass::Allocate, per_slot);
         p.scan.record(enc, timer, &r.scans[3]);
         pipelines::technique_pass(
             ctx,
@@ -904,22 +860,23 @@ impl SurfelCore {
         .into_iter()
         .flatten()
         .collect();
-        pipelines::list_pass(enc, timer, "trace", p.get("trace"), &groups, &r.args, 0);
-        pass(enc, timer, "estimate", per_slot);
-        pass(enc, timer, "integrate", per_slot);
+        let trace = Pass::Trace;
+        pipelines::list_pass(enc, timer, trace.name(), p.get(trace), &groups, &r.args, 0);
+        pass(enc, timer, Pass::Estimate, per_slot);
+        pass(enc, timer, Pass::Integrate, per_slot);
         let image = [ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1];
         if self.cache_only {
             // Marks the surfels the pixels see: recycling frees the ones no pixel saw.
-            pass(enc, timer, "apply", image);
+            pass(enc, timer, Pass::Apply, image);
             return;
         }
-        if self.settings.direct_restir && self.restir_direct.is_built() {
+        if self.restir_direct.active(self.settings.direct_restir) {
             self.restir_direct
                 .record(ctx, enc, timer, &r.direct_bind_group);
         } else {
-            pass(enc, timer, "direct", image);
+            pass(enc, timer, Pass::Direct, image);
         }
-        if self.reflections_active() && self.reflections.is_built() {
+        if self.reflections.active(self.reflections_active()) {
             self.reflections.record(
                 ctx,
                 enc,
@@ -935,11 +892,11 @@ impl SurfelCore {
             pass(
                 enc,
                 timer,
-                "apply gather",
+                Pass::ApplyGather,
                 [blocks[0].div_ceil(8), blocks[1].div_ceil(8), 1],
             );
         }
-        pass(enc, timer, "apply", image);
+        pass(enc, timer, Pass::Apply, image);
     }
 
     pub fn debug_views(&self) -> Vec<DebugView> {
@@ -979,10 +936,6 @@ impl SurfelCore {
         self.params.set("surfels", params)?;
         self.settings = SurfelSettings::from_params(&self.params);
         Ok(())
-    }
-
-    pub fn shader_files(&self) -> &'static [&'static str] {
-        &SHADER_FILES
     }
 
     /// Surfels spawn over the first frames (and hits outside their cover trace paths then):

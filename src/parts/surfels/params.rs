@@ -7,7 +7,7 @@ use crate::render::params::{ParamKind, ParamSpec, Params};
 pub const MAX_RAYS_PER_SURFEL: u32 = 4096;
 
 /// The surfels' own parameters; [`PARAMS`] adds the reflections part's.
-const OWN_PARAMS: [ParamSpec; 11] = [
+const OWN_PARAMS: &[ParamSpec] = &[
     ParamSpec {
         name: "max_surfels",
         what: "size of the surfel pool, allocated up front (the seed's fixed budget)",
@@ -62,14 +62,12 @@ const OWN_PARAMS: [ParamSpec; 11] = [
         kind: ParamKind::Bool,
         default: 1.0,
     },
-    ParamSpec {
-        name: "direct",
-        what: "direct light per pixel: next-event estimation of one light by power, or ReSTIR DI (its passes with GI off)",
-        higher: "restir: far less noise with many lights (ReGIR where the scene has them), more passes",
-        lower: "nee: one shadow ray, no extra passes",
-        kind: ParamKind::Choice(&["nee", "restir"]),
-        default: 0.0,
-    },
+    crate::parts::restir_direct::param(
+        &["nee", "restir"],
+        "direct light per pixel: next-event estimation of one light by power, or ReSTIR DI (its passes with GI off)",
+        "restir: far less noise with many lights (ReGIR where the scene has them), more passes",
+        "nee: one shadow ray, no extra passes",
+    ),
     ParamSpec {
         name: "apply_resolution",
         what: "where pixels gather the surfels: once per 2x2 block, upsampled per pixel by depth and normal (the seed's quarter-area apply; a pixel no block sample matches gathers itself), or at every pixel",
@@ -110,16 +108,12 @@ const OWN_PARAMS: [ParamSpec; 11] = [
     },
 ];
 
-const WITH_REFLECTIONS: [ParamSpec; 17] = crate::render::params::concat_params::<11, 6, 17>(
+/// The surfels' parameters and their parts' (reflections, the ray hits' light sampling).
+pub const PARAMS: &[ParamSpec] = crate::param_table![
     OWN_PARAMS,
     crate::parts::reflections::PARAMS,
-);
-
-/// The surfels' parameters and their parts' (reflections, the ray hits' light sampling).
-pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<17, 3, 20>(
-    WITH_REFLECTIONS,
     crate::parts::world_regir::PARAMS,
-);
+];
 
 /// The parameters, typed.
 #[derive(Clone, Debug, PartialEq)]
@@ -154,7 +148,7 @@ impl SurfelSettings {
             msme: p.bool("msme"),
             sharing: p.bool("irradiance_sharing"),
             quarter_apply: p.u32("apply_resolution") == 0,
-            direct_restir: p.u32("direct") == 1,
+            direct_restir: crate::parts::restir_direct::chosen(p),
             coverage_target: p.f32("coverage_target"),
             surfel_size: p.f32("surfel_size"),
             accumulate: p.bool("accumulate"),

@@ -37,6 +37,7 @@ pub use params::{CallistoParamsGpu, CallistoSettings, MAX_LIGHTS_PER_TILE, PARAM
 
 use crate::gpu::{timing::PassTimer, Gpu};
 use crate::parts::reflections::HitCache;
+use crate::parts::Part;
 use crate::parts::{Reflections, RestirDirect, RestirGi};
 use crate::render::params::Params;
 use crate::render::primary::FrameInputs;
@@ -127,36 +128,6 @@ impl Default for CallistoShadows {
     }
 }
 
-/// Callisto's entry files, ReSTIR's (GI, and the direct-light part's DI passes) and the
-/// direct-light part's shading.
-const OWN_SHADER_FILES: [&str; 15] = crate::render::concat_files::<11, 4, 15>(
-    CALLISTO_AND_RESTIR_FILES,
-    crate::parts::reflections::SHADER_FILES,
-);
-
-const CALLISTO_AND_RESTIR_FILES: [&str; 11] = [
-    CULL,
-    SHADOWS,
-    MEAN,
-    RESOLVE,
-    "parts/restir/regir_mark.wgsl",
-    "parts/restir/regir_build.wgsl",
-    "parts/restir/initial_temporal.wgsl",
-    "parts/restir/spatial.wgsl",
-    "parts/restir/gi_temporal.wgsl",
-    "parts/restir/gi_spatial.wgsl",
-    "parts/restir_direct.wgsl",
-];
-
-/// With the cache parts' (compiled only with `gi_terminate = "lumen-cards"` or `"surfels"`).
-const SHADER_FILES: [&str; 37] = crate::render::concat_files(
-    crate::render::concat_files::<15, 6, 21>(
-        OWN_SHADER_FILES,
-        crate::parts::surface_cache::SURFACE_CACHE_FILES,
-    ),
-    crate::parts::surfel_cache::SURFEL_CACHE_FILES,
-);
-
 impl CallistoShadows {
     fn layout(&mut self, gpu: &Gpu) -> wgpu::BindGroupLayout {
         self.layout
@@ -189,13 +160,8 @@ impl CallistoShadows {
             self.settings.cache_light,
         );
         self.restir.prepare(ctx, rebuild_gi)?;
-        if self.settings.direct_restir && !self.restir_direct.is_built() {
-            self.restir_direct.build(ctx)?;
-        }
-        if self.restir_direct.is_built() {
-            self.restir_direct.build_resources(ctx);
-        }
-        Ok(())
+        self.restir_direct
+            .prepare(ctx, self.settings.direct_restir, false, ())
     }
 
     /// The reflections part runs: `reflections = "traced"` on a scene with a specular layer.
@@ -212,23 +178,17 @@ impl CallistoShadows {
         self.specular = ctx.scene.data.features.min_specular_roughness.is_some();
         let needed = self.reflections_active();
         let cache = self.restir.surface_cache().map(|(_, world)| world);
+        // Built for another hit cache: built again for this one.
         let stale = self.reflections.is_built() && cache != self.reflection_cache;
-        if (needed && !self.reflections.is_built())
-            || (rebuild && self.reflections.is_built())
-            || stale
-        {
-            match cache {
-                Some(world) => {
-                    let layout = crate::parts::SurfaceCache::lookup_layout(ctx.gpu, world);
-                    self.reflections
-                        .build(ctx, Some(HitCache::SurfaceCache(&layout)))?;
-                }
-                None => self.reflections.build(ctx, None)?,
-            }
-            self.reflection_cache = cache;
-        }
+        let layout = cache.map(|world| crate::parts::SurfaceCache::lookup_layout(ctx.gpu, world));
+        self.reflections.prepare(
+            ctx,
+            needed,
+            rebuild || stale,
+            layout.as_ref().map(HitCache::SurfaceCache),
+        )?;
         if self.reflections.is_built() {
-            self.reflections.build_resources(ctx);
+            self.reflection_cache = cache;
         }
         Ok(())
     }
@@ -509,10 +469,9 @@ impl Technique for CallistoShadows {
             mean: make(MEAN, &empty)?,
             resolve: make(RESOLVE, &restir_layout)?,
         };
-        if self.restir_direct.is_built() {
-            // And the direct-light part's (on an error its old pipelines stay).
-            self.restir_direct.build(ctx)?;
-        }
+        // And the direct-light part's (on an error its old pipelines stay).
+        self.restir_direct
+            .prepare(ctx, self.settings.direct_restir, true, ())?;
         // Rebuild ReSTIR GI's pipelines too when it runs (hot reload of its shaders).
         self.ensure_restir(ctx, self.settings.gi)?;
         self.prepare_reflections(ctx, true)?;
@@ -662,10 +621,6 @@ impl Technique for CallistoShadows {
             self.settings.cache_light,
         );
         Ok(())
-    }
-
-    fn shader_files(&self) -> &'static [&'static str] {
-        &SHADER_FILES
     }
 
     /// Variable rate settles after the first (full-rate) frame.

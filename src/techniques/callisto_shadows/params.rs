@@ -51,7 +51,7 @@ pub const RATES: &[&str] = &["variable", "full", "half", "quarter"];
 
 /// Callisto's own parameters; [`PARAMS`] adds the reflections part's and the caches' light
 /// sampling (`cache_direct`, for the cache ReSTIR GI's paths end in).
-const OWN_PARAMS: [ParamSpec; 19] = [
+const OWN_PARAMS: &[ParamSpec] = &[
     ParamSpec {
         name: "rate",
         what: "shadow-ray rate per light and 2x2 quad: variable (chosen from last frame's shadow variance, perceptually weighted) or forced everywhere",
@@ -172,14 +172,12 @@ const OWN_PARAMS: [ParamSpec; 19] = [
         kind: ParamKind::Choice(&crate::parts::restir::GiTerminate::NAMES),
         default: 0.0,
     },
-    ParamSpec {
-        name: "direct",
-        what: "direct light per pixel: this technique's tile-culled, variable-rate shadow rays, or ReSTIR DI (the restir technique's passes with GI off, the shared direct-light part), for A/B at equal everything else",
-        higher: "restir: reservoir resampling over every light, one visibility ray per pixel; cull, shadows and the shadow mask do not run",
-        lower: "tiles: the seed's ray-traced shadows (one ray per light per traced pixel)",
-        kind: ParamKind::Choice(&["tiles", "restir"]),
-        default: 0.0,
-    },
+    crate::parts::restir_direct::param(
+        &["tiles", "restir"],
+        "direct light per pixel: this technique's tile-culled, variable-rate shadow rays, or ReSTIR DI (the restir technique's passes with GI off, the shared direct-light part), for A/B at equal everything else",
+        "restir: reservoir resampling over every light, one visibility ray per pixel; cull, shadows and the shadow mask do not run",
+        "tiles: the seed's ray-traced shadows (one ray per light per traced pixel)",
+    ),
     ParamSpec {
         name: "static_shadow_cache",
         what: "the seed's static/dynamic split: a light that has not moved keeps the visibility of static geometry from static receivers in a world-space hash grid (cells of shadow_cache_cell pixel footprints, per light), filled by rays against static geometry only; each frame traces only the moving instances (those whose transform has changed) and multiplies. Lights that moved and receivers on moving instances trace the whole scene",
@@ -206,17 +204,14 @@ const OWN_PARAMS: [ParamSpec; 19] = [
     },
 ];
 
-const WITH_REFLECTIONS: [ParamSpec; 25] = crate::render::params::concat_params::<19, 6, 25>(
+/// Callisto's parameters and its parts' (reflections, the caches' light sampling).
+pub const PARAMS: &[ParamSpec] = crate::param_table![
     OWN_PARAMS,
     // Off by default: Callisto alone is direct light (`gi = false`), which its tests compare
     // with the reference's direct light.
     crate::parts::reflections::params_off_by_default(),
-);
-
-pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<25, 3, 28>(
-    WITH_REFLECTIONS,
     crate::parts::world_regir::PARAMS,
-);
+];
 
 #[derive(Clone, Debug, PartialEq)]
 pub struct CallistoSettings {
@@ -267,7 +262,7 @@ impl CallistoSettings {
             accumulate: p.bool("accumulate"),
             gi: p.bool("gi"),
             gi_terminate: crate::parts::restir_gi::GiTerminate::from_index(p.u32("gi_terminate")),
-            direct_restir: p.u32("direct") == 1,
+            direct_restir: crate::parts::restir_direct::chosen(p),
             cache_light: crate::parts::world_regir::WorldRegirSettings::from_params(p),
             reflections: crate::parts::reflections::ReflectionSettings::from_params(p).0,
             reflection: crate::parts::reflections::ReflectionSettings::from_params(p).1,

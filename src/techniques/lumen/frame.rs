@@ -35,17 +35,11 @@ impl Lumen {
         self.reflections.settings = self.settings.reflection.clone();
         let needed =
             self.settings.reflections && ctx.scene.data.features.min_specular_roughness.is_some();
-        if (needed && !self.reflections.is_built()) || (rebuild && self.reflections.is_built()) {
-            // The cache's lookup bindings alone: with all of Lumen's group the trace pass would
-            // bind more storage buffers than a stage may.
-            let layout = crate::parts::SurfaceCache::lookup_layout(ctx.gpu, false);
-            self.reflections
-                .build(ctx, Some(HitCache::SurfaceCache(&layout)))?;
-        }
-        if self.reflections.is_built() {
-            self.reflections.build_resources(ctx);
-        }
-        Ok(())
+        // The cache's lookup bindings alone: with all of Lumen's group the trace pass would bind
+        // more storage buffers than a stage may.
+        let layout = crate::parts::SurfaceCache::lookup_layout(ctx.gpu, false);
+        self.reflections
+            .prepare(ctx, needed, rebuild, Some(HitCache::SurfaceCache(&layout)))
     }
 
     /// Lookups the world ReGIR clipmap served, for tests and reports.
@@ -93,8 +87,8 @@ impl Lumen {
             ctx,
             enc,
             timer,
-            "sdf release",
-            p.get("sdf release"),
+            Pass::SdfRelease.name(),
+            p.get(Pass::SdfRelease),
             &[bg],
             groups,
         );
@@ -102,8 +96,8 @@ impl Lumen {
             ctx,
             enc,
             timer,
-            "sdf allocate",
-            p.get("sdf allocate"),
+            Pass::SdfAllocate.name(),
+            p.get(Pass::SdfAllocate),
             &[bg],
             groups,
         );
@@ -155,8 +149,8 @@ impl Lumen {
             ctx,
             enc,
             timer,
-            "sdf coarse",
-            p.get("sdf coarse"),
+            Pass::SdfCoarse.name(),
+            p.get(Pass::SdfCoarse),
             &[bg],
             [cells.div_ceil(64), 1, 1],
         );

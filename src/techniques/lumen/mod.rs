@@ -50,6 +50,7 @@ mod resources;
 pub mod screen_probes;
 pub mod sdf;
 
+use crate::parts::Part;
 use crate::render::pipelines::init_buffer;
 pub use params::{LumenSettings, TracingParamsGpu, FLAG_BVH, FLAG_LIGHTS, FLAG_SKY, PARAMS};
 pub use screen_probes::ProbeStats;
@@ -69,15 +70,19 @@ use glam::Vec3;
 use params::*;
 use sdf::{Clipmaps, MAX_LEVELS};
 
-const COMPUTE: [(&str, &str); 7] = [
-    ("sdf release", "lumen/sdf_release.wgsl"),
-    ("sdf allocate", "lumen/sdf_allocate.wgsl"),
-    ("sdf coarse", "lumen/sdf_coarse.wgsl"),
-    ("gather", "lumen/gather.wgsl"),
-    ("apply", "lumen/apply.wgsl"),
-    ("query", "lumen/query.wgsl"),
-    ("voxel lighting", "lumen/voxel_lighting.wgsl"),
-];
+crate::compute_passes! {
+    /// Lumen's passes on its group 2 (query and apply with a group of their own besides), in
+    /// pipeline order.
+    pub(crate) enum Pass {
+        SdfRelease => ("sdf release", "lumen/sdf_release.wgsl"),
+        SdfAllocate => ("sdf allocate", "lumen/sdf_allocate.wgsl"),
+        SdfCoarse => ("sdf coarse", "lumen/sdf_coarse.wgsl"),
+        Gather => ("gather", "lumen/gather.wgsl"),
+        Apply => ("apply", "lumen/apply.wgsl"),
+        Query => ("query", "lumen/query.wgsl"),
+        VoxelLighting => ("voxel lighting", "lumen/voxel_lighting.wgsl"),
+    }
+}
 const SDF_ARGS: &str = "lumen/sdf_args.wgsl";
 const SDF_FILL: &str = "lumen/sdf_fill.wgsl";
 /// Run with each level's fill, over the same bricks (and the fill's group 3).
@@ -159,12 +164,8 @@ struct Pipelines {
 }
 
 impl Pipelines {
-    fn get(&self, name: &str) -> &wgpu::ComputePipeline {
-        let i = COMPUTE
-            .iter()
-            .position(|(n, _)| *n == name)
-            .expect("a known pass");
-        &self.compute[i]
+    fn get(&self, pass: Pass) -> &wgpu::ComputePipeline {
+        &self.compute[pass as usize]
     }
 }
 
@@ -222,48 +223,6 @@ fn lumen_bind_group(
         entries: &entries,
     })
 }
-
-/// Lumen's own entry files.
-const OWN_SHADER_FILES: [&str; 23] = [
-    "lumen/sdf_release.wgsl",
-    "lumen/sdf_allocate.wgsl",
-    "lumen/sdf_args.wgsl",
-    "lumen/sdf_fill.wgsl",
-    "lumen/sdf_coarse.wgsl",
-    "lumen/gather.wgsl",
-    "lumen/apply.wgsl",
-    "lumen/query.wgsl",
-    "parts/world_cache/select.wgsl",
-    "parts/world_cache/update.wgsl",
-    "lumen/hzb_build.wgsl",
-    "lumen/hzb_top.wgsl",
-    "lumen/probe_place.wgsl",
-    "lumen/probe_adaptive.wgsl",
-    "lumen/probe_sample.wgsl",
-    "lumen/screen_trace.wgsl",
-    "lumen/world_args.wgsl",
-    "lumen/world_trace.wgsl",
-    "lumen/probe_resolve.wgsl",
-    "lumen/probe_filter.wgsl",
-    "lumen/integrate.wgsl",
-    "lumen/voxel_visibility.wgsl",
-    "lumen/voxel_lighting.wgsl",
-];
-
-/// Lumen's entry files and its parts' (surface cache, direct light, reflections, world ReGIR).
-const SHADER_FILES: [&str; 37] = crate::render::concat_files(
-    crate::render::concat_files::<32, 4, 36>(
-        crate::render::concat_files::<27, 5, 32>(
-            crate::render::concat_files::<23, 4, 27>(
-                OWN_SHADER_FILES,
-                crate::parts::surface_cache::SHADER_FILES,
-            ),
-            crate::parts::restir_direct::SHADER_FILES,
-        ),
-        crate::parts::reflections::SHADER_FILES,
-    ),
-    crate::parts::world_regir::SHADER_FILES,
-);
 
 pub struct Lumen {
     params: Params,
@@ -434,21 +393,27 @@ impl Technique for Lumen {
         };
         // Every pipeline first: on an error nothing is replaced.
         let mut compute = Vec::new();
-        for (name, entry) in COMPUTE {
-            if name == "query" {
-                continue;
-            }
-            if name == "apply" {
+        for &pass in Pass::ALL {
+            let own_group = match pass {
                 // Apply also writes the screen traces' image (group 3).
-                compute.push(pipelines::compute_pipeline(
-                    gpu,
-                    ctx.shaders,
-                    entry,
-                    &[&ctx.scene.layout, ctx.frame_layout, &lumen, &probe_layout],
-                )?);
-                continue;
-            }
-            compute.push(ctx.pipeline(entry, &lumen)?);
+                Pass::Apply => Some(&probe_layout),
+                // The query pass reads its queries at group 1 (no frame).
+                Pass::Query => None,
+                _ => {
+                    compute.push(ctx.pipeline(pass.file(), &lumen)?);
+                    continue;
+                }
+            };
+            let layouts = match own_group {
+                Some(probes) => vec![&ctx.scene.layout, ctx.frame_layout, &lumen, probes],
+                None => vec![&ctx.scene.layout, &query_layout, &lumen],
+            };
+            compute.push(pipelines::compute_pipeline(
+                gpu,
+                ctx.shaders,
+                pass.file(),
+                &layouts,
+            )?);
         }
         let probes = ProbePipelines::build(ctx, &lumen, &probe_layout)?;
         let world = WorldCachePipelines::build(ctx, &lumen)?;
@@ -470,34 +435,14 @@ impl Technique for Lumen {
             VOXEL_VISIBILITY,
             &[&ctx.scene.layout, ctx.frame_layout, &lumen, &fill_level],
         )?;
-        let query = pipelines::compute_pipeline(
-            gpu,
-            ctx.shaders,
-            COMPUTE
-                .iter()
-                .find(|(n, _)| *n == "query")
-                .expect("query")
-                .1,
-            &[&ctx.scene.layout, &query_layout, &lumen],
-        )?;
-        let query_at = COMPUTE
-            .iter()
-            .position(|(n, _)| *n == "query")
-            .expect("query");
-        compute.insert(query_at, query.clone());
-        let apply = compute[COMPUTE
-            .iter()
-            .position(|(n, _)| *n == "apply")
-            .expect("apply")]
-        .clone();
+        let query = compute[Pass::Query as usize].clone();
+        let apply = compute[Pass::Apply as usize].clone();
         // The parts are rebuilt too (shader change); if one fails, its old pipelines and
         // Lumen's stay.
         self.cache.settings = self.settings.surface_cache_settings();
         self.cache.build_pipelines(ctx, &lumen)?;
-        if self.restir_direct.is_built() || self.settings.direct_restir {
-            self.restir_direct.build(ctx)?;
-            self.restir_direct.build_resources(ctx);
-        }
+        self.restir_direct
+            .prepare(ctx, self.settings.direct_restir, true, ())?;
         self.prepare_reflections(ctx, true)?;
         self.pipelines = Some(Pipelines {
             compute,
@@ -521,12 +466,8 @@ impl Technique for Lumen {
     /// mode relights the cache from scratch.
     fn apply_params(&mut self, ctx: &RenderContext) -> Result<()> {
         self.settings.check()?;
-        if self.settings.direct_restir && !self.restir_direct.is_built() {
-            self.restir_direct.build(ctx)?;
-        }
-        if self.restir_direct.is_built() {
-            self.restir_direct.build_resources(ctx);
-        }
+        self.restir_direct
+            .prepare(ctx, self.settings.direct_restir, false, ())?;
         self.prepare_reflections(ctx, false)?;
         self.cache.settings = self.settings.surface_cache_settings();
         let layout = self.layouts(ctx.gpu).lumen.clone();
@@ -669,8 +610,8 @@ impl Technique for Lumen {
         if plan.any_update {
             self.record_sdf(ctx, enc, timer, &plan);
         }
-        let direct_restir = self.direct_restir() && self.restir_direct.is_built();
-        let reflections = self.reflections_active() && self.reflections.is_built();
+        let direct_restir = self.restir_direct.active(self.direct_restir());
+        let reflections = self.reflections.active(self.reflections_active());
         let lookup = if reflections {
             let layout = SurfaceCache::lookup_layout(ctx.gpu, false);
             self.cache.lookup_bind_group(ctx.gpu, &layout, None)
@@ -688,8 +629,8 @@ impl Technique for Lumen {
             pipelines::list_pass(
                 enc,
                 timer,
-                "voxel lighting",
-                p.get("voxel lighting"),
+                Pass::VoxelLighting.name(),
+                p.get(Pass::VoxelLighting),
                 &[&ctx.scene.bind_group, ctx.frame_bind_group, bg],
                 &r.args,
                 12 * MAX_LEVELS as u64,
@@ -709,8 +650,8 @@ impl Technique for Lumen {
                 ctx,
                 enc,
                 timer,
-                "gather",
-                p.get("gather"),
+                Pass::Gather.name(),
+                p.get(Pass::Gather),
                 &[bg],
                 [gp.gather_width.div_ceil(8), gp.gather_height.div_ceil(8), 1],
             );
@@ -800,10 +741,6 @@ impl Technique for Lumen {
         }
         self.settings = settings;
         Ok(())
-    }
-
-    fn shader_files(&self) -> &'static [&'static str] {
-        &SHADER_FILES
     }
 
     /// The first frames build the distance field and capture cards.

@@ -5,7 +5,7 @@ use crate::render::params::{ParamKind, ParamSpec, Params};
 use crate::parts::world_cache::DEFAULTS as WORLD_CACHE_DEFAULTS;
 
 /// Lumen's own parameters; [`PARAMS`] adds the reflections part's.
-const OWN_PARAMS: [ParamSpec; 29] = [
+const OWN_PARAMS: &[ParamSpec] = &[
     ParamSpec {
         name: "tracing",
         what: "what rays trace: the global distance field (the seed's software ray tracing) or the scene's triangles through the BVH (its hardware ray tracing); both read the same surface cache",
@@ -214,14 +214,12 @@ const OWN_PARAMS: [ParamSpec; 29] = [
         kind: ParamKind::Int { min: 4, max: 64 },
         default: 16.0,
     },
-    ParamSpec {
-        name: "direct",
-        what: "direct light per pixel: next-event estimation of one light by power, or ReSTIR DI (the restir technique's passes with GI off, the shared direct-light part); the surface cache's own direct light is unchanged",
-        higher: "restir: far less noise with many lights (ReGIR where the scene has them), more passes",
-        lower: "nee: one shadow ray in apply, no extra passes",
-        kind: ParamKind::Choice(&["nee", "restir"]),
-        default: 0.0,
-    },
+    crate::parts::restir_direct::param(
+        &["nee", "restir"],
+        "direct light per pixel: next-event estimation of one light by power, or ReSTIR DI (the restir technique's passes with GI off, the shared direct-light part); the surface cache's own direct light is unchanged",
+        "restir: far less noise with many lights (ReGIR where the scene has them), more passes",
+        "nee: one shadow ray in apply, no extra passes",
+    ),
     ParamSpec {
         name: "accumulate",
         what: "average frames into the output (off: each frame alone, the real-time view)",
@@ -240,17 +238,12 @@ const OWN_PARAMS: [ParamSpec; 29] = [
     },
 ];
 
-/// Lumen's parameters and its reflections part's.
-const WITH_REFLECTIONS: [ParamSpec; 35] = crate::render::params::concat_params::<29, 6, 35>(
+/// Lumen's parameters and its parts' (reflections, the cache's light sampling).
+pub const PARAMS: &[ParamSpec] = crate::param_table![
     OWN_PARAMS,
     crate::parts::reflections::PARAMS,
-);
-
-/// Lumen's parameters and its parts' (reflections, the cache's light sampling).
-pub const PARAMS: &[ParamSpec] = &crate::render::params::concat_params::<35, 3, 38>(
-    WITH_REFLECTIONS,
     crate::parts::world_regir::PARAMS,
-);
+];
 
 /// The parameters, typed.
 #[derive(Clone, Debug, PartialEq)]
@@ -329,7 +322,7 @@ impl LumenSettings {
             sign_rays: p.u32("sign_rays"),
             voxel_lighting: p.bool("voxel_lighting"),
             accumulate: p.bool("accumulate"),
-            direct_restir: p.u32("direct") == 1,
+            direct_restir: crate::parts::restir_direct::chosen(p),
             debug_views: p.bool("debug_views"),
             screen_probes: p.u32("final_gather") == 0,
             probe_spacing: p.u32("probe_spacing"),

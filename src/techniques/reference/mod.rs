@@ -337,10 +337,6 @@ impl Technique for ReferencePathTracer {
         Ok(())
     }
 
-    fn shader_files(&self) -> &'static [&'static str] {
-        &["reference/path_trace.wgsl"]
-    }
-
     fn params_for_ray_budget(
         &self,
         rays_per_pixel: f64,

@@ -48,20 +48,6 @@ use crate::render::{pipelines, DebugView, PassInfo, RenderContext, Technique};
 use crate::scene::features::SceneFeatures;
 use anyhow::Result;
 
-/// The technique's entry files: the lighting core's and its shading pass.
-pub const OWN_SHADER_FILES: [&str; 7] =
-    crate::render::concat_files(crate::parts::restir::SHADER_FILES, ["restir/shade.wgsl"]);
-
-/// ReSTIR's files and the cache parts' (compiled only with `gi_terminate = "lumen-cards"` or
-/// `"surfels"`).
-const SHADER_FILES: [&str; 29] = crate::render::concat_files(
-    crate::render::concat_files::<7, 6, 13>(
-        OWN_SHADER_FILES,
-        crate::parts::surface_cache::SURFACE_CACHE_FILES,
-    ),
-    crate::parts::surfel_cache::SURFEL_CACHE_FILES,
-);
-
 /// The `restir` technique: [`RestirLighting`] (DI, GI, ReGIR) and a shading pass that turns its
 /// reservoirs into the pixel's radiance.
 pub struct Restir {
@@ -192,10 +178,6 @@ impl Technique for Restir {
         }
         self.lighting.settings = settings;
         Ok(())
-    }
-
-    fn shader_files(&self) -> &'static [&'static str] {
-        &SHADER_FILES
     }
 
     fn params_for_ray_budget(

@@ -27,6 +27,7 @@ pub mod shift_math;
 pub use params::{PtParamsGpu, PtSettings, MAX_SPATIAL, PARAMS};
 
 use crate::gpu::{timing::PassTimer, Gpu};
+use crate::parts::Part;
 use crate::parts::RestirDirect;
 use crate::render::params::Params;
 use crate::render::primary::FrameInputs;
@@ -45,8 +46,6 @@ const OWN_SHADER_FILES: [&str; 4] = [
     "restir_pt/spatial.wgsl",
     "restir_pt/shade.wgsl",
 ];
-const SHADER_FILES: [&str; 9] =
-    crate::render::concat_files(OWN_SHADER_FILES, crate::parts::restir_direct::SHADER_FILES);
 
 #[derive(Default)]
 struct Pipelines {
@@ -171,13 +170,8 @@ impl RestirPt {
     }
 
     fn prepare_direct(&mut self, ctx: &RenderContext, rebuild: bool) -> Result<()> {
-        if self.settings.direct_restir && (rebuild || !self.restir_direct.is_built()) {
-            self.restir_direct.build(ctx)?;
-        }
-        if self.restir_direct.is_built() {
-            self.restir_direct.build_resources(ctx);
-        }
-        Ok(())
+        self.restir_direct
+            .prepare(ctx, self.settings.direct_restir, rebuild, ())
     }
 }
 
@@ -313,7 +307,7 @@ impl Technique for RestirPt {
         let Some(r) = &self.resources else {
             return;
         };
-        if self.settings.direct_restir && self.restir_direct.is_built() {
+        if self.restir_direct.active(self.settings.direct_restir) {
             self.restir_direct
                 .record(ctx, enc, timer, &r.direct_bind_group);
         }
@@ -356,10 +350,6 @@ impl Technique for RestirPt {
         self.params.set("restir-pt", params)?;
         self.settings = PtSettings::from_params(&self.params);
         Ok(())
-    }
-
-    fn shader_files(&self) -> &'static [&'static str] {
-        &SHADER_FILES
     }
 
     /// The budget knob is `spatial_count`: each neighbour costs two shifts, about one ray each

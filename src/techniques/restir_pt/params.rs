@@ -87,14 +87,12 @@ pub const PARAMS: &[ParamSpec] = &[
         },
         default: 16.0,
     },
-    ParamSpec {
-        name: "direct",
-        what: "direct light (paths of length 2): unified (in the path reservoirs) or restir (ReSTIR DI through the direct-light part; the path reservoirs then hold indirect light only)",
-        higher: "restir: ReSTIR DI's many-light sampling for direct light, one extra set of passes",
-        lower: "unified: one reservoir for all light, as RTXDI 3.0 and Solari move to",
-        kind: ParamKind::Choice(DIRECT),
-        default: 0.0,
-    },
+    crate::parts::restir_direct::param(
+        DIRECT,
+        "direct light (paths of length 2): unified (in the path reservoirs) or restir (ReSTIR DI through the direct-light part; the path reservoirs then hold indirect light only)",
+        "restir: ReSTIR DI's many-light sampling for direct light, one extra set of passes",
+        "unified: one reservoir for all light, as RTXDI 3.0 and Solari move to",
+    ),
     ParamSpec {
         name: "accumulate",
         what: "average every frame since the last reset (off: each frame alone, for real-time comparisons)",
@@ -140,7 +138,7 @@ impl PtSettings {
             max_history: p.f32("max_history"),
             spatial_count: p.u32("spatial_count"),
             spatial_radius: p.f32("spatial_radius"),
-            direct_restir: p.u32("direct") == 1,
+            direct_restir: crate::parts::restir_direct::chosen(p),
             accumulate: p.bool("accumulate"),
             debug: p.bool(crate::techniques::DEBUG_VIEWS),
         }

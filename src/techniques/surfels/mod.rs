@@ -9,7 +9,7 @@
 
 pub use crate::parts::surfels::{
     PoolCounts, SurfelCore, SurfelParamsGpu, SurfelSettings, SurfelSnapshot, GRID_CELLS,
-    MAX_RAYS_PER_SURFEL, PARAMS, POOL_BYTES, STATE_BYTES, SURFEL_BYTES, SURFEL_CACHE_FILES, TILE,
+    MAX_RAYS_PER_SURFEL, PARAMS, POOL_BYTES, STATE_BYTES, SURFEL_BYTES, TILE,
 };
 
 use crate::gpu::{timing::PassTimer, Gpu};
@@ -92,10 +92,6 @@ impl Technique for Surfels {
 
     fn set_params(&mut self, params: &toml::Table) -> Result<()> {
         self.core.set_params(params)
-    }
-
-    fn shader_files(&self) -> &'static [&'static str] {
-        self.core.shader_files()
     }
 
     fn calibration_frames(&self) -> u32 {
