@@ -2724,3 +2724,40 @@ fn preset_keyframe_errors_are_clear() {
         "{err}"
     );
 }
+
+/// The registry of caches GI paths end in (`parts::gi_cache::CACHES`) is what `gi_terminate`
+/// offers, and each entry's key for a set of parameters is the key of the cache it makes: a
+/// cache once built is kept while the parameters do not change (a mismatch would rebuild it
+/// every frame and restart its history). For every registered cache and a few parameter sets.
+#[test]
+fn registered_caches_make_what_their_key_says() {
+    use gilab::parts::gi_cache::{CacheSettings, CACHES};
+    use gilab::parts::restir::GiTerminate;
+    use gilab::parts::world_regir::WorldRegirSettings;
+    assert_eq!(GiTerminate::NAMES[0], "path");
+    assert_eq!(GiTerminate::NAMES.len(), CACHES.len() + 1);
+    let light = WorldRegirSettings::from_params(&gilab::render::params::Params::new(
+        "restir",
+        gilab::parts::restir::PARAMS,
+    ));
+    for (k, kind) in CACHES.iter().enumerate() {
+        assert_eq!(GiTerminate::NAMES[k + 1], kind.name);
+        let t = GiTerminate::from_index(k as u32 + 1);
+        assert_eq!(t.name(), kind.name);
+        assert!(t.cache());
+        for (atlas_size, update, ray_budget) in [(512, 0.25, 4096), (1024, 1.0, 16384)] {
+            let s = CacheSettings {
+                atlas_size,
+                update,
+                ray_budget,
+                light,
+            };
+            let cache = (kind.new)(&s).unwrap();
+            assert_eq!(cache.key(), (kind.key)(&s), "{}", kind.name);
+            assert_eq!(cache.key().name, kind.name);
+            assert!(!(kind.describe)(&s, 1).is_empty());
+        }
+    }
+    assert!(!GiTerminate::from_index(0).cache());
+    assert_eq!(GiTerminate::from_index(99), GiTerminate::PATH);
+}

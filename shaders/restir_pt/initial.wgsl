@@ -15,7 +15,7 @@
 #import gilab::sky::{sky_radiance, sky_pdf}
 #import gilab::ray::{spawn_ray_origin, unoccluded}
 #import gilab::sampling::power_heuristic
-#import gilab::path::{nee_sky_share, pick_nee_light}
+#import gilab::path_vertex::{nee_sky_share, pick_nee_light}
 #import gilab::restir_pt::{params, reservoirs, reservoir_index, TEMPORAL_SEGMENT, PathReservoir, empty_path_reservoir, Vertex, primary_vertex, hit_vertex, path_surface, vertex_numbers, rough, reconnectable, pack_info, Stream, empty_stream, stream_add, stream_result, END_EMISSION, END_NEE, END_SKY}
 
 // The reconnection vertex found so far along the base path (r = 0: none yet).

@@ -38,7 +38,7 @@
 #import gilab::sky::{sky_radiance, sky_pdf}
 #import gilab::ray::{spawn_ray_origin, unoccluded}
 #import gilab::sampling::power_heuristic
-#import gilab::path::{nee_sky_share, pick_nee_light}
+#import gilab::path_vertex::{nee_sky_share, pick_nee_light}
 
 struct PtParams {
     // The reference's max_depth: NEE at x_1 .. x_D, emitters hit up to x_{D+1}.

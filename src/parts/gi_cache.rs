@@ -3,8 +3,9 @@
 //! inside the frame that reads it, and composes its reading pass with the cache's shader defs
 //! (`common/path.wgsl`'s termination and the lookup's bind group), binding the cache's lookup.
 //! Implemented by the surface cache (`lumen-cards`, `lumen-world`) and the surfel cache
-//! (`surfels`). A new cache implements this trait and adds one line to the constructor table
-//! in `parts/restir/gi.rs` (docs/parts.md).
+//! (`surfels`). A new cache implements this trait, declares its [`CacheKind`] in its own folder
+//! and adds one line to [`CACHES`]: its `gi_terminate` name, the parameter's choices and the
+//! holders' construction all come from there (docs/parts.md).
 
 use crate::gpu::{timing::PassTimer, Gpu};
 use crate::parts::world_regir::{Coverage, WorldRegirSettings};
@@ -21,6 +22,39 @@ pub struct CacheKey {
     pub budget: u32,
     pub light: WorldRegirSettings,
 }
+
+/// The holder's cache parameters (ReSTIR's `cache_atlas_size`, `cache_update`,
+/// `cache_ray_budget`, `cache_direct`): each cache takes what it is sized by.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CacheSettings {
+    pub atlas_size: u32,
+    /// Share of the cache relit per frame.
+    pub update: f32,
+    pub ray_budget: u32,
+    pub light: WorldRegirSettings,
+}
+
+/// A cache GI sample paths can end in, as the registry lists it.
+pub struct CacheKind {
+    /// Its `gi_terminate` name.
+    pub name: &'static str,
+    /// The key of the cache these settings make: a built cache is kept while its key
+    /// (`GiCache::key`) equals this.
+    pub key: fn(&CacheSettings) -> CacheKey,
+    /// Makes one (its pipelines come with `GiCache::build`).
+    pub new: fn(&CacheSettings) -> Result<Box<dyn GiCache>>,
+    /// What a path ending in it at hit `hit` does, for the reading pass's line in the pass
+    /// list.
+    pub describe: fn(&CacheSettings, u32) -> String,
+}
+
+/// Every cache GI sample paths can end in, in `gi_terminate`'s order after `"path"`. A new cache
+/// is one line here.
+pub const CACHES: &[CacheKind] = &[
+    crate::parts::surface_cache::CARDS,
+    crate::parts::surface_cache::WORLD,
+    crate::parts::surfel_cache::KIND,
+];
 
 pub trait GiCache {
     fn key(&self) -> CacheKey;

@@ -25,7 +25,7 @@ impl Default for RestirGi {
         RestirGi {
             lighting: RestirLighting::new(Self::settings(
                 false,
-                GiTerminate::Path,
+                GiTerminate::PATH,
                 WorldRegirSettings::from_params(&Params::new("restir", restir::PARAMS)),
             )),
             built: false,

@@ -99,6 +99,24 @@ impl SurfelCache {
     }
 }
 
+/// `gi_terminate = "surfels"`.
+pub const KIND: crate::parts::gi_cache::CacheKind = crate::parts::gi_cache::CacheKind {
+    name: "surfels",
+    key: |s| crate::parts::gi_cache::CacheKey {
+        name: "surfels",
+        size: s.ray_budget,
+        budget: 0,
+        light: s.light,
+    },
+    new: |s| Ok(Box::new(SurfelCache::new(s.ray_budget, s.light)?)),
+    describe: |s, hit| {
+        format!(
+            "in the surfels at hit {hit} where they cover it (NEE there, further bounces from the surfels' irradiance: {} surfel rays per frame; traced on where none cover it)",
+            s.ray_budget
+        )
+    },
+};
+
 /// `surfels`.
 impl crate::parts::gi_cache::GiCache for SurfelCache {
     fn key(&self) -> crate::parts::gi_cache::CacheKey {

@@ -5,10 +5,8 @@
 //! (`gi_contribution`, `gi_visible`). Shaders: shaders/parts/restir/{gi_temporal,gi_spatial}.wgsl.
 
 use super::lighting::{PassFiles, PassPair, RestirLighting};
-use super::params::GiTerminate;
 use crate::gpu::{timing::PassTimer, Gpu};
-use crate::parts::gi_cache::{CacheKey, GiCache};
-use crate::parts::{SurfaceCache, SurfelCache};
+use crate::parts::gi_cache::{CacheKey, CacheSettings, GiCache};
 use crate::render::{pipelines, PassInfo, RenderContext};
 use anyhow::Result;
 
@@ -39,22 +37,6 @@ pub struct Gi {
 pub(super) struct CacheTermination {
     pub(super) cache: Box<dyn GiCache>,
     pub(super) temporal: wgpu::ComputePipeline,
-}
-
-/// The caches a GI sample path can end in, by `gi_terminate` (the constructor table: a new
-/// cache is one line here). The surface cache serves `lumen-cards` and, built with its world
-/// radiance cache, `lumen-world`.
-fn new_cache(terminate: GiTerminate, key: CacheKey, cache_update: f32) -> Result<Box<dyn GiCache>> {
-    Ok(match terminate {
-        GiTerminate::Surfels => Box::new(SurfelCache::new(key.size, key.light)?),
-        GiTerminate::LumenCards | GiTerminate::LumenWorld => Box::new(SurfaceCache::new(
-            key.size,
-            cache_update,
-            key.light,
-            terminate == GiTerminate::LumenWorld,
-        )?),
-        GiTerminate::Path => anyhow::bail!("gi_terminate = \"path\" ends in no cache"),
-    })
 }
 
 /// The bind group the temporal pass reads the cache through.
@@ -116,7 +98,7 @@ impl RestirLighting {
             return Ok(());
         }
         if let Some(c) = &self.gi.cache {
-            if c.cache.key() == self.cache_key() {
+            if Some(c.cache.key()) == self.cache_key() {
                 return Ok(());
             }
         }
@@ -125,17 +107,20 @@ impl RestirLighting {
 
     /// Builds the cache and its reading pass from the current sources (also on hot reload).
     pub(super) fn rebuild_gi_cache(&mut self, ctx: &RenderContext) -> Result<()> {
-        let key = self.cache_key();
+        let Some(kind) = self.settings.gi_terminate.kind() else {
+            anyhow::bail!("gi_terminate = \"path\" ends in no cache");
+        };
+        let key = (kind.key)(&self.cache_settings());
         let old = self.gi.cache.take();
         let (mut cache, old_temporal) = match old {
             Some(c) if c.cache.key() == key => (c.cache, Some(c.temporal)),
-            _ => (
-                new_cache(self.settings.gi_terminate, key, self.settings.cache_update)?,
-                None,
-            ),
+            _ => ((kind.new)(&self.cache_settings())?, None),
         };
         let built = cache.build(ctx).and_then(|()| {
-            let (defs, lookup_layout) = cache.reader(ctx.gpu, CACHE_GROUP);
+            let (mut defs, lookup_layout) = cache.reader(ctx.gpu, CACHE_GROUP);
+            // GI_TERMINATE: the path ends in a cache (gilab::path_end); the cache's own def
+            // picks which.
+            defs.push(("GI_TERMINATE", 1));
             let shaders = ctx.shaders.with_defs(&defs);
             let layout = self.layout(ctx.gpu).clone();
             pipelines::compute_pipeline(
@@ -184,19 +169,21 @@ impl RestirLighting {
             .transpose()
     }
 
-    /// The cache the parameters ask for.
-    fn cache_key(&self) -> CacheKey {
+    /// The holder's cache parameters, as a registered cache reads them.
+    fn cache_settings(&self) -> CacheSettings {
         let s = &self.settings;
-        let (size, budget) = match s.gi_terminate {
-            GiTerminate::Surfels => (s.cache_ray_budget, 0),
-            _ => (s.cache_atlas_size, SurfaceCache::budget(s.cache_update)),
-        };
-        CacheKey {
-            name: s.gi_terminate.name(),
-            size,
-            budget,
+        CacheSettings {
+            atlas_size: s.cache_atlas_size,
+            update: s.cache_update,
+            ray_budget: s.cache_ray_budget,
             light: s.cache_light,
         }
+    }
+
+    /// The cache the parameters ask for (`gi_terminate` names one).
+    fn cache_key(&self) -> Option<CacheKey> {
+        let kind = self.settings.gi_terminate.kind()?;
+        Some((kind.key)(&self.cache_settings()))
     }
 
     pub fn gi_passes(&self, f: &crate::scene::features::SceneFeatures) -> Vec<PassInfo> {
@@ -214,18 +201,10 @@ impl RestirLighting {
                 runs: s.gi,
                 why: if !s.gi {
                     "gi = false: direct light only".into()
-                } else if cache && s.gi_terminate == GiTerminate::Surfels {
+                } else if let Some(kind) = s.gi_terminate.kind() {
                     format!(
-                        "one sample path per pixel ending in the surfels at hit {} where they cover it (NEE there, further bounces from the surfels' irradiance: {} surfel rays per frame; traced on where none cover it), temporal reuse",
-                        s.gi_bounces.max(1),
-                        s.cache_ray_budget
-                    )
-                } else if cache {
-                    format!(
-                        "one sample path per pixel ending in the surface cache at hit {} (NEE there, further bounces from the cache: {}² atlas, {:.0}% relit per frame), temporal reuse",
-                        s.gi_bounces.max(1),
-                        s.cache_atlas_size,
-                        s.cache_update * 100.0
+                        "one sample path per pixel ending {}, temporal reuse",
+                        (kind.describe)(&self.cache_settings(), s.gi_bounces.max(1))
                     )
                 } else {
                     format!(

@@ -1,6 +1,7 @@
 //! ReSTIR's parameters: the declared table (docs, ranges, defaults), the typed settings made
 //! from it, and the uniform the passes read.
 
+use crate::parts::gi_cache::{CacheKind, CACHES};
 use crate::render::params::{ParamKind, ParamSpec, Params};
 
 /// Spatial neighbours per pixel at most (`MAX_NEIGHBOURS` in the spatial passes).
@@ -267,40 +268,48 @@ impl CandidateVisibility {
     }
 }
 
-/// Where a ReSTIR GI sample path ends (`gi_terminate`).
+/// Where a ReSTIR GI sample path ends (`gi_terminate`): traced to `gi_bounces` (`"path"`,
+/// index 0; unbounded is unbiased), or in one of the registered caches
+/// ([`crate::parts::gi_cache::CACHES`], from index 1) at the path's last hit.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum GiTerminate {
-    /// Traced to `gi_bounces` (today's behaviour; unbounded is unbiased).
-    Path,
-    /// Lumen's surface cache (`crate::parts::SurfaceCache`) at the path's last hit.
-    LumenCards,
-    /// Lumen's world radiance cache (`crate::parts::WorldCache`, held by a surface cache for
-    /// the short rays before its TMin) seen from the path's last hit.
-    LumenWorld,
-    /// The surfels' irradiance (`crate::parts::SurfelCache`) at the path's last hit.
-    Surfels,
-}
+pub struct GiTerminate(usize);
 
 impl GiTerminate {
-    pub const NAMES: [&'static str; 4] = ["path", "lumen-cards", "lumen-world", "surfels"];
+    pub const PATH: GiTerminate = GiTerminate(0);
+    /// `"path"`, then every registered cache's name.
+    pub const NAMES: [&'static str; CACHES.len() + 1] = names();
 
     pub fn from_index(i: u32) -> Self {
-        match i {
-            1 => Self::LumenCards,
-            2 => Self::LumenWorld,
-            3 => Self::Surfels,
-            _ => Self::Path,
-        }
+        Self(if (i as usize) < Self::NAMES.len() {
+            i as usize
+        } else {
+            0
+        })
     }
 
     pub fn name(self) -> &'static str {
-        Self::NAMES[self as usize]
+        Self::NAMES[self.0]
+    }
+
+    /// The cache the path ends in, if any.
+    pub fn kind(self) -> Option<&'static CacheKind> {
+        self.0.checked_sub(1).map(|k| &CACHES[k])
     }
 
     /// Whether the path ends in a cache (one that is built).
     pub fn cache(self) -> bool {
-        matches!(self, Self::LumenCards | Self::LumenWorld | Self::Surfels)
+        self.kind().is_some()
     }
+}
+
+const fn names() -> [&'static str; CACHES.len() + 1] {
+    let mut out = ["path"; CACHES.len() + 1];
+    let mut k = 0;
+    while k < CACHES.len() {
+        out[k + 1] = CACHES[k].name;
+        k += 1;
+    }
+    out
 }
 
 #[derive(Clone, Debug, PartialEq)]

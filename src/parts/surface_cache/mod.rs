@@ -1006,6 +1006,62 @@ fn card_buffers(gpu: &Gpu, c: &CardSet) -> ([wgpu::Buffer; 4], wgpu::Buffer, u32
     )
 }
 
+/// `gi_terminate = "lumen-cards"`: the surface cache on its own (`SurfaceCache::new`).
+pub const CARDS: crate::parts::gi_cache::CacheKind = crate::parts::gi_cache::CacheKind {
+    name: "lumen-cards",
+    key: |s| standalone_key("lumen-cards", s),
+    new: |s| {
+        Ok(Box::new(SurfaceCache::new(
+            s.atlas_size,
+            s.update,
+            s.light,
+            false,
+        )?))
+    },
+    describe: |s, hit| describe(s, hit, "the surface cache"),
+};
+
+/// `gi_terminate = "lumen-world"`: the surface cache with a world radiance cache.
+pub const WORLD: crate::parts::gi_cache::CacheKind = crate::parts::gi_cache::CacheKind {
+    name: "lumen-world",
+    key: |s| standalone_key("lumen-world", s),
+    new: |s| {
+        Ok(Box::new(SurfaceCache::new(
+            s.atlas_size,
+            s.update,
+            s.light,
+            true,
+        )?))
+    },
+    describe: |s, hit| {
+        describe(
+            s,
+            hit,
+            "the world radiance cache (the surface cache for short rays)",
+        )
+    },
+};
+
+fn standalone_key(
+    name: &'static str,
+    s: &crate::parts::gi_cache::CacheSettings,
+) -> crate::parts::gi_cache::CacheKey {
+    crate::parts::gi_cache::CacheKey {
+        name,
+        size: s.atlas_size,
+        budget: SurfaceCache::budget(s.update),
+        light: s.light,
+    }
+}
+
+fn describe(s: &crate::parts::gi_cache::CacheSettings, hit: u32, what: &str) -> String {
+    format!(
+        "in {what} at hit {hit} (NEE there, further bounces from the cache: {}² atlas, {:.0}% relit per frame)",
+        s.atlas_size,
+        s.update * 100.0
+    )
+}
+
 /// `lumen-cards`, and `lumen-world` when it keeps a world radiance cache.
 impl crate::parts::gi_cache::GiCache for SurfaceCache {
     fn key(&self) -> crate::parts::gi_cache::CacheKey {
