@@ -1317,6 +1317,13 @@ fn builtin_scene_parameters_are_checked() {
     for (name, _) in builtin::NAMES {
         builtin::build(name, &toml::Table::new()).unwrap();
     }
+    // `interior`: its point lights as asked, at most 256 (a clear error beyond).
+    t.clear();
+    t.insert("lights".into(), 8.into());
+    assert_eq!(builtin::build("interior", &t).unwrap().lights.len(), 8);
+    t.insert("lights".into(), 300.into());
+    let err = builtin::build("interior", &t).unwrap_err().to_string();
+    assert!(err.contains("at most 256"), "{err}");
     assert!(
         builtin::many_lights(1024, 7)
             .materials

@@ -16,6 +16,7 @@ pub const NAMES: &[(&str, &str)] = &[
     ("atrium", "a Sponza-like atrium for scale: two storeys of arcades (fluted columns, round arches, galleries), tiled floor, hanging cloth, a vase on every pier, 64 lamps, sun and sky; `detail` (1.0: 1,234,560 triangles) scales the tessellation; columns, arches, vases and lamps are instances (a two-level BVH)"),
     ("mirror-hall", "reflections: a mirror back wall, a rough metal floor (roughness `floor_roughness`, 0.35), seven glossy spheres from roughness 0 to 0.7 (metal and plastic), a teal wall behind the camera seen only in reflections, 36 ceiling lights"),
     ("moving", "dynamic GI: a Cornell-like room whose sliding door opens onto a sunlit exterior over two seconds, a ball rolling through the light and an orange lamp carried round the room, one looped 8-second clip (`[scene] time_scale` plays it, `time` poses it)"),
+    ("interior", "Callisto's case (seed 002): a closed, dark hall of pillars and crates lit only by `lights` (24) small point lights on the walls and pillars, four lanterns carried round it and a sliding crate, one looped 8-second clip (`[scene] time_scale` plays it); no sky, no sun"),
     ("hard-cases", "degenerate triangles, zero normals, roughness 0/1, metallic 1, a light inside a box, emission `emission` (1e6), grazing camera"),
 ];
 
@@ -115,6 +116,14 @@ pub fn build(name: &str, params: &toml::Table) -> Result<Scene> {
         "atrium" => super::atrium::atrium(p.f32("detail", 1.0)?),
         "hard-cases" => hard_cases(p.f32("emission", 1e6)?),
         "moving" => super::moving::moving()?,
+        "interior" => {
+            let lights = p.u32("lights", 24)?;
+            anyhow::ensure!(
+                lights <= 256,
+                "scene 'interior': lights = {lights}, at most 256 (many-lights is the many-light scene)"
+            );
+            super::interior::interior(lights)?
+        }
         "mirror-hall" => mirror_hall(p.f32("floor_roughness", 0.35)?.clamp(0.0, 1.0)),
         "courtyard" => courtyard(p.f32("lamp", 15.0)?, p.f32("sun", 1.0)?, p.f32("sky", 1.0)?),
         other => {

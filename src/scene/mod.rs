@@ -11,6 +11,7 @@ pub mod gltf_load;
 pub mod gltf_validate;
 pub mod gpu_scene;
 pub mod instancing;
+pub mod interior;
 pub mod motion;
 pub mod moving;
 pub mod shading;
