@@ -34,84 +34,76 @@ pub struct Unmet {
 
 /// Every unmet target. Keep `docs/known-issues.md` in step: `GILAB_BLESS=1 cargo test --release
 /// --test cpu known_issues` rewrites its table.
-pub const UNMET: &[Unmet] = &[Unmet {
-    id: "surfels-default-leak",
-    test: "`tests/surfels.rs` `radial_depth_stops_light_leaking_through_thin_walls`",
-    quantity: "thin-wall room's interior luminance after the sunlit outside view (reference: 0), \
+pub const UNMET: &[Unmet] = &[
+    Unmet {
+        id: "surfels-default-leak",
+        test: "`tests/surfels.rs` `radial_depth_stops_light_leaking_through_thin_walls`",
+        quantity:
+            "thin-wall room's interior luminance after the sunlit outside view (reference: 0), \
                8 frames accumulated inside, surfels' default quarter-area apply, 48², \
                `ray_budget = 8192`, `surfel_size = 0.06` (a transient: frames 9-40 inside, each \
                alone, read about 0.06 with the spawn tie-break random or to the lowest index)",
-    better: Better::Lower,
-    target: 0.02,
-    ratchet: 0.048,
-    measured: 0.04681,
-    date: "2026-11-28",
-    issue: 55,
-},
-Unmet {
-    id: "surfels-glossy-metal-energy",
-    test: "`tests/reflections.rs` `surfels_reflect_the_room_in_glossy_metal`",
-    quantity: "\\|energy / reference − 1\\| of the surfels at their defaults, metal Cornell box at \
+        better: Better::Lower,
+        target: 0.02,
+        ratchet: 0.048,
+        measured: 0.04681,
+        date: "2026-11-28",
+        issue: 55,
+    },
+    Unmet {
+        id: "surfels-glossy-metal-energy",
+        test: "`tests/reflections.rs` `surfels_reflect_the_room_in_glossy_metal`",
+        quantity:
+            "\\|energy / reference − 1\\| of the surfels at their defaults, metal Cornell box at \
                roughness 0.3, 64², 12 frames' warm-up then 24 accumulated (the Lambert box alone \
                reads 0.875: the surfels cover a 64² image slowly)",
-    better: Better::Lower,
-    target: 0.10,
-    ratchet: 0.155,
-    measured: 0.14853,
-    date: "2026-11-28",
-    issue: 55,
-},
-Unmet {
-    id: "moving-frame-energy-restir",
-    test: "`tests/gpu.rs` `every_technique_plays_the_moving_scene`",
-    quantity: "\\|energy / posed reference − 1\\| of ReSTIR's frame 8 of the `moving` scene played at \
-               12× (32², seed 5): one pixel reads (252, 63, 8), six times the orange lamp's own \
-               emission (40, 16, 4), more than any diffuse surface can reflect; frames 1–7 have \
-               none, and it needs GI with temporal reuse (`gi = false` or `temporal = false` \
-               remove it). Not found: a bug, or a near-emitter NEE sample's weight kept by reuse",
-    better: Better::Lower,
-    target: 0.10,
-    ratchet: 0.36,
-    measured: 0.3476,
-    date: "2026-11-28",
-    issue: 55,
-},
-Unmet {
-    id: "moving-frame-energy-surfels",
-    test: "`tests/gpu.rs` `every_technique_plays_the_moving_scene`",
-    quantity: "\\|energy / posed reference − 1\\| of the surfels' frame 8 of the `moving` scene \
+        better: Better::Lower,
+        target: 0.10,
+        ratchet: 0.155,
+        measured: 0.14853,
+        date: "2026-11-28",
+        issue: 55,
+    },
+    Unmet {
+        id: "moving-frame-energy-surfels",
+        test: "`tests/gpu.rs` `every_technique_plays_the_moving_scene`",
+        quantity:
+            "\\|energy / posed reference − 1\\| of the surfels' frame 8 of the `moving` scene \
                played at 12× from a cold start (32², seed 5): 8 frames spawn too few surfels at 32²",
-    better: Better::Lower,
-    target: 0.20,
-    ratchet: 0.33,
-    measured: 0.3184,
-    date: "2026-11-28",
-    issue: 55,
-},
-Unmet {
-    id: "denoiser-one-frame-energy-change",
-    test: "`tests/denoise.rs` `one_denoised_frame_beats_the_noisy_frame_on_cornell`",
-    quantity: "worst \\|denoised / noisy energy − 1\\| of one 1-spp Cornell frame at 128², seeds 1–4 \
+        better: Better::Lower,
+        target: 0.20,
+        ratchet: 0.33,
+        measured: 0.3184,
+        date: "2026-11-28",
+        issue: 55,
+    },
+    Unmet {
+        id: "denoiser-one-frame-energy-change",
+        test: "`tests/denoise.rs` `one_denoised_frame_beats_the_noisy_frame_on_cornell`",
+        quantity:
+            "worst \\|denoised / noisy energy − 1\\| of one 1-spp Cornell frame at 128², seeds 1–4 \
                (the à-trous luminance weights take about 2% off every seed's frame)",
-    better: Better::Lower,
-    target: 0.02,
-    ratchet: 0.0215,
-    measured: 0.02066,
-    date: "2026-11-28",
-    issue: 55,
-},
-Unmet {
-    id: "lumen-reassignment-vs-cdf-courtyard",
-    test: "`tests/lumen.rs` `probe_ray_reassignment_keeps_the_energy`",
-    quantity: "Lumen's probe ray reassignment: its one-frame 8×8 block relMSE over the CDF draw's \
+        better: Better::Lower,
+        target: 0.02,
+        ratchet: 0.0215,
+        measured: 0.02066,
+        date: "2026-11-28",
+        issue: 55,
+    },
+    Unmet {
+        id: "lumen-reassignment-vs-cdf-courtyard",
+        test: "`tests/lumen.rs` `probe_ray_reassignment_keeps_the_energy`",
+        quantity:
+            "Lumen's probe ray reassignment: its one-frame 8×8 block relMSE over the CDF draw's \
                on courtyard (64², BVH, probe filters off; issue 38 wants it below 1)",
-    better: Better::Lower,
-    target: 1.0,
-    ratchet: 1.02,
-    measured: 1.0127,
-    date: "2026-11-28",
-    issue: 55,
-}];
+        better: Better::Lower,
+        target: 1.0,
+        ratchet: 1.02,
+        measured: 1.0127,
+        date: "2026-11-28",
+        issue: 55,
+    },
+];
 
 fn meets(better: Better, value: f64, bound: f64) -> bool {
     match better {
