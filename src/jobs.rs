@@ -60,7 +60,7 @@ impl Engine {
     ) -> Result<Engine> {
         let mut technique = create_technique(&entry.name)?;
         technique
-            .set_params(&entry.params)
+            .set_params_from_table(&entry.params)
             .with_context(|| format!("technique '{}'", entry.display_name()))?;
         let mut engine =
             Engine::with_shared_scene(gpu, shaders, scene, gpu_scene, technique, settings)?;
@@ -455,7 +455,7 @@ pub fn reference_image_seeded(
         ..TechniqueEntry::new("reference")
     };
     let mut technique = create_technique("reference")?;
-    technique.set_params(&entry.params)?;
+    technique.set_params_from_table(&entry.params)?;
     let settings = EngineSettings {
         extent: p.preset.render.size,
         seed,

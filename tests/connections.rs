@@ -227,7 +227,7 @@ fn unknown_terminations_are_refused() {
     let mut t = gilab::techniques::create_technique("restir").unwrap();
     let mut p = toml::Table::new();
     p.insert("gi_terminate".into(), "lumen-voxels".into());
-    let err = t.set_params(&p).unwrap_err().to_string();
+    let err = t.set_params_from_table(&p).unwrap_err().to_string();
     assert!(
         err.contains("lumen-voxels") && err.contains("lumen-world") && !err.contains('\n'),
         "{err}"

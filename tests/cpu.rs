@@ -1341,10 +1341,14 @@ fn restir_budget_maps_rays_to_settings() {
     use gilab::render::Technique;
     let r = gilab::techniques::restir::Restir::default();
     let small = r.params_for_ray_budget(2.0, Some(8.0)).expect("change");
-    assert_eq!(small["gi"].as_bool(), Some(false), "{small:?}");
+    use gilab::render::params::ParamValue;
+    assert_eq!(small.get("gi"), Some(ParamValue::Bool(false)), "{small:?}");
     let large = r.params_for_ray_budget(16.0, Some(8.0)).expect("change");
-    assert_eq!(large["gi"].as_bool(), Some(true), "{large:?}");
-    assert!(large["candidates"].as_integer().unwrap() > 8, "{large:?}");
+    assert_eq!(large.get("gi"), Some(ParamValue::Bool(true)), "{large:?}");
+    assert!(
+        matches!(large.get("candidates"), Some(ParamValue::Int(n)) if n > 8),
+        "{large:?}"
+    );
 }
 
 /// The light pool keeps each class contiguous (local lights first, directional lights last) and
@@ -1573,13 +1577,13 @@ fn declared_parameters_validate_and_round_trip() {
     for name in gilab::techniques::REGISTRY.iter().map(|t| t.id) {
         let mut t = gilab::techniques::create_technique(name).unwrap();
         let defaults = t.params();
-        t.set_params(&defaults).unwrap();
+        t.set_params_from_table(&defaults).unwrap();
         assert_eq!(t.params(), defaults, "{name}: defaults do not round-trip");
         for spec in t.param_set().specs() {
             let (_, max) = spec.range();
             let mut bad = toml::Table::new();
             bad.insert(spec.name.into(), (max + 1.0).into());
-            let err = t.set_params(&bad).unwrap_err().to_string();
+            let err = t.set_params_from_table(&bad).unwrap_err().to_string();
             assert!(
                 err.contains(spec.name) && err.contains("must be"),
                 "{name}: {err}"
@@ -1591,7 +1595,7 @@ fn declared_parameters_validate_and_round_trip() {
             );
         }
         let err = t
-            .set_params(&toml::toml! { no_such_knob = 1 })
+            .set_params_from_table(&toml::toml! { no_such_knob = 1 })
             .unwrap_err()
             .to_string();
         assert!(
@@ -1608,9 +1612,82 @@ fn declared_parameters_validate_and_round_trip() {
     ] {
         let mut t = toml::Table::new();
         t.insert("candidate_visibility".into(), v);
-        r.set_params(&t).unwrap();
+        r.set_params_from_table(&t).unwrap();
         assert_eq!(r.params()["candidate_visibility"].as_integer(), Some(want));
     }
+}
+
+/// Typed parameters (issue 56): the TOML a preset gives is parsed once into typed changes
+/// (`Params::parse`), which apply exactly as the table did; every technique's current values
+/// come back as changes that restore them; typed changes built in code are checked like parsed
+/// ones (wrong type, out of range, unknown choice or name: an error naming the parameter, and
+/// nothing applied).
+#[test]
+fn typed_parameters_apply_as_their_table_did() {
+    use gilab::render::params::{ParamChanges, ParamValue};
+    for name in gilab::techniques::REGISTRY.iter().map(|t| t.id) {
+        let t = gilab::techniques::create_technique(name).unwrap();
+        let defaults = t.params();
+        let typed = t.param_set().parse(&defaults).unwrap();
+        assert_eq!(typed, t.param_set().changes(), "{name}");
+        // Each parameter moved to its range's top, through both doors: the same values.
+        for spec in t.param_set().specs() {
+            let (_, max) = spec.range();
+            let mut top = toml::Table::new();
+            top.insert(
+                spec.name.into(),
+                if spec.is_integer() {
+                    toml::Value::Integer(max as i64)
+                } else {
+                    toml::Value::Float(max)
+                },
+            );
+            let mut by_table = gilab::techniques::create_technique(name).unwrap();
+            by_table.set_params_from_table(&top).unwrap();
+            let changes = t.param_set().parse(&top).unwrap();
+            let mut by_changes = gilab::techniques::create_technique(name).unwrap();
+            by_changes.set_params(&changes).unwrap();
+            assert_eq!(
+                by_table.params(),
+                by_changes.params(),
+                "{name}.{}",
+                spec.name
+            );
+            // And back to the defaults from the typed restore point.
+            by_changes.set_params(&t.param_set().changes()).unwrap();
+            assert_eq!(by_changes.params(), defaults, "{name}.{}", spec.name);
+        }
+    }
+    let mut r = gilab::techniques::create_technique("restir").unwrap();
+    let before = r.params();
+    for (bad, says) in [
+        (ParamChanges::new().int("candidates", 100_000), "candidates"),
+        (ParamChanges::new().bool("candidates", true), "candidates"),
+        (
+            ParamChanges::new().choice("gi_terminate", "nowhere"),
+            "gi_terminate",
+        ),
+        (
+            ParamChanges::new().float("no_such_knob", 1.0),
+            "no_such_knob",
+        ),
+        (
+            ParamChanges::new()
+                .int("candidates", 8)
+                .int("spatial_count", -1),
+            "spatial_count",
+        ),
+    ] {
+        let err = r.set_params(&bad).unwrap_err().to_string();
+        assert!(err.contains(says), "{err}");
+        assert_eq!(r.params(), before, "{bad:?} changed the parameters");
+    }
+    r.set_params(&ParamChanges::new().choice("gi_terminate", "lumen-cards"))
+        .unwrap();
+    assert_eq!(
+        r.param_set().changes().get("gi_terminate"),
+        Some(ParamValue::Choice("lumen-cards"))
+    );
 }
 
 /// `#define_import_path` marks a module wherever it lives; every other file is an entry file.

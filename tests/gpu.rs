@@ -270,7 +270,7 @@ fn welford_variance_matches_cpu() {
     // Re-render sample by sample: frame k of the same seed reproduces sample k exactly.
     let mut technique = gilab::techniques::create_technique("reference").unwrap();
     technique
-        .set_params(&toml::toml! { samples_per_frame = 1 })
+        .set_params_from_table(&toml::toml! { samples_per_frame = 1 })
         .unwrap();
     let scene = builtin::cornell();
     let camera = scene.default_camera();
@@ -352,7 +352,7 @@ fn parameter_changes_rebuild_no_pipeline() {
         );
         engine.render_frame().unwrap();
         let before = pipelines_requested();
-        engine.set_params(&params).unwrap();
+        engine.set_params_from_table(&params).unwrap();
         engine.render_frame().unwrap();
         let now = engine.technique.params();
         for (k, v) in params.iter().filter(|(_, v)| !v.is_str()) {
@@ -407,7 +407,7 @@ fn hot_reload_watches_what_the_engine_compiled() {
     assert!(!uses(&engine, gilab::render::denoise::ATROUS_ENTRY));
     assert!(!uses(&engine, "lumen/apply.wgsl"));
     engine
-        .set_params(&toml::toml! { gi_terminate = "lumen-cards" })
+        .set_params_from_table(&toml::toml! { gi_terminate = "lumen-cards" })
         .unwrap();
     engine.render_frame().unwrap();
     assert!(uses(&engine, cache), "the surface cache part was built");

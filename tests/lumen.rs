@@ -11,6 +11,7 @@ mod common;
 use common::{engine, luminance, shared_reference};
 use gilab::compare::{metrics, Image};
 use gilab::render::engine::Engine;
+use gilab::render::params::ParamValue;
 use gilab::scene::{builtin, bvh::Bvh, Scene};
 use gilab::techniques::lumen::{Lumen, QueryMode};
 use glam::Vec3;
@@ -1118,17 +1119,17 @@ fn stable_and_deterministic() {
 fn bad_parameters_give_clear_errors() {
     let mut t = gilab::techniques::create_technique("lumen").unwrap();
     let err = t
-        .set_params(&toml::toml! { clipmap_resolution = 100 })
+        .set_params_from_table(&toml::toml! { clipmap_resolution = 100 })
         .unwrap_err()
         .to_string();
     assert!(err.contains("multiple of 8"), "{err}");
     let err = t
-        .set_params(&toml::toml! { atlas_size = 1000 })
+        .set_params_from_table(&toml::toml! { atlas_size = 1000 })
         .unwrap_err()
         .to_string();
     assert!(err.contains("page"), "{err}");
     let err = t
-        .set_params(&toml::toml! { tracing = "voxels" })
+        .set_params_from_table(&toml::toml! { tracing = "voxels" })
         .unwrap_err()
         .to_string();
     assert!(err.contains("tracing"), "{err}");
@@ -1157,7 +1158,8 @@ fn budget_changes_keep_the_scene_representation() {
             .map_or(0, |(_, c)| *c)
     };
     let before = gather_rays(&e);
-    e.set_params(&toml::toml! { rays_per_pixel = 6 }).unwrap();
+    e.set_params_from_table(&toml::toml! { rays_per_pixel = 6 })
+        .unwrap();
     assert!(
         lumen(&e).clipmaps().unwrap().valid[0],
         "rays_per_pixel rebuilt the distance field"
@@ -1170,7 +1172,8 @@ fn budget_changes_keep_the_scene_representation() {
         (ratio - 3.0).abs() < 0.1,
         "gather rays per frame x{ratio} at 6 per pixel against 2"
     );
-    e.set_params(&toml::toml! { atlas_size = 1024 }).unwrap();
+    e.set_params_from_table(&toml::toml! { atlas_size = 1024 })
+        .unwrap();
     assert!(
         !lumen(&e).clipmaps().unwrap().valid[0],
         "atlas_size did not rebuild"
@@ -1193,7 +1196,8 @@ fn probe_spacing_sets_the_probe_rays() {
     let mut e = engine("lumen", small(bare), builtin::cornell(), [64, 64], 1);
     frames(&mut e, 3);
     let before = kind(&e.ray_counts().unwrap(), "probe") as f64 / 3.0;
-    e.set_params(&toml::toml! { probe_spacing = 8 }).unwrap();
+    e.set_params_from_table(&toml::toml! { probe_spacing = 8 })
+        .unwrap();
     assert!(
         lumen(&e).clipmaps().unwrap().valid[0],
         "probe_spacing rebuilt the distance field"
@@ -1209,7 +1213,10 @@ fn probe_spacing_sets_the_probe_rays() {
     let spacing = |budget: f64| {
         e.technique
             .params_for_ray_budget(budget, Some(3.0))
-            .and_then(|t| t.get("probe_spacing").and_then(|v| v.as_integer()))
+            .and_then(|t| match t.get("probe_spacing") {
+                Some(ParamValue::Int(i)) => Some(i),
+                _ => None,
+            })
     };
     assert_eq!(
         spacing(6.0),

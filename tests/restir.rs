@@ -579,7 +579,8 @@ fn regir_marked_build_equals_the_full_build() {
     let render = |shaders: ShaderLibrary| {
         let scene = builtin::many_lights(256, 1);
         let mut t = gilab::techniques::create_technique("restir").unwrap();
-        t.set_params(&toml::toml! { gi = false }).unwrap();
+        t.set_params_from_table(&toml::toml! { gi = false })
+            .unwrap();
         let settings = EngineSettings {
             extent: [32, 32],
             seed: 5,

@@ -816,7 +816,10 @@ fn ray_budget_sets_the_spatial_neighbours() {
     let pt = gilab::techniques::restir_pt::RestirPt::default();
     let count = |budget: f64| {
         pt.params_for_ray_budget(budget, Some(16.0))
-            .and_then(|t| t.get("spatial_count").and_then(|v| v.as_integer()))
+            .and_then(|t| match t.get("spatial_count") {
+                Some(gilab::render::params::ParamValue::Int(i)) => Some(i),
+                _ => None,
+            })
             .unwrap_or(pt.settings.spatial_count as i64)
     };
     // 16 rays measured at 3 neighbours: a budget below the path and the temporal shifts leaves

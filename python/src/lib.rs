@@ -403,7 +403,7 @@ impl Session {
         };
         gilab::techniques::create_technique(&entry.name)
             .and_then(|mut t| {
-                t.set_params(&entry.params)
+                t.set_params_from_table(&entry.params)
                     .with_context(|| format!("technique '{}'", entry.name))
             })
             .map_err(value_err)?;

@@ -743,8 +743,8 @@ impl Session {
     /// Applies parameters to a run; errors leave it as it was.
     pub fn set_run_params(&mut self, run: usize, params: &toml::Table) -> Result<()> {
         let r = &mut self.runs[run];
-        let before = r.engine.technique.params();
-        if let Err(e) = r.engine.set_params(params) {
+        let before = r.engine.technique.param_set().changes();
+        if let Err(e) = r.engine.set_params_from_table(params) {
             // Restore what worked (set_params may have applied some keys).
             let _ = r.engine.set_params(&before);
             return Err(e);
@@ -769,7 +769,7 @@ impl Session {
     pub fn set_ray_budget(&mut self, run: usize, rays_per_pixel: f64) -> Result<()> {
         let r = &mut self.runs[run];
         let measured = r.measured_rays_per_pixel();
-        let before = r.engine.technique.params();
+        let before = r.engine.technique.param_set().changes();
         if let Err(e) = r.engine.apply_ray_budget(rays_per_pixel, measured) {
             let _ = r.engine.set_params(&before);
             return Err(e);

@@ -6,7 +6,7 @@
 use crate::app::{headless::HeadlessViewer, session::ReferenceSource, ViewerOptions};
 use crate::gpu::{calibrate::Calibration, shaders::ShaderLibrary, timing::PassTimer, Gpu};
 use crate::preset::LoadedPreset;
-use crate::render::params::{ParamKind, ParamSpec, Params};
+use crate::render::params::{ParamChanges, ParamKind, ParamSpec, Params};
 use crate::render::{
     engine::Engine, engine::EngineSettings, pipelines, PassInfo, RayCounts, RenderContext,
     Technique,
@@ -40,17 +40,15 @@ struct TraceBench {
     settings: Option<wgpu::Buffer>,
 }
 
-/// The trace benchmark's parameter table with `bounces`.
-fn bounces_table(bounces: u32) -> toml::Table {
-    let mut t = toml::Table::new();
-    t.insert("bounces".into(), toml::Value::Integer(bounces as i64));
-    t
+/// The trace benchmark's parameters with `bounces`.
+fn bounces(bounces: u32) -> ParamChanges {
+    ParamChanges::new().int("bounces", bounces as i64)
 }
 
 impl TraceBench {
     fn new(bounces: u32) -> Result<TraceBench> {
         let mut params = Params::new("bench-trace", TRACE_PARAMS);
-        params.set("bench-trace", &bounces_table(bounces))?;
+        params.apply(&self::bounces(bounces))?;
         Ok(TraceBench {
             params,
             pipeline: None,
@@ -134,8 +132,8 @@ impl Technique for TraceBench {
     fn param_set(&self) -> &Params {
         &self.params
     }
-    fn set_params(&mut self, p: &toml::Table) -> Result<()> {
-        self.params.set("bench-trace", p)
+    fn set_params(&mut self, p: &ParamChanges) -> Result<()> {
+        self.params.apply(p)
     }
 }
 
@@ -308,7 +306,7 @@ pub fn run(gpu: Arc<Gpu>, extent: [u32; 2], frames: u32, scenes: &[String]) -> R
         let (before, warm_ms) = calibration.warm_up(&gpu)?;
         let clock_before = calibration.clock();
         let primary = timed_series(&mut e, WARMUP_FRAMES, frames)?;
-        e.set_params(&bounces_table(BENCH_BOUNCES))?;
+        e.set_params(&bounces(BENCH_BOUNCES))?;
         let bounced = timed_series(&mut e, WARMUP_FRAMES, frames)?;
         let after = calibration.measure(&gpu)?;
         let check = calibration.check(before, after, warm_ms, (clock_before, calibration.clock()));
@@ -321,7 +319,7 @@ pub fn run(gpu: Arc<Gpu>, extent: [u32; 2], frames: u32, scenes: &[String]) -> R
         let pixels = (extent[0] * extent[1]) as f64;
 
         let mut reference = create_technique("reference")?;
-        reference.set_params(&toml::toml! { samples_per_frame = 1 })?;
+        reference.set_params(&ParamChanges::new().int("samples_per_frame", 1))?;
         let mut e = engine(reference)?;
         calibration.warm_up(&gpu)?;
         let reference = timed_series(&mut e, WARMUP_FRAMES, frames)?;

@@ -197,7 +197,7 @@ pub fn converge(gpu: Arc<Gpu>, p: &LoadedPreset, opts: &ConvergeOptions) -> Resu
     // Every run's technique and parameters are checked before any GPU work.
     for r in &runs {
         create_technique(&r.technique)?
-            .set_params(&r.params)
+            .set_params_from_table(&r.params)
             .with_context(|| format!("run '{}'", r.label))?;
     }
     let real_time = exp.mode == Mode::RealTime;

@@ -35,9 +35,7 @@ impl SurfelCache {
     /// other settings the technique's defaults.
     pub fn new(ray_budget: u32, light: WorldRegirSettings) -> Result<SurfelCache> {
         let mut surfels = SurfelCore::surfel_cache();
-        let mut t = light.to_table();
-        t.insert("ray_budget".into(), (ray_budget as i64).into());
-        surfels.set_params(&t)?;
+        surfels.set_params(&light.to_changes().int("ray_budget", ray_budget as i64))?;
         Ok(SurfelCache {
             surfels,
             ray_budget,

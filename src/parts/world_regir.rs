@@ -22,7 +22,7 @@
 //! group 2 (`WORLD_REGIR_GROUP`'s default).
 
 use crate::gpu::{readback, timing::PassTimer, Gpu};
-use crate::render::params::{ParamKind, ParamSpec, Params};
+use crate::render::params::{ParamChanges, ParamKind, ParamSpec, Params};
 use crate::render::{pipelines, PassInfo, RenderContext};
 use crate::scene::features::SceneFeatures;
 use anyhow::Result;
@@ -78,17 +78,13 @@ pub struct WorldRegirSettings {
 }
 
 impl WorldRegirSettings {
-    /// These settings as the parameter table's entries, for a family that hands them to a
-    /// cache it holds (ReSTIR GI's termination caches).
-    pub fn to_table(self) -> toml::Table {
-        let mut t = toml::Table::new();
-        t.insert("cache_direct".into(), self.name().into());
-        t.insert("cache_regir_slots".into(), (self.slots as i64).into());
-        t.insert(
-            "cache_regir_candidates".into(),
-            (self.lookup_candidates as i64).into(),
-        );
-        t
+    /// These settings as typed parameter changes, for a family that hands them to a cache it
+    /// holds (ReSTIR GI's termination caches).
+    pub fn to_changes(self) -> ParamChanges {
+        ParamChanges::new()
+            .choice("cache_direct", self.name())
+            .int("cache_regir_slots", self.slots as i64)
+            .int("cache_regir_candidates", self.lookup_candidates as i64)
     }
 
     /// The `cache_direct` choice.

@@ -9,6 +9,7 @@ use crate::compare::Image;
 /// Re-exported: frames and the clock check share one plausibility check (`TimingSource::judge`).
 pub use crate::gpu::timing::TimingSource;
 use crate::gpu::{readback, shaders::ShaderLibrary, timing::PassTimer, Gpu};
+use crate::render::params::ParamChanges;
 use crate::scene::{gpu_scene::GpuScene, Camera, Scene};
 use anyhow::{Context, Result};
 use std::sync::Arc;
@@ -551,12 +552,18 @@ impl Engine {
 
     /// New parameter values: uniforms and parameter-sized resources are updated; no pipeline is
     /// rebuilt. History restarts.
-    pub fn set_params(&mut self, params: &toml::Table) -> Result<()> {
-        self.technique.set_params(params)?;
+    pub fn set_params(&mut self, changes: &ParamChanges) -> Result<()> {
+        self.technique.set_params(changes)?;
         self.recording(|e| e.technique.apply_params(&render_context!(e)))?;
         self.gpu.check_errors()?;
         self.reset();
         Ok(())
+    }
+
+    /// `set_params` from a preset's TOML table (parsed against the technique's table).
+    pub fn set_params_from_table(&mut self, table: &toml::Table) -> Result<()> {
+        let changes = self.technique.param_set().parse(table)?;
+        self.set_params(&changes)
     }
 
     /// A ray budget (rays per pixel per frame) mapped by the technique to its own knobs: the one

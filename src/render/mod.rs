@@ -275,8 +275,15 @@ pub trait Technique: std::any::Any {
     fn params(&self) -> toml::Table {
         self.param_set().table()
     }
-    /// Checks and applies parameter values (all or none); `apply_params` makes them take effect.
-    fn set_params(&mut self, params: &toml::Table) -> Result<()>;
+    /// Checks and applies typed parameter values (all or none); `apply_params` makes them take
+    /// effect.
+    fn set_params(&mut self, changes: &params::ParamChanges) -> Result<()>;
+    /// A preset's TOML table parsed against the technique's table (the edge: presets, `--set`,
+    /// the Python API), then applied as `set_params` does.
+    fn set_params_from_table(&mut self, table: &toml::Table) -> Result<()> {
+        let changes = self.param_set().parse(table)?;
+        self.set_params(&changes)
+    }
     /// Makes the current parameters take effect on the GPU: uniforms, and resources whose size
     /// depends on a parameter. Never rebuilds pipelines (a slider move costs no shader compile);
     /// the default does nothing, for techniques whose parameters travel in the frame uniforms.
@@ -305,7 +312,7 @@ pub trait Technique: std::any::Any {
         &self,
         _rays_per_pixel: f64,
         _measured: Option<f64>,
-    ) -> Option<toml::Table> {
+    ) -> Option<params::ParamChanges> {
         None
     }
 }

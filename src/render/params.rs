@@ -3,7 +3,7 @@
 //! viewer's widgets and the parameter tables of docs/parameters.md all come from that one table, so they
 //! cannot disagree.
 
-use anyhow::{bail, Result};
+use anyhow::Result;
 use serde::Serialize;
 
 /// The type and range of a parameter.
@@ -119,6 +119,16 @@ impl ParamSpec {
         }
     }
 
+    /// The stored number `x` as a typed value.
+    fn value_of(&self, x: f64) -> ParamValue {
+        match self.kind {
+            ParamKind::Int { .. } => ParamValue::Int(x as i64),
+            ParamKind::Float { .. } => ParamValue::Float(x),
+            ParamKind::Bool => ParamValue::Bool(x != 0.0),
+            ParamKind::Choice(c) => ParamValue::Choice(c[(x as usize).min(c.len() - 1)]),
+        }
+    }
+
     fn to_toml(self, x: f64) -> toml::Value {
         match self.kind {
             ParamKind::Int { .. } | ParamKind::Choice(_) => toml::Value::Integer(x as i64),
@@ -128,9 +138,108 @@ impl ParamSpec {
     }
 }
 
+/// One parameter's value, typed as its spec says. Inside the engine parameters travel as
+/// these; TOML (presets, `--set`, the Python API, the viewer's edits) is parsed into them once,
+/// at the edge (`Params::parse`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ParamValue {
+    Int(i64),
+    Float(f64),
+    Bool(bool),
+    /// A choice by name (one of the spec's choices).
+    Choice(&'static str),
+}
+
+impl ParamValue {
+    /// This value as the number `Params` stores for `spec`, or what a valid value looks like.
+    fn number(self, spec: &ParamSpec) -> Result<f64, String> {
+        let out = match (spec.kind, self) {
+            (ParamKind::Int { min, max }, ParamValue::Int(i)) => {
+                Some(i as f64).filter(|_| i >= min && i <= max)
+            }
+            (ParamKind::Float { min, max }, ParamValue::Float(x)) => {
+                Some(x).filter(|x| *x >= min && *x <= max)
+            }
+            (ParamKind::Float { min, max }, ParamValue::Int(i)) => {
+                Some(i as f64).filter(|x| *x >= min && *x <= max)
+            }
+            (ParamKind::Bool, ParamValue::Bool(b)) => Some(b as u8 as f64),
+            (ParamKind::Choice(c), ParamValue::Choice(name)) => {
+                c.iter().position(|n| *n == name).map(|i| i as f64)
+            }
+            _ => None,
+        };
+        out.ok_or_else(|| spec.expected())
+    }
+}
+
+impl std::fmt::Display for ParamValue {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ParamValue::Int(i) => write!(f, "{i}"),
+            ParamValue::Float(x) => write!(f, "{x}"),
+            ParamValue::Bool(b) => write!(f, "{b}"),
+            ParamValue::Choice(c) => write!(f, "\"{c}\""),
+        }
+    }
+}
+
+/// Typed parameter changes: what `Technique::set_params` applies, all of them or none. Built
+/// in code (`ParamChanges::new().int("ray_budget", n)`, the ray budget's mapping) or parsed
+/// from TOML against a technique's table (`Params::parse`).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ParamChanges(Vec<(&'static str, ParamValue)>);
+
+impl ParamChanges {
+    pub fn new() -> ParamChanges {
+        ParamChanges::default()
+    }
+    /// Adds (or replaces) one change.
+    pub fn with(mut self, name: &'static str, value: ParamValue) -> ParamChanges {
+        self.push(name, value);
+        self
+    }
+    pub fn int(self, name: &'static str, v: i64) -> ParamChanges {
+        self.with(name, ParamValue::Int(v))
+    }
+    pub fn float(self, name: &'static str, v: f64) -> ParamChanges {
+        self.with(name, ParamValue::Float(v))
+    }
+    pub fn bool(self, name: &'static str, v: bool) -> ParamChanges {
+        self.with(name, ParamValue::Bool(v))
+    }
+    pub fn choice(self, name: &'static str, v: &'static str) -> ParamChanges {
+        self.with(name, ParamValue::Choice(v))
+    }
+    /// Adds (or replaces) one change in place.
+    pub fn push(&mut self, name: &'static str, value: ParamValue) {
+        match self.0.iter_mut().find(|(n, _)| *n == name) {
+            Some(c) => c.1 = value,
+            None => self.0.push((name, value)),
+        }
+    }
+    /// Every change of `other` after this one's.
+    pub fn extend(&mut self, other: &ParamChanges) {
+        for &(n, v) in &other.0 {
+            self.push(n, v);
+        }
+    }
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+    pub fn iter(&self) -> impl Iterator<Item = &(&'static str, ParamValue)> {
+        self.0.iter()
+    }
+    /// The value given for `name`, if any.
+    pub fn get(&self, name: &str) -> Option<ParamValue> {
+        self.0.iter().find(|(n, _)| *n == name).map(|(_, v)| *v)
+    }
+}
+
 /// A technique's current parameter values, checked against its table.
 #[derive(Clone, Debug)]
 pub struct Params {
+    technique: &'static str,
     specs: &'static [ParamSpec],
     values: Vec<f64>,
 }
@@ -146,6 +255,7 @@ impl Params {
             );
         }
         Params {
+            technique,
             specs,
             values: specs.iter().map(|s| s.default).collect(),
         }
@@ -155,27 +265,64 @@ impl Params {
         self.specs
     }
 
-    /// Applies a table of new values: all of them or, on the first bad one, none.
-    pub fn set(&mut self, technique: &str, table: &toml::Table) -> Result<()> {
-        let mut next = self.values.clone();
-        for (k, v) in table {
-            let Some(i) = self.specs.iter().position(|s| s.name == k) else {
+    fn index(&self, name: &str) -> Result<usize> {
+        self.specs
+            .iter()
+            .position(|s| s.name == name)
+            .ok_or_else(|| {
                 let known: Vec<&str> = self.specs.iter().map(|s| s.name).collect();
-                bail!(
-                    "{technique} has no parameter '{k}' (known: {})",
+                anyhow::anyhow!(
+                    "{} has no parameter '{name}' (known: {})",
+                    self.technique,
                     known.join(", ")
-                );
-            };
-            let spec = &self.specs[i];
-            next[i] = spec
-                .parse(v)
-                .map_err(|want| anyhow::anyhow!("{technique}: '{k}' must be {want}, got {v}"))?;
+                )
+            })
+    }
+
+    /// A TOML table (a preset's, `--set`'s, the Python API's) checked against this table and
+    /// typed: the one place parameters are parsed. Nothing is applied.
+    pub fn parse(&self, table: &toml::Table) -> Result<ParamChanges> {
+        let mut parsed = Vec::new();
+        for (k, v) in table {
+            let i = self.index(k)?;
+            let x = self.specs[i].parse(v).map_err(|want| {
+                anyhow::anyhow!("{}: '{k}' must be {want}, got {v}", self.technique)
+            })?;
+            parsed.push((i, x));
+        }
+        // In the table's order, as `changes` gives them.
+        parsed.sort_by_key(|(i, _)| *i);
+        let mut out = ParamChanges::new();
+        for (i, x) in parsed {
+            out.push(self.specs[i].name, self.specs[i].value_of(x));
+        }
+        Ok(out)
+    }
+
+    /// Applies typed changes: all of them or, on the first bad one, none.
+    pub fn apply(&mut self, changes: &ParamChanges) -> Result<()> {
+        let mut next = self.values.clone();
+        for &(k, v) in changes.iter() {
+            let i = self.index(k)?;
+            next[i] = v.number(&self.specs[i]).map_err(|want| {
+                anyhow::anyhow!("{}: '{k}' must be {want}, got {v}", self.technique)
+            })?;
         }
         self.values = next;
         Ok(())
     }
 
-    /// The values as a preset table (round-trips through `set`).
+    /// Every value, as changes that would set a technique to these settings (a run's restore
+    /// point).
+    pub fn changes(&self) -> ParamChanges {
+        let mut out = ParamChanges::new();
+        for (s, &x) in self.specs.iter().zip(&self.values) {
+            out.push(s.name, s.value_of(x));
+        }
+        out
+    }
+
+    /// The values as a preset table (round-trips through `parse`).
     pub fn table(&self) -> toml::Table {
         self.specs
             .iter()

@@ -39,7 +39,7 @@ pub fn engine(
     seed: u32,
 ) -> Engine {
     let mut t = create_technique(technique).unwrap();
-    t.set_params(&params).unwrap();
+    t.set_params_from_table(&params).unwrap();
     let camera = scene.default_camera();
     let settings = EngineSettings {
         extent: size,

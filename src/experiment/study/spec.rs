@@ -256,7 +256,7 @@ impl Study {
                 );
                 create_technique(&f.technique)
                     .with_context(|| format!("family '{}'", f.label))?
-                    .set_params(&v.params)
+                    .set_params_from_table(&v.params)
                     .with_context(|| format!("family '{}', variant '{}'", f.label, v.name))?;
             }
         }

@@ -39,7 +39,7 @@ use crate::gpu::{readback, timing::PassTimer, Gpu};
 use crate::parts::reflections::HitCache;
 use crate::parts::Part;
 use crate::parts::{Reflections, RestirDirect, WorldRegir};
-use crate::render::params::Params;
+use crate::render::params::{ParamChanges, Params};
 use crate::render::primary::FrameInputs;
 use crate::render::{pipelines, DebugView, PassInfo, RenderContext};
 use crate::scene::features::SceneFeatures;
@@ -231,9 +231,8 @@ impl SurfelCore {
             cache_only: true,
             ..SurfelCore::default()
         };
-        let mut t = toml::Table::new();
-        t.insert("reflections".into(), "none".into());
-        s.set_params(&t).expect("valid surfel cache parameters");
+        s.set_params(&ParamChanges::new().choice("reflections", "none"))
+            .expect("valid surfel cache parameters");
         s
     }
 
@@ -932,8 +931,8 @@ impl SurfelCore {
         &self.params
     }
 
-    pub fn set_params(&mut self, params: &toml::Table) -> Result<()> {
-        self.params.set("surfels", params)?;
+    pub fn set_params(&mut self, changes: &ParamChanges) -> Result<()> {
+        self.params.apply(changes)?;
         self.settings = SurfelSettings::from_params(&self.params);
         Ok(())
     }
@@ -948,7 +947,7 @@ impl SurfelCore {
         &self,
         rays_per_pixel: f64,
         measured: Option<f64>,
-    ) -> Option<toml::Table> {
+    ) -> Option<ParamChanges> {
         // Each surfel ray costs itself plus what its hit traces (a shadow ray, a path where the
         // cache does not cover): measured at the current budget (which the allocation always
         // spends in full), else 2.
@@ -961,10 +960,7 @@ impl SurfelCore {
             .unwrap_or(2.0);
         let budget = (((rays_per_pixel - fixed).max(0.0) / per_ray) * pixels).round();
         let budget = budget.clamp(0.0, 16_000_000.0) as i64;
-        (budget != self.settings.ray_budget as i64).then(|| {
-            let mut t = toml::Table::new();
-            t.insert("ray_budget".into(), budget.into());
-            t
-        })
+        (budget != self.settings.ray_budget as i64)
+            .then(|| ParamChanges::new().int("ray_budget", budget))
     }
 }

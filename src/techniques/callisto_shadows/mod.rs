@@ -39,7 +39,7 @@ use crate::gpu::{timing::PassTimer, Gpu};
 use crate::parts::reflections::HitCache;
 use crate::parts::Part;
 use crate::parts::{Reflections, RestirDirect, RestirGi};
-use crate::render::params::Params;
+use crate::render::params::{ParamChanges, Params};
 use crate::render::primary::FrameInputs;
 use crate::render::{pipelines, DebugView, PassInfo, RenderContext, Technique};
 use crate::scene::features::SceneFeatures;
@@ -611,8 +611,8 @@ impl Technique for CallistoShadows {
         &self.params
     }
 
-    fn set_params(&mut self, params: &toml::Table) -> Result<()> {
-        self.params.set("callisto-shadows", params)?;
+    fn set_params(&mut self, changes: &ParamChanges) -> Result<()> {
+        self.params.apply(changes)?;
         self.settings = CallistoSettings::from_params(&self.params);
         // The pass list reads ReSTIR's settings before `apply_params` runs.
         self.restir.configure(
@@ -635,7 +635,7 @@ impl Technique for CallistoShadows {
         &self,
         rays_per_pixel: f64,
         measured: Option<f64>,
-    ) -> Option<toml::Table> {
+    ) -> Option<ParamChanges> {
         let measured = measured?;
         // Camera ray, tail samples (at most one ray each), GI path (when on): not range-bound.
         let fixed =
@@ -648,10 +648,7 @@ impl Technique for CallistoShadows {
             0.01
         };
         let next = (cutoff * shadow_now / shadow_want).clamp(1e-6, 1e6);
-        ((next / self.settings.range_cutoff as f64 - 1.0).abs() > 0.01).then(|| {
-            let mut t = toml::Table::new();
-            t.insert("range_cutoff".into(), next.into());
-            t
-        })
+        ((next / self.settings.range_cutoff as f64 - 1.0).abs() > 0.01)
+            .then(|| ParamChanges::new().float("range_cutoff", next))
     }
 }

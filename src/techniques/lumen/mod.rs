@@ -61,7 +61,7 @@ use crate::parts::reflections::HitCache;
 use crate::parts::surface_cache::{Refresh, SurfaceCache};
 use crate::parts::world_cache::{WorldCache, WorldCachePipelines};
 use crate::parts::{Reflections, RestirDirect};
-use crate::render::params::Params;
+use crate::render::params::{ParamChanges, Params};
 use crate::render::primary::FrameInputs;
 use crate::render::{pipelines, DebugView, PassInfo, RenderContext, Technique};
 use crate::scene::features::SceneFeatures;
@@ -731,9 +731,9 @@ impl Technique for Lumen {
         &self.params
     }
 
-    fn set_params(&mut self, params: &toml::Table) -> Result<()> {
+    fn set_params(&mut self, changes: &ParamChanges) -> Result<()> {
         let before = self.params.clone();
-        self.params.set("lumen", params)?;
+        self.params.apply(changes)?;
         let settings = LumenSettings::from_params(&self.params);
         if let Err(e) = settings.check() {
             self.params = before;
@@ -752,7 +752,7 @@ impl Technique for Lumen {
         &self,
         rays_per_pixel: f64,
         measured: Option<f64>,
-    ) -> Option<toml::Table> {
+    ) -> Option<ParamChanges> {
         // Everything but the gather (camera, NEE, cache updates amortised over pixels) is taken
         // from the measurement at the current settings when there is one.
         if self.settings.screen_probes {
@@ -771,11 +771,8 @@ impl Technique for Lumen {
                     err(*a).total_cmp(&err(*b))
                 })
                 .unwrap_or(s);
-            return (spacing != s).then(|| {
-                let mut t = toml::Table::new();
-                t.insert("probe_spacing".into(), (spacing as i64).into());
-                t
-            });
+            return (spacing != s)
+                .then(|| ParamChanges::new().int("probe_spacing", spacing as i64));
         }
         let ds2 = (self.settings.gather_downsample as f64).powi(2);
         let gather_now = self.settings.rays_per_pixel as f64 / ds2;
@@ -783,10 +780,7 @@ impl Technique for Lumen {
             .map(|m| (m - gather_now).max(self.fixed_rays_per_pixel()))
             .unwrap_or(self.fixed_rays_per_pixel());
         let rpp = (((rays_per_pixel - other) * ds2).round() as i64).clamp(1, 64);
-        (rpp != self.settings.rays_per_pixel as i64).then(|| {
-            let mut t = toml::Table::new();
-            t.insert("rays_per_pixel".into(), rpp.into());
-            t
-        })
+        (rpp != self.settings.rays_per_pixel as i64)
+            .then(|| ParamChanges::new().int("rays_per_pixel", rpp))
     }
 }

@@ -12,7 +12,7 @@
 
 use crate::compare::Image;
 use crate::gpu::{readback, timing::PassTimer, Gpu};
-use crate::render::params::{ParamKind, ParamSpec, Params};
+use crate::render::params::{ParamChanges, ParamKind, ParamSpec, Params};
 use crate::render::{pipelines, PassInfo, RenderContext, Technique};
 use crate::scene::features::SceneFeatures;
 use anyhow::Result;
@@ -328,8 +328,8 @@ impl Technique for ReferencePathTracer {
         &self.params
     }
 
-    fn set_params(&mut self, params: &toml::Table) -> Result<()> {
-        self.params.set("reference", params)?;
+    fn set_params(&mut self, changes: &ParamChanges) -> Result<()> {
+        self.params.apply(changes)?;
         self.samples_per_frame = self.params.u32("samples_per_frame");
         self.max_depth = self.params.u32("max_depth");
         self.accumulate = self.params.bool("accumulate");
@@ -341,7 +341,7 @@ impl Technique for ReferencePathTracer {
         &self,
         rays_per_pixel: f64,
         measured: Option<f64>,
-    ) -> Option<toml::Table> {
+    ) -> Option<ParamChanges> {
         // Rays scale with paths per pixel: rays/path measured at the current setting.
         let per_path = measured
             .map(|m| m / self.samples_per_frame.max(1) as f64)
@@ -350,10 +350,7 @@ impl Technique for ReferencePathTracer {
         let spf = (rays_per_pixel / per_path)
             .round()
             .clamp(1.0, MAX_SAMPLES_PER_FRAME as f64) as u32;
-        (spf != self.samples_per_frame).then(|| {
-            let mut t = toml::Table::new();
-            t.insert("samples_per_frame".into(), (spf as i64).into());
-            t
-        })
+        (spf != self.samples_per_frame)
+            .then(|| ParamChanges::new().int("samples_per_frame", spf as i64))
     }
 }

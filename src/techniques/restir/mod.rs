@@ -42,7 +42,7 @@ pub use crate::parts::restir::{
 };
 
 use crate::gpu::{timing::PassTimer, Gpu};
-use crate::render::params::Params;
+use crate::render::params::{ParamChanges, Params};
 use crate::render::primary::FrameInputs;
 use crate::render::{pipelines, DebugView, PassInfo, RenderContext, Technique};
 use crate::scene::features::SceneFeatures;
@@ -168,9 +168,9 @@ impl Technique for Restir {
         &self.params
     }
 
-    fn set_params(&mut self, params: &toml::Table) -> Result<()> {
+    fn set_params(&mut self, changes: &ParamChanges) -> Result<()> {
         let before = self.params.clone();
-        self.params.set("restir", params)?;
+        self.params.apply(changes)?;
         let settings = RestirSettings::from_params(&self.params);
         if let Err(e) = settings.check() {
             self.params = before;
@@ -184,7 +184,7 @@ impl Technique for Restir {
         &self,
         rays_per_pixel: f64,
         measured: Option<f64>,
-    ) -> Option<toml::Table> {
+    ) -> Option<ParamChanges> {
         // What costs rays: GI sample paths (their length is scene-dependent, so measured when
         // possible), the bidirectional test per neighbour; the rest is fixed. The budget first
         // decides whether GI fits, then spends what is left on bidirectional neighbours (when
@@ -208,11 +208,10 @@ impl Technique for Restir {
         }
         next.candidates = ((4.0 + 4.0 * left).round() as u32).clamp(1, 64);
         (next != self.lighting.settings).then(|| {
-            let mut t = toml::Table::new();
-            t.insert("gi".into(), next.gi.into());
-            t.insert("spatial_count".into(), (next.spatial_count as i64).into());
-            t.insert("candidates".into(), (next.candidates as i64).into());
-            t
+            ParamChanges::new()
+                .bool("gi", next.gi)
+                .int("spatial_count", next.spatial_count as i64)
+                .int("candidates", next.candidates as i64)
         })
     }
 }

@@ -29,7 +29,7 @@ pub use params::{PtParamsGpu, PtSettings, MAX_SPATIAL, PARAMS};
 use crate::gpu::{timing::PassTimer, Gpu};
 use crate::parts::Part;
 use crate::parts::RestirDirect;
-use crate::render::params::Params;
+use crate::render::params::{ParamChanges, Params};
 use crate::render::primary::FrameInputs;
 use crate::render::{pipelines, DebugView, PassInfo, RenderContext, Technique};
 use crate::scene::features::SceneFeatures;
@@ -346,8 +346,8 @@ impl Technique for RestirPt {
         &self.params
     }
 
-    fn set_params(&mut self, params: &toml::Table) -> Result<()> {
-        self.params.set("restir-pt", params)?;
+    fn set_params(&mut self, changes: &ParamChanges) -> Result<()> {
+        self.params.apply(changes)?;
         self.settings = PtSettings::from_params(&self.params);
         Ok(())
     }
@@ -359,7 +359,7 @@ impl Technique for RestirPt {
         &self,
         rays_per_pixel: f64,
         measured: Option<f64>,
-    ) -> Option<toml::Table> {
+    ) -> Option<ParamChanges> {
         let s = &self.settings;
         let shifts = |n: u32| 2.0 * n as f64 + if s.temporal { 2.0 } else { 0.0 };
         let assumed_path = 2.0 * s.max_bounces.min(3) as f64 + 1.0;
@@ -375,10 +375,6 @@ impl Technique for RestirPt {
         let temporal = shifts(0) * per_shift;
         let left = rays_per_pixel - fixed - temporal;
         let count = ((left / (2.0 * per_shift)).floor().max(0.0) as u32).min(MAX_SPATIAL);
-        (count != s.spatial_count).then(|| {
-            let mut t = toml::Table::new();
-            t.insert("spatial_count".into(), (count as i64).into());
-            t
-        })
+        (count != s.spatial_count).then(|| ParamChanges::new().int("spatial_count", count as i64))
     }
 }

@@ -13,7 +13,7 @@ pub use crate::parts::surfels::{
 };
 
 use crate::gpu::{timing::PassTimer, Gpu};
-use crate::render::params::Params;
+use crate::render::params::{ParamChanges, Params};
 use crate::render::primary::FrameInputs;
 use crate::render::{DebugView, PassInfo, RenderContext, Technique};
 use crate::scene::features::SceneFeatures;
@@ -90,8 +90,8 @@ impl Technique for Surfels {
         self.core.param_set()
     }
 
-    fn set_params(&mut self, params: &toml::Table) -> Result<()> {
-        self.core.set_params(params)
+    fn set_params(&mut self, changes: &ParamChanges) -> Result<()> {
+        self.core.set_params(changes)
     }
 
     fn calibration_frames(&self) -> u32 {
@@ -102,7 +102,7 @@ impl Technique for Surfels {
         &self,
         rays_per_pixel: f64,
         measured: Option<f64>,
-    ) -> Option<toml::Table> {
+    ) -> Option<ParamChanges> {
         self.core.params_for_ray_budget(rays_per_pixel, measured)
     }
 }
