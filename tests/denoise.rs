@@ -82,17 +82,16 @@ fn rel_mse(img: &Image, truth: &Image) -> f64 {
 /// denoised and not, against 512 spp from the same camera; the noisy image is the same
 /// frame's own output before the filter (`read_noisy_output`), so both see the same samples.
 /// Energy: each denoised frame within 2% of its own noisy frame (the filter's doing, held by
-/// `targets::check`: unmet at 128² if listed in docs/known-issues.md; the
-/// à-trous luminance weights take about 1.6% off: they shrink bright samples more than they
-/// spread them), and the mean over four seeds within 2% of the converged reference (one 1-spp
+/// `targets::check`; the à-trous luminance weights take 1.3-1.45% off since they are symmetric,
+/// 2.0-2.1% before, when they shrank bright samples more than they spread them), and the mean over four seeds within 2% of the converged reference (one 1-spp
 /// frame's own mean is up to 4% off the reference's at 96x96, so a single frame against the
 /// reference would test the frame's luck, not the filter).
 #[test]
 fn one_denoised_frame_beats_the_noisy_frame_on_cornell() {
     // 128² against the shared 512-spp truth: its own relMSE (about 1/512 of a 1-spp frame's) is
     // far under both errors compared here. (96² from 2026-11-26 because at 128² one seed's
-    // filter energy change measured 2.07%, over the 2% bound: back at 128², where that bound is
-    // held as an unmet target, issue 55.)
+    // filter energy change measured 2.07%, over the 2% bound: back at 128² for issue 55, where
+    // it was an unmet target until the symmetric luminance weight of 2026-11-29.)
     let size = [128, 128];
     let truth = common::cornell_truth_128();
     let e_truth = energy(&truth);

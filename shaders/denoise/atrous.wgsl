@@ -3,13 +3,23 @@
 // 1/16) with taps `step_px` apart (1, 2, 4, 8, 16), each tap weighted by
 //   w_z = exp(-|z_p - z_q| / (sigma_z |grad z| |p - q| + eps))   (sigma_z = 1)
 //   w_n = max(0, n_p . n_q)^128
-//   w_l = exp(-|l_p - l_q| / (sigma_l sqrt(g3x3(var_p)) + eps))   (sigma_l = 4)
+//   w_l = exp(-|l_p - l_q| / (sigma_l sqrt(min(g3x3(var_p), var_q)) + eps))   (sigma_l = 4)
 // where g3x3 is a 3x3 Gaussian of the variance; the variance is filtered with the squared
 // weights. The first iteration's output becomes the colour history (where the technique does
 // not accumulate itself; see temporal.wgsl). The last remodulates: illumination * albedo plus
 // the emission seen directly, into the engine's output (the sample count w stays).
 //
-// Where it differs from the paper: where the technique's own average holds at least 16
+// Where it differs from the paper:
+// - The luminance weight is symmetric: its scale is the smaller of the two pixels' variances
+//   (the paper's is the centre's alone). With the centre's alone, a bright sample with a large
+//   variance took in its dark neighbours while they, with small variances, refused it, so its
+//   light was lost rather than spread: one denoised 1-spp Cornell frame at 128² lost 2.0-2.1%
+//   of its energy, now 1.3-1.45%. The larger of the two (tried) lost 1.1-1.2% but blurred
+//   more: relMSE at 64 and 256 accumulated spp 44% and 35% above the paper's weight, worse than
+//   no denoiser at 256. The smaller: 4 / 16 / 64 / 256 spp 0.0178 / 0.0109 / 0.0037 / 0.00107
+//   against the paper's 0.0203 / 0.0084 / 0.0031 / 0.00114, real time 0.0124 against 0.0148
+//   (docs/denoiser.md; tests/denoise.rs, 2026-11-29).
+// - Where the technique's own average holds at least 16
 // samples, the denoised value is clamped per channel to within one standard error of that
 // average (from the technique's Welford M2, gilab::accumulate). The filter's bias (a blur
 // of smooth gradients the edge-stopping weights cannot see) would otherwise stay while a
@@ -79,7 +89,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if g.z > 0.0 {
         let n_p = decode_normal(g.xy);
         let l_p = luminance(c.xyz);
-        let phi_l = SIGMA_L * sqrt(max(blurred_variance(ip), 0.0)) + 1e-10;
+        let var_p = max(blurred_variance(ip), 0.0);
         let stride = i32(atrous.step_px);
         let w_centre = b3(0) * b3(0);
         var sum_c = w_centre * c.xyz;
@@ -98,6 +108,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
                 }
                 let cq = illum_var[in_slot(qi)];
                 let dist = f32(stride) * length(vec2<f32>(f32(dx), f32(dy)));
+                let phi_l = SIGMA_L * sqrt(min(var_p, max(cq.w, 0.0))) + 1e-10;
                 let w_l = exp(-abs(l_p - luminance(cq.xyz)) / phi_l);
                 let w = b3(dx) * b3(dy) * geometry_weight(g.z, g.w, n_p, gq.z, decode_normal(gq.xy), dist) * w_l;
                 if w > 0.0 {

@@ -8,7 +8,8 @@
 // - The spatial estimate is scaled by 4 / n (n < 4), as the authors' own implementation
 //   (Falcor's SVGF) does: a stronger filter while history is short. Without it the luminance
 //   weights shrank bright samples more than they spread them, and one denoised 1-spp frame of
-//   the Cornell box lost 3% of its energy (1.6% with it; tests/denoise.rs).
+//   the Cornell box lost 3% of its energy (1.6-2.1% with it, 1.45% once the à-trous luminance
+//   weight was made symmetric; tests/denoise.rs).
 // - Where the history holds more than the moving average's 9 effective samples (a technique
 //   that keeps accumulating, temporal.wgsl) the variance is scaled by 9 / n, the variance of
 //   that longer average relative to the moving average's, so the filter lets go as the
