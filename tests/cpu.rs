@@ -248,7 +248,7 @@ shared_structs! {
     }
     Twin::Memory("SurfelParams") => gilab::parts::surfels::SurfelParamsGpu {
         max_surfels, ray_budget, ray_capacity, flags, coverage_target, surfel_size,
-        grid_half_extent, tiles_x, tiles, cells, max_rays_per_surfel, pad,
+        grid_half_extent, tiles_x, tiles, cells, max_rays_per_surfel, spawn_tile,
     }
     Twin::Memory("RestirParams") => gilab::parts::restir::RestirParamsGpu {
         candidates, candidate_visibility, temporal, max_history, spatial_count, spatial_radius,
@@ -1688,6 +1688,38 @@ fn typed_parameters_apply_as_their_table_did() {
         r.param_set().changes().get("gi_terminate"),
         Some(ParamValue::Choice("lumen-cards"))
     );
+}
+
+/// The surfels' spawn tiles: 16 pixels whatever the image (`spawn_tiles = "16"`, the default,
+/// the seed's), or with `"scaled"` the power of two nearest the seed's tile for the surfels' size
+/// on screen: 16 at 1080p with the default `surfel_size`, fewer pixels on smaller images and
+/// smaller surfels, never under 1 or over 16.
+#[test]
+fn surfel_spawn_tiles_keep_the_seeds_ratio_when_scaled() {
+    use gilab::parts::surfels::{SurfelSettings, PARAMS};
+    use gilab::render::params::{ParamChanges, Params};
+    let settings = |changes: ParamChanges| {
+        let mut p = Params::new("surfels", PARAMS);
+        p.apply(&changes).unwrap();
+        SurfelSettings::from_params(&p)
+    };
+    let seed = settings(ParamChanges::new());
+    let scaled = settings(ParamChanges::new().choice("spawn_tiles", "scaled"));
+    for h in [32, 64, 128, 1080, 4320] {
+        assert_eq!(seed.spawn_tile(h), 16, "{h}");
+    }
+    let tiles: Vec<u32> = [32, 64, 128, 256, 512, 720, 1080, 2160]
+        .iter()
+        .map(|h| scaled.spawn_tile(*h))
+        .collect();
+    assert_eq!(tiles, [1, 1, 2, 4, 8, 8, 16, 16]);
+    let small = settings(
+        ParamChanges::new()
+            .choice("spawn_tiles", "scaled")
+            .float("surfel_size", 0.005),
+    );
+    assert_eq!(small.spawn_tile(1080), 4);
+    assert_eq!(small.spawn_tile(32), 1);
 }
 
 /// `#define_import_path` marks a module wherever it lives; every other file is an entry file.

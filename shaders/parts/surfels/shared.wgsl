@@ -23,7 +23,8 @@ struct SurfelParams {
     tiles: u32,
     cells: u32,
     max_rays_per_surfel: u32,
-    pad: u32,
+    // Side of a spawn tile in pixels (1, 2, 4, 8 or 16): `spawn_tiles`.
+    spawn_tile: u32,
 }
 
 const FLAG_GUIDING: u32 = 1u;

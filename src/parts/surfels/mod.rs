@@ -12,7 +12,7 @@
 //! 1. `recycle` + `push`: the seed's recycling heuristic (pool fill, frames since the surfel
 //!    lit a visible pixel, distance, over-coverage) against a random number; recycled slots go
 //!    back onto the free stack.
-//! 2. `coverage` + `spawn`: per 16x16 tile the least-covered pixel spawns a surfel when its
+//! 2. `coverage` + `spawn`: per spawn tile (16x16 pixels at 1080p) the least-covered pixel spawns a surfel when its
 //!    coverage is below `coverage_target` times a random number; its slot is popped from the
 //!    free stack. Surfel = position, normal, radius, albedo, object id (the triangle).
 //! 3. `prepare` + `scatter` + `sort_cells`: radii for this frame (a constant fraction of the
@@ -49,7 +49,8 @@ use scan::{ScanJob, ScanPipelines};
 
 /// Cells of the grid: the 32^3 centre grid and six 32x32x64 trapezoids (shared.wgsl).
 pub const GRID_CELLS: u32 = 32 * 32 * 32 + 6 * 32 * 32 * 64;
-/// Screen tiles are 16x16 pixels (one spawn candidate each).
+/// The coverage pass's blocks are 16x16 pixels (one workgroup each), holding spawn tiles of 1-16
+/// pixels (`SurfelSettings::spawn_tile`; one spawn candidate each).
 pub const TILE: u32 = 16;
 /// Bytes per surfel of each per-slot buffer (shared.wgsl's structs).
 pub const SURFEL_BYTES: u64 = 48;
@@ -155,7 +156,8 @@ struct Resources {
     pixel_direct: wgpu::Buffer,
     scans: [ScanJob; 4],
     gpu_params: SurfelParamsGpu,
-    tiles: [u32; 2],
+    /// 16x16-pixel blocks: the coverage pass's workgroups.
+    blocks: [u32; 2],
 }
 
 /// The GPU pool's counters, read back for tests and the viewer (never inside a frame).
@@ -356,8 +358,15 @@ impl SurfelCore {
         let s = &self.settings;
         let max = s.max_surfels as u64;
         let pixels = ctx.extent[0] as u64 * ctx.extent[1] as u64;
-        let tiles = [ctx.extent[0].div_ceil(TILE), ctx.extent[1].div_ceil(TILE)];
+        // Spawn tiles of `spawn_tile` pixels; the coverage pass runs one workgroup per 16x16
+        // block of them.
+        let spawn_tile = s.spawn_tile(ctx.extent[1]);
+        let tiles = [
+            ctx.extent[0].div_ceil(spawn_tile),
+            ctx.extent[1].div_ceil(spawn_tile),
+        ];
         let tile_count = tiles[0] * tiles[1];
+        let coverage_groups = [ctx.extent[0].div_ceil(TILE), ctx.extent[1].div_ceil(TILE)];
         let max_binding = gpu.device.limits().max_storage_buffer_binding_size;
         let ray_capacity =
             ((s.ray_budget as u64 * 5 / 4 + 1024).min(max_binding / RAY_RESULT_BYTES)) as u32;
@@ -376,7 +385,7 @@ impl SurfelCore {
             tiles: tile_count,
             cells: GRID_CELLS,
             max_rays_per_surfel: MAX_RAYS_PER_SURFEL,
-            pad: 0,
+            spawn_tile,
         };
         let buf = |label: &str, size: u64| pipelines::storage_buffer(gpu, label, size);
         let params_buffer = wgpu::util::DeviceExt::create_buffer_init(
@@ -524,7 +533,7 @@ impl SurfelCore {
             debug,
             scans,
             gpu_params,
-            tiles,
+            blocks: coverage_groups,
         });
         Ok(())
     }
@@ -629,7 +638,7 @@ impl SurfelCore {
         let lights = f.light_count() > 0;
         let mut v = vec![
             pass("recycle", true, "recycling heuristic (pool fill, frames unseen, distance, over-coverage); free stack push".into()),
-            pass("coverage", true, "per 16x16 tile: least-covered pixel, randomised spawn threshold".into()),
+            pass("coverage", true, format!("per {t}x{t}-pixel spawn tile: least-covered pixel, randomised spawn threshold", t = s.spawn_tile(self.extent[1]))),
             pass("spawn", true, format!("pop from the free stack of {} slots", s.max_surfels)),
             pass("grid", true, "radius update, ray requests, non-linear grid rebuilt: count, prefix sum, scatter, per-cell sort".into()),
             WorldRegir::pass_info(&s.cache_light, f),
@@ -817,7 +826,7 @@ impl SurfelCore {
         pass(enc, timer, Pass::Recycle, per_slot);
         p.scan.record(enc, timer, &r.scans[0]);
         pass(enc, timer, Pass::Push, per_slot);
-        pass(enc, timer, Pass::Coverage, [r.tiles[0], r.tiles[1], 1]);
+        pass(enc, timer, Pass::Coverage, [r.blocks[0], r.blocks[1], 1]);
         p.scan.record(enc, timer, &r.scans[1]);
         pass(
             enc,

@@ -99,6 +99,14 @@ const OWN_PARAMS: &[ParamSpec] = &[
         default: 0.02,
     },
     ParamSpec {
+        name: "spawn_tiles",
+        what: "the screen tiles that each spawn at most one surfel a frame (at the tile's least-covered pixel): `16` is 16x16 pixels at any image size, as the seed; `scaled` (a departure from the seed) keeps the seed's tile for its surfel size at 1080p (16 pixels against the default surfel's 21.6-pixel radius) at any image and surfel size, a power of two from 1 to 16 pixels",
+        higher: "scaled: a small image covers in a few frames (at 128², 64 times the spawns a frame), with many more surfels and fewer rays each (docs/surfels.md)",
+        lower: "16: the seed's spawn; an image smaller than 1080p covers slowly (a 64x64 image spawns 16 surfels a frame)",
+        kind: ParamKind::Choice(&["16", "scaled"]),
+        default: 0.0,
+    },
+    ParamSpec {
         name: "accumulate",
         what: "average frames into the output (off: each frame alone, the real-time view)",
         higher: "on: a static view converges (the per-pixel direct light averages out)",
@@ -129,6 +137,8 @@ pub struct SurfelSettings {
     pub direct_restir: bool,
     pub coverage_target: f32,
     pub surfel_size: f32,
+    /// `spawn_tiles = "scaled"`: spawn tiles in proportion to the surfels' size on screen.
+    pub scaled_spawn_tiles: bool,
     pub accumulate: bool,
     /// `reflections = "traced"`.
     pub reflections: bool,
@@ -138,7 +148,24 @@ pub struct SurfelSettings {
     pub cache_light: crate::parts::world_regir::WorldRegirSettings,
 }
 
+/// The seed's spawn tile (16 pixels) over its surfels' radius in pixels at 1080p (the default
+/// `surfel_size` 0.02 of 1,080 rows): the ratio `spawn_tiles = "scaled"` keeps.
+const SEED_TILE_PER_RADIUS: f64 = 16.0 / (0.02 * 1080.0);
+
 impl SurfelSettings {
+    /// Side in pixels of the screen tiles that each spawn at most one surfel a frame, for an
+    /// image `height` pixels high: 16 (`spawn_tiles = "16"`, the seed's), or the power of two
+    /// nearest to the seed's tile for this surfel size and height (`"scaled"`: 16 at 1080p with
+    /// the default size; 2 at 128², 1 at 64²).
+    pub fn spawn_tile(&self, height: u32) -> u32 {
+        if !self.scaled_spawn_tiles {
+            return 16;
+        }
+        let px = SEED_TILE_PER_RADIUS * self.surfel_size as f64 * height as f64;
+        let log2 = px.max(1.0).log2().round().clamp(0.0, 4.0);
+        1 << log2 as u32
+    }
+
     pub fn from_params(p: &Params) -> Self {
         SurfelSettings {
             max_surfels: p.u32("max_surfels"),
@@ -151,6 +178,7 @@ impl SurfelSettings {
             direct_restir: crate::parts::restir_direct::chosen(p),
             coverage_target: p.f32("coverage_target"),
             surfel_size: p.f32("surfel_size"),
+            scaled_spawn_tiles: p.u32("spawn_tiles") == 1,
             accumulate: p.bool("accumulate"),
             reflections: crate::parts::reflections::ReflectionSettings::from_params(p).0,
             reflection: crate::parts::reflections::ReflectionSettings::from_params(p).1,
@@ -174,7 +202,8 @@ pub struct SurfelParamsGpu {
     pub tiles: u32,
     pub cells: u32,
     pub max_rays_per_surfel: u32,
-    pub pad: u32,
+    /// Side of a spawn tile in pixels (1, 2, 4, 8 or 16; `SurfelSettings::spawn_tile`).
+    pub spawn_tile: u32,
 }
 
 pub const FLAG_GUIDING: u32 = 1;
