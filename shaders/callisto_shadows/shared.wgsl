@@ -98,7 +98,7 @@ const NO_SLOT: u32 = 0xffffffffu;
 @group(3) @binding(8) var<storage, read_write> pixel_specular: array<vec4<f32>>;
 // The static/dynamic split (src/techniques/callisto_shadows/split.rs): a bit per top-level
 // entry that moved, a bit per light that moved, 8 words per moving entry (world box, instance
-// record), then the hash grid of static visibility (2 words a slot: key, rays << 16 | unoccluded).
+// record), then the hash grid of static visibility (4 words a slot: static_cache.wgsl).
 @group(3) @binding(9) var<storage, read_write> shadow_cache: array<atomic<u32>>;
 
 fn parity() -> u32 {

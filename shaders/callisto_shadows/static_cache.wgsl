@@ -17,7 +17,6 @@
 #import gilab::ray::{RaySegment, unoccluded, occluded_filtered}
 #import gilab::callisto::{params, shadow_cache}
 
-const CACHE_PROBES: u32 = 8u;
 const CACHE_NONE: u32 = 0xffffffffu;
 
 fn cache_word(i: u32) -> u32 {
@@ -73,8 +72,31 @@ fn hash_u(v: u32) -> u32 {
     return (word >> 22u) ^ word;
 }
 
-// The cache slot of (light, the cell around p with normal n at distance dist from the camera),
-// found or claimed; CACHE_NONE when its probes are full of other keys.
+const CACHE_PROBES: u32 = 8u;
+
+// Words of a hash slot (SLOT_WORDS from hash_base + SLOT_WORDS * slot). Reads within a frame see
+// only what `settle` (cache_settle.wgsl) fixed at the end of the frames before, so which keys own
+// slots and which cells are filled never depends on the order the shadow rays run in (until
+// 2026-11-29 the first ray to a slot claimed it and the first `cache_samples` rays of a cell
+// filled it within the frame, and a fixed seed gave different images run to run):
+// - CLAIM: this frame's bids for the empty slot, atomicMax of the keys;
+// - OWNER: the key that owns it (settled; a slot, once owned, is kept until the cache is
+//   cleared, as before);
+// - VALUE: rays << 16 | unoccluded, added by the owner's receivers while it fills;
+// - FILLED: VALUE as it was once the cell had its rays (0 while filling).
+const SLOT_WORDS: u32 = 4u;
+const SLOT_CLAIM: u32 = 0u;
+const SLOT_OWNER: u32 = 1u;
+const SLOT_VALUE: u32 = 2u;
+const SLOT_FILLED: u32 = 3u;
+
+fn slot_word(slot: u32, word: u32) -> u32 {
+    return params.hash_base + SLOT_WORDS * slot + word;
+}
+
+// The cache slot of (light, the cell around p with normal n at distance dist from the camera)
+// among the key's CACHE_PROBES probes when its key owns one; else CACHE_NONE, and the key bids
+// for the first empty probe (settle gives it to the largest key that bid).
 fn cache_slot(light: u32, p: vec3<f32>, n: vec3<f32>, dist: f32) -> u32 {
     // Camera up is scaled by tan(fov/2): a pixel spans 2 |up| / height per unit of distance.
     let footprint = dist * 2.0 * length(frame.camera_up.xyz) / f32(frame.size.y);
@@ -87,17 +109,19 @@ fn cache_slot(light: u32, p: vec3<f32>, n: vec3<f32>, dist: f32) -> u32 {
     let h = hash_u(hash_u(hash_u(hash_u(hash_u(u32(c.x)) + u32(c.y)) + u32(c.z)) + tag) + light);
     // An independent checksum (nonzero: 0 marks an empty slot).
     let key = max(hash_u(u32(c.x) ^ hash_u(u32(c.y) ^ 0x9e3779b9u ^ hash_u(u32(c.z) ^ hash_u(tag ^ hash_u(light + 0x68bc21ebu))))), 1u);
-    var probe = 0u;
-    for (var tries = 0u; tries < 2u * CACHE_PROBES && probe < CACHE_PROBES; tries++) {
+    var empty = CACHE_NONE;
+    for (var probe = 0u; probe < CACHE_PROBES; probe++) {
         let slot = (h + probe) & (params.cache_slots - 1u);
-        let r = atomicCompareExchangeWeak(&shadow_cache[params.hash_base + 2u * slot], 0u, key);
-        if r.exchanged || r.old_value == key {
+        let owner = cache_word(slot_word(slot, SLOT_OWNER));
+        if owner == key {
             return slot;
         }
-        if r.old_value != 0u {
-            // Another key: next slot (a spurious failure retries this one).
-            probe++;
+        if owner == 0u && empty == CACHE_NONE {
+            empty = slot;
         }
+    }
+    if empty != CACHE_NONE {
+        atomicMax(&shadow_cache[slot_word(empty, SLOT_CLAIM)], key);
     }
     return CACHE_NONE;
 }
@@ -114,16 +138,15 @@ fn split_visibility(light: u32, seg: RaySegment, p: vec3<f32>, ng: vec3<f32>, di
         *rays += 1u;
         return select(0.0, 1.0, unoccluded(seg));
     }
-    let value = params.hash_base + 2u * slot + 1u;
-    let v = atomicLoad(&shadow_cache[value]);
+    let filled = cache_word(slot_word(slot, SLOT_FILLED));
     var vis = 0.0;
-    if (v >> 16u) >= params.cache_samples {
-        vis = f32(v & 0xffffu) / f32(v >> 16u);
+    if filled != 0u {
+        vis = f32(filled & 0xffffu) / f32(filled >> 16u);
     } else {
         // Filling: this ray's own static visibility, added to the cell.
         *rays += 1u;
         let open = !occluded_filtered(seg, INSTANCES_STATIC);
-        atomicAdd(&shadow_cache[value], 0x10000u | u32(open));
+        atomicAdd(&shadow_cache[slot_word(slot, SLOT_VALUE)], 0x10000u | u32(open));
         vis = f32(open);
     }
     if vis <= 0.0 || params.dynamic_count == 0u {

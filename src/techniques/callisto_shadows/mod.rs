@@ -51,12 +51,15 @@ const CULL: &str = "callisto_shadows/cull.wgsl";
 const SHADOWS: &str = "callisto_shadows/shadows.wgsl";
 const MEAN: &str = "callisto_shadows/luminance_mean.wgsl";
 const RESOLVE: &str = "callisto_shadows/resolve.wgsl";
+const SETTLE: &str = "callisto_shadows/cache_settle.wgsl";
 
 struct Pipelines {
     cull: wgpu::ComputePipeline,
     shadows: wgpu::ComputePipeline,
     mean: wgpu::ComputePipeline,
     resolve: wgpu::ComputePipeline,
+    /// The static cache's end of frame (`static_shadow_cache`).
+    settle: wgpu::ComputePipeline,
 }
 
 struct Resources {
@@ -409,6 +412,15 @@ impl Technique for CallistoShadows {
                 },
             },
             PassInfo {
+                name: "shadow_cache_settle",
+                runs: self.tile_shadows() && s.static_shadow_cache,
+                why: if s.static_shadow_cache {
+                    "per slot of the static-visibility hash grid: owners and filled cells for next frame (so no read depends on the order rays run in)".into()
+                } else {
+                    "static_shadow_cache off".into()
+                },
+            },
+            PassInfo {
                 name: "luminance_mean",
                 runs: self.tile_shadows() && self.weighting(),
                 why: if self.weighting() {
@@ -468,6 +480,7 @@ impl Technique for CallistoShadows {
             shadows: make(SHADOWS, &empty)?,
             mean: make(MEAN, &empty)?,
             resolve: make(RESOLVE, &restir_layout)?,
+            settle: make(SETTLE, &empty)?,
         };
         // And the direct-light part's (on an error its old pipelines stay).
         self.restir_direct
@@ -556,6 +569,18 @@ impl Technique for CallistoShadows {
         if self.tile_shadows() {
             pipelines::technique_pass(ctx, enc, timer, "cull", &p.cull, groups, tiles);
             pipelines::technique_pass(ctx, enc, timer, "shadows", &p.shadows, groups, tiles);
+            if self.settings.static_shadow_cache {
+                let slots = r.cache_layout.slots.div_ceil(256);
+                pipelines::technique_pass(
+                    ctx,
+                    enc,
+                    timer,
+                    "shadow_cache_settle",
+                    &p.settle,
+                    groups,
+                    [slots, 1, 1],
+                );
+            }
             if self.weighting() {
                 pipelines::technique_pass(
                     ctx,

@@ -24,6 +24,9 @@ pub struct Split {
     pub dynamic_lights: Vec<bool>,
 }
 
+/// Words per slot of the hash grid (`SLOT_WORDS` in static_cache.wgsl).
+pub const SLOT_WORDS: u64 = 4;
+
 /// Where things are in the cache buffer (words).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct CacheLayout {
@@ -39,9 +42,9 @@ impl CacheLayout {
         let entries = data.bvh.top.as_ref().map_or(0, |t| t.entries.len()) as u32;
         let light_mask_base = entries.div_ceil(32).max(1);
         let dynamic_base = light_mask_base + (data.lights.len() as u32).div_ceil(32).max(1);
-        // About 8 slots a pixel (a few lights per cell), 2^16 to 2^22 (32 MiB).
+        // About 8 slots a pixel (a few lights per cell), 2^16 to 2^21 (32 MiB).
         let slots = if enabled {
-            (pixels * 8).next_power_of_two().clamp(1 << 16, 1 << 22) as u32
+            (pixels * 8).next_power_of_two().clamp(1 << 16, 1 << 21) as u32
         } else {
             1
         };
@@ -54,7 +57,7 @@ impl CacheLayout {
     }
 
     pub fn words(&self) -> u64 {
-        self.hash_base as u64 + 2 * self.slots as u64
+        self.hash_base as u64 + SLOT_WORDS * self.slots as u64
     }
 }
 
