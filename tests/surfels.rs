@@ -368,6 +368,126 @@ fn guiding_lowers_per_surfel_variance() {
     assert!(guided < cosine, "guided {guided} vs cosine {cosine}");
 }
 
+/// A closed dark room (6 × 3 × 6 m, walls of albedo `wall`) for the guiding curves, with the camera
+/// looking down at the floor from one corner.
+fn guiding_room(wall: f32) -> Scene {
+    let mut s = Scene::new("guiding-room");
+    let m = s.add_material(gilab::scene::Material::lambert("wall", Vec3::splat(wall)));
+    let v = Vec3::new;
+    let (a, h) = (3.0f32, 3.0f32);
+    s.add_quad(
+        v(-a, 0.0, -a),
+        v(-a, 0.0, a),
+        v(a, 0.0, a),
+        v(a, 0.0, -a),
+        m,
+    );
+    s.add_quad(v(-a, h, -a), v(a, h, -a), v(a, h, a), v(-a, h, a), m);
+    s.add_quad(v(-a, 0.0, -a), v(a, 0.0, -a), v(a, h, -a), v(-a, h, -a), m);
+    s.add_quad(v(-a, 0.0, a), v(-a, h, a), v(a, h, a), v(a, 0.0, a), m);
+    s.add_quad(v(-a, 0.0, -a), v(-a, h, -a), v(-a, h, a), v(-a, 0.0, a), m);
+    s.camera = Some(Camera {
+        position: v(2.8, 2.5, 0.0),
+        target: v(0.0, 0.0, 0.0),
+        up: Vec3::Y,
+        fov_y: 70.0,
+    });
+    s
+}
+
+/// The seed's test bed for ray guiding (issue 57): per-surfel relative variance of a frame's
+/// irradiance estimate against surfel rays per frame, guided and cosine, on three lighting
+/// set-ups: a bright wall (`bright_wall_room`, a spot on one white wall), the sky through a
+/// window (the room's +x wall left open over a 2 × 1 m window, sky radiance 4, no light), and a
+/// small bright lamp (a point light 0.1 m under the ceiling in a corner). 64², 96 frames,
+/// surfels with at least 64 rays in all. Prints the table in docs/surfels.md; run with
+/// `--ignored --nocapture` (about 3 minutes on lavapipe).
+#[test]
+#[ignore]
+fn guiding_against_cosine_over_ray_budgets() {
+    let window = || {
+        let mut s = guiding_room(0.7);
+        let m = s.add_material(gilab::scene::Material::lambert("wall", Vec3::splat(0.7)));
+        let v = Vec3::new;
+        let (a, h) = (3.0f32, 3.0f32);
+        // The +x wall around a window from z -1..1, y 1..2.
+        s.add_quad(v(a, 0.0, -a), v(a, 0.0, a), v(a, 1.0, a), v(a, 1.0, -a), m);
+        s.add_quad(v(a, 2.0, -a), v(a, 2.0, a), v(a, h, a), v(a, h, -a), m);
+        s.add_quad(
+            v(a, 1.0, -a),
+            v(a, 1.0, -1.0),
+            v(a, 2.0, -1.0),
+            v(a, 2.0, -a),
+            m,
+        );
+        s.add_quad(
+            v(a, 1.0, 1.0),
+            v(a, 1.0, a),
+            v(a, 2.0, a),
+            v(a, 2.0, 1.0),
+            m,
+        );
+        s.sky = Vec3::splat(4.0);
+        s
+    };
+    let lamp = || {
+        let mut s = guiding_room(0.7);
+        let v = Vec3::new;
+        s.add_quad(
+            v(3.0, 0.0, -3.0),
+            v(3.0, 0.0, 3.0),
+            v(3.0, 3.0, 3.0),
+            v(3.0, 3.0, -3.0),
+            0,
+        );
+        s.lights.push(PunctualLight {
+            kind: PunctualKind::Point,
+            position: v(-2.8, 2.9, -2.8),
+            direction: v(0.0, -1.0, 0.0),
+            intensity: Vec3::splat(20.0),
+            inner_cone: 0.0,
+            outer_cone: 0.0,
+        });
+        s
+    };
+    let setups: [(&str, Scene); 3] = [
+        ("bright wall", bright_wall_room()),
+        ("sky through a window", window()),
+        ("small bright lamp", lamp()),
+    ];
+    println!("| set-up | surfel rays a frame | live surfels | rays a surfel a frame | mean relative variance, guided | cosine | cosine / guided |");
+    println!("| --- | ---: | ---: | ---: | ---: | ---: | ---: |");
+    for (name, scene) in setups {
+        for budget in [2048i64, 8192, 32768] {
+            let run = |guiding: bool| {
+                let mut p = toml::Table::new();
+                p.insert("guiding".into(), guiding.into());
+                p.insert("ray_budget".into(), budget.into());
+                let mut e = engine("surfels", p, scene.clone(), [64, 64], 3);
+                frames(&mut e, 96);
+                let states = surfels(&e).surfel_states(&e.gpu).unwrap();
+                let rel: Vec<f64> = states
+                    .iter()
+                    .filter(|s| s.rays_total >= 64.0)
+                    .map(|s| {
+                        let m = luminance(s.irradiance.map(|v| v as f64));
+                        luminance(s.variance.map(|v| v as f64)) / (m * m).max(1e-12)
+                    })
+                    .collect();
+                let live = surfels(&e).pool_counts(&e.gpu).unwrap().unwrap().live;
+                (rel.iter().sum::<f64>() / rel.len().max(1) as f64, live)
+            };
+            let ((guided, live), (cosine, _)) = (run(true), run(false));
+            println!(
+                "| {name} | {budget} | {live} | {:.1} | {guided:.3} | {cosine:.3} | {:.2}× |",
+                budget as f64 / live as f64,
+                cosine / guided
+            );
+            assert!(guided.is_finite() && cosine.is_finite());
+        }
+    }
+}
+
 /// The back-wall lamp switched on after 32 frames: per frame after the switch, the mean
 /// irradiance over live surfels (what lags; the pixels' direct light does not), and the error
 /// of the image averaged over frames 48..64 after the switch against the lamp-on reference.
