@@ -36,6 +36,8 @@ const FLAG_REFLECTIONS: u32 = 32u;
 const FLAG_CACHE_ONLY: u32 = 64u;
 const FLAG_SHARING: u32 = 128u;
 const FLAG_QUARTER_APPLY: u32 = 256u;
+// The trace pass runs its rays in bin order (`ray_binning`).
+const FLAG_BINNING: u32 = 512u;
 
 // One surfel's geometry. radius 0 marks a free slot.
 struct Surfel {
@@ -115,6 +117,18 @@ const NONE: u32 = 0xffffffffu;
 // Per slot: this frame's irradiance estimate (mean of its rays) and its ray count (0: no rays),
 // which integrate's irradiance sharing reads for the neighbours (estimate.wgsl).
 @group(#{SURFELS_GROUP}) @binding(20) var<storage, read_write> frame_estimates: array<vec4<f32>>;
+// Ray binning (`ray_binning`; bin.wgsl, bin_order.wgsl): RAY_BINS counts, then their exclusive
+// prefix sum in place with the total after them; RAY_BINS cursors; per ray its bin
+// (RAY_BIN_KEYS + ray), then the rays in bin order (ray_bin_order() + place). The key region
+// starts at RAY_BIN_KEYS, the order region ray_capacity words later.
+@group(#{SURFELS_GROUP}) @binding(21) var<storage, read_write> ray_bins: array<atomic<u32>>;
+const RAY_BINS: u32 = 65536u;
+const RAY_BIN_KEYS: u32 = 131073u;
+
+// Where the rays in bin order start in `ray_bins`.
+fn ray_bin_order() -> u32 {
+    return RAY_BIN_KEYS + params.ray_capacity;
+}
 
 fn has_flag(f: u32) -> bool {
     return (params.flags & f) != 0u;

@@ -7,25 +7,27 @@
 // screen) the path continues instead (NEE + BSDF sampling + Russian roulette). Sky on a miss.
 // Emission of the first hit is left out: the pixel's own direct light counts it.
 #import gilab::frame::frame
-#import gilab::math::{PI, INV_PI, luminance, to_world}
+#import gilab::math::{INV_PI, luminance, to_world}
 #import gilab::counters::{flush_counts, no_counts, count_cache_lookup, RAY_SURFEL, RAY_SHADOW, RAY_INDIRECT}
-#import gilab::rng::{Rng, rng_init, rand, rand_pair, STREAM_SURFEL_RAYS}
-#import gilab::sampling::sample_cosine_hemisphere
+#import gilab::rng::{rng_init, rand, rand_pair, STREAM_SURFEL_RAYS}
 #import gilab::bvh::{trace_closest, NO_HIT}
 #import gilab::surface::hit_surface
 #import gilab::brdf::{bsdf_sample, diffuse_color, specular_albedo_average}
 #import gilab::ray::{spawn_ray_origin, INFINITE_DISTANCE}
 #import gilab::path::{trace_path, plain_path}
 #import gilab::cache_light::cache_direct_light
-#import gilab::surfels::{params, surfels, states, ray_offsets, ray_owner, ray_results, has_flag, gather, gather_covers, gathered_irradiance, grid_center_for, gather_outcome, guide_value, hemi_oct_encode, hemi_oct_decode, hemi_oct_jacobian, texel_of, FLAG_GUIDING, FLAG_SKY, FLAG_CACHE_ONLY, GUIDE_RES, GUIDE_TEXELS, GUIDE_POPULATED, GUIDE_MIX, DEPTH_RES}
+#import gilab::surfels::{params, surfels, ray_offsets, ray_owner, ray_results, ray_bins, has_flag, gather, gather_covers, gathered_irradiance, grid_center_for, gather_outcome, hemi_oct_encode, texel_of, FLAG_SKY, FLAG_CACHE_ONLY, FLAG_BINNING, ray_bin_order, DEPTH_RES}
+#import gilab::surfel_rays::surfel_ray_direction
 #import gilab::sky::sky_radiance
 
 
 @compute @workgroup_size(64, 1, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
     var counts = no_counts();
-    let i = gid.x;
-    if i < min(ray_offsets[params.max_surfels], params.ray_capacity) {
+    if gid.x < min(ray_offsets[params.max_surfels], params.ray_capacity) {
+        // With ray binning, invocations run the rays in bin order; each ray keeps its index
+        // (its surfel, its random numbers, its result slot), so the image does not change.
+        let i = select(gid.x, atomicLoad(&ray_bins[ray_bin_order() + gid.x]), has_flag(FLAG_BINNING));
         let slot = ray_owner[i];
         let k = i - ray_offsets[slot];
         let s = surfels[slot];
@@ -33,44 +35,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let p = s.pos_radius.xyz;
         var rng = rng_init(vec2<u32>(slot, k), frame.frame_index, STREAM_SURFEL_RAYS, frame.seed);
 
-        // Direction and its pdf (solid angle).
-        let guided = has_flag(FLAG_GUIDING) && states[slot].info.y >= GUIDE_POPULATED;
-        var guide_sum = 0.0;
-        if guided {
-            for (var t = 0u; t < GUIDE_TEXELS; t++) {
-                guide_sum += guide_value(slot, t);
-            }
-        }
-        var v: vec3<f32>;
-        let u_mix = rand(&rng);
-        let u_texel = rand(&rng);
-        let u_dir = rand_pair(&rng);
-        if guided && guide_sum > 0.0 && u_mix < GUIDE_MIX {
-            // Walk the map's CDF (the seed's discrete inversion), then a uniform point in the texel.
-            let target_sum = u_texel * guide_sum;
-            var acc = 0.0;
-            var texel = GUIDE_TEXELS - 1u;
-            for (var t = 0u; t < GUIDE_TEXELS; t++) {
-                acc += guide_value(slot, t);
-                if acc > target_sum {
-                    texel = t;
-                    break;
-                }
-            }
-            let cell = vec2<f32>(f32(texel % GUIDE_RES), f32(texel / GUIDE_RES));
-            v = hemi_oct_decode((cell + u_dir) / f32(GUIDE_RES) * 2.0 - 1.0);
-        } else {
-            v = sample_cosine_hemisphere(u_dir);
-        }
+        // Direction and its pdf (solid angle): gilab::surfel_rays, as the binning pass drew it.
+        let rd = surfel_ray_direction(slot, &rng);
+        var v = rd.v;
+        let pdf = rd.pdf;
+        let guide_texel = rd.guide_texel;
         let cos_theta = v.z;
-        var pdf = cos_theta * INV_PI;
-        let e = hemi_oct_encode(v);
-        let guide_texel = texel_of(e, GUIDE_RES);
-        if guided && guide_sum > 0.0 {
-            let texel_area = 4.0 / f32(GUIDE_TEXELS);
-            let guide_pdf = guide_value(slot, guide_texel) / guide_sum / texel_area * hemi_oct_jacobian(e);
-            pdf = (1.0 - GUIDE_MIX) * pdf + GUIDE_MIX * guide_pdf;
-        }
 
         var l = vec3<f32>(0.0);
         var t_hit = INFINITE_DISTANCE;

@@ -74,6 +74,8 @@ crate::compute_passes! {
         Scatter => ("scatter", "parts/surfels/scatter.wgsl"),
         SortCells => ("sort_cells", "parts/surfels/sort_cells.wgsl"),
         Allocate => ("allocate", "parts/surfels/allocate.wgsl"),
+        Bin => ("bin", "parts/surfels/bin.wgsl"),
+        BinOrder => ("bin order", "parts/surfels/bin_order.wgsl"),
         Trace => ("trace", "parts/surfels/trace.wgsl"),
         Estimate => ("estimate", "parts/surfels/estimate.wgsl"),
         Integrate => ("integrate", "parts/surfels/integrate.wgsl"),
@@ -83,6 +85,10 @@ crate::compute_passes! {
     }
 }
 const RAY_OWNER: &str = "parts/surfels/ray_owner.wgsl";
+/// Ray bins (16-bit keys) and where the per-ray keys start in the bins buffer (`RAY_BINS` and
+/// `RAY_BIN_KEYS` in shared.wgsl).
+const RAY_BINS: u64 = 65536;
+const RAY_BIN_KEYS: u64 = 2 * RAY_BINS + 1;
 
 /// Pipelines in `Pass::ALL` order, plus the ones with other layouts.
 struct Pipelines {
@@ -142,6 +148,8 @@ struct Resources {
     /// The irradiance lookup's bindings for the reflections part's trace pass.
     lookup_bind_group: wgpu::BindGroup,
     args: wgpu::Buffer,
+    /// Ray binning's counts, cursors, keys and order (`ray_binning`).
+    ray_bins: wgpu::Buffer,
     /// Every per-slot, per-cell and per-ray buffer, cleared on reset.
     clear_on_reset: Vec<wgpu::Buffer>,
     surfels: wgpu::Buffer,
@@ -154,7 +162,7 @@ struct Resources {
     debug: wgpu::Buffer,
     /// Direct light per pixel (this frame's; the NEE pass or the direct-light part writes it).
     pixel_direct: wgpu::Buffer,
-    scans: [ScanJob; 4],
+    scans: [ScanJob; 5],
     gpu_params: SurfelParamsGpu,
     /// 16x16-pixel blocks: the coverage pass's workgroups.
     blocks: [u32; 2],
@@ -248,7 +256,7 @@ impl SurfelCore {
     fn layouts(&mut self, gpu: &Gpu) -> &Layouts {
         self.layouts.get_or_insert_with(|| {
             let mut entries = vec![pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE)];
-            for b in 1..=20 {
+            for b in 1..=21 {
                 entries.push(pipelines::storage_entry(b, false));
             }
             Layouts {
@@ -285,6 +293,7 @@ impl SurfelCore {
             (self.cache_only, FLAG_CACHE_ONLY),
             (s.sharing, FLAG_SHARING),
             (s.quarter_apply && !self.cache_only, FLAG_QUARTER_APPLY),
+            (s.ray_binning, FLAG_BINNING),
         ] {
             if on {
                 flags |= flag;
@@ -419,6 +428,11 @@ impl SurfelCore {
         let debug = buf("surfel debug", 3 * pixels * 16);
         let pixel_specular = buf("surfel pixel specular", 2 * pixels * 16);
         let frame_estimates = buf("surfel frame estimates", max * 16);
+        // Ray binning: counts and their prefix sum, cursors, then per ray its bin and the order.
+        let ray_bins = buf(
+            "surfel ray bins",
+            (RAY_BIN_KEYS + 2 * ray_capacity as u64) * 4,
+        );
         let args = pipelines::indirect_args_buffer(gpu, "surfel trace args", 1);
         let bind_group = pipelines::buffers_bind_group(
             gpu,
@@ -446,6 +460,7 @@ impl SurfelCore {
                 &debug,
                 &pixel_specular,
                 &frame_estimates,
+                &ray_bins,
             ],
         );
         let args_bind_group =
@@ -485,7 +500,12 @@ impl SurfelCore {
         };
         let blocks = buf(
             "surfel scan blocks",
-            4 * scan::block_buffer_len(GRID_CELLS.max(s.max_surfels).max(tile_count)),
+            4 * scan::block_buffer_len(
+                GRID_CELLS
+                    .max(s.max_surfels)
+                    .max(tile_count)
+                    .max(RAY_BINS as u32),
+            ),
         );
         let scans = [
             p.scan
@@ -496,6 +516,8 @@ impl SurfelCore {
                 .job(gpu, "scan: cells", GRID_CELLS, &cell_offsets, &blocks)?,
             p.scan
                 .job(gpu, "scan: rays", s.max_surfels, &ray_offsets, &blocks)?,
+            p.scan
+                .job(gpu, "scan: ray bins", RAY_BINS as u32, &ray_bins, &blocks)?,
         ];
         self.res = Some(Resources {
             params_buffer,
@@ -505,6 +527,7 @@ impl SurfelCore {
             specular_bind_group,
             lookup_bind_group,
             args,
+            ray_bins,
             clear_on_reset: vec![
                 surfels.clone(),
                 states.clone(),
@@ -643,6 +666,8 @@ impl SurfelCore {
             pass("grid", true, "radius update, ray requests, non-linear grid rebuilt: count, prefix sum, scatter, per-cell sort".into()),
             WorldRegir::pass_info(&s.cache_light, f),
             pass("allocate", true, format!("{} rays per frame split by request (at most {MAX_RAYS_PER_SURFEL} per surfel)", s.ray_budget)),
+            pass("bin", s.ray_binning, if s.ray_binning { "ray binning: each ray's bin (grid cell, direction quadrant) counted, prefix sum over 65,536 bins".into() } else { "ray_binning off".into() }),
+            pass("bin order", s.ray_binning, if s.ray_binning { "rays placed in bin order for the trace pass".into() } else { "ray_binning off".into() }),
             pass(
                 "trace",
                 true,
@@ -868,6 +893,23 @@ impl SurfelCore {
         .into_iter()
         .flatten()
         .collect();
+        if self.settings.ray_binning {
+            // The seed's ray binning: bins counted, summed, the rays ordered by bin.
+            enc.clear_buffer(&r.ray_bins, 0, Some(RAY_BIN_KEYS * 4));
+            let bin = Pass::Bin;
+            pipelines::list_pass(enc, timer, bin.name(), p.get(bin), &groups[..3], &r.args, 0);
+            p.scan.record(enc, timer, &r.scans[4]);
+            let order = Pass::BinOrder;
+            pipelines::list_pass(
+                enc,
+                timer,
+                order.name(),
+                p.get(order),
+                &groups[..3],
+                &r.args,
+                0,
+            );
+        }
         let trace = Pass::Trace;
         pipelines::list_pass(enc, timer, trace.name(), p.get(trace), &groups, &r.args, 0);
         pass(enc, timer, Pass::Estimate, per_slot);

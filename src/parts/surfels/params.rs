@@ -99,6 +99,14 @@ const OWN_PARAMS: &[ParamSpec] = &[
         default: 0.02,
     },
     ParamSpec {
+        name: "ray_binning",
+        what: "the seed's ray binning: rays sorted by their surfel's grid cell (12 bits) and direction (4 bits) before they are traced; the results do not change, only the order rays run in",
+        higher: "on: coherent rays (a win on hardware ray tracing in the seed), two more passes and a prefix sum over 65,536 bins",
+        lower: "off: rays run in surfel order",
+        kind: ParamKind::Bool,
+        default: 0.0,
+    },
+    ParamSpec {
         name: "spawn_tiles",
         what: "the screen tiles that each spawn at most one surfel a frame (at the tile's least-covered pixel): `16` is 16x16 pixels at any image size, as the seed; `scaled` (a departure from the seed) keeps the seed's tile for its surfel size at 1080p (16 pixels against the default surfel's 21.6-pixel radius) at any image and surfel size, a power of two from 1 to 16 pixels",
         higher: "scaled: a small image covers in a few frames (at 128², 64 times the spawns a frame), with many more surfels and fewer rays each (docs/surfels.md)",
@@ -137,6 +145,8 @@ pub struct SurfelSettings {
     pub direct_restir: bool,
     pub coverage_target: f32,
     pub surfel_size: f32,
+    /// Rays sorted into bins before tracing (`ray_binning`).
+    pub ray_binning: bool,
     /// `spawn_tiles = "scaled"`: spawn tiles in proportion to the surfels' size on screen.
     pub scaled_spawn_tiles: bool,
     pub accumulate: bool,
@@ -178,6 +188,7 @@ impl SurfelSettings {
             direct_restir: crate::parts::restir_direct::chosen(p),
             coverage_target: p.f32("coverage_target"),
             surfel_size: p.f32("surfel_size"),
+            ray_binning: p.bool("ray_binning"),
             scaled_spawn_tiles: p.u32("spawn_tiles") == 1,
             accumulate: p.bool("accumulate"),
             reflections: crate::parts::reflections::ReflectionSettings::from_params(p).0,
@@ -220,3 +231,5 @@ pub const FLAG_CACHE_ONLY: u32 = 64;
 pub const FLAG_SHARING: u32 = 128;
 /// Quarter-area apply: `apply gather` gathers once per 2x2 block, apply upsamples.
 pub const FLAG_QUARTER_APPLY: u32 = 256;
+/// The trace pass runs its rays in bin order (`ray_binning`).
+pub const FLAG_BINNING: u32 = 512;
