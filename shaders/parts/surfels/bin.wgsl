@@ -6,7 +6,7 @@
 #import gilab::frame::frame
 #import gilab::math::to_world
 #import gilab::rng::{rng_init, STREAM_SURFEL_RAYS}
-#import gilab::surfels::{params, surfels, ray_offsets, ray_owner, ray_bins, cell_of, grid_center_for, RAY_BIN_KEYS}
+#import gilab::surfels::{params, surfels, ray_offsets, ray_owner, counters, cell_of, grid_center_for, ray_bin_keys}
 #import gilab::surfel_rays::surfel_ray_direction
 
 @compute @workgroup_size(64, 1, 1)
@@ -29,6 +29,6 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let q = min(vec2<u32>((e * 0.5 + 0.5) * 4.0), vec2<u32>(3u));
     let cell = cell_of(s.pos_radius.xyz, grid_center_for(frame.camera_pos.xyz));
     let bin = ((cell & 0xfffu) << 4u) | (q.y * 4u + q.x);
-    atomicStore(&ray_bins[RAY_BIN_KEYS + i], bin);
-    atomicAdd(&ray_bins[bin], 1u);
+    atomicStore(&counters[ray_bin_keys() + i], bin);
+    atomicAdd(&counters[bin], 1u);
 }

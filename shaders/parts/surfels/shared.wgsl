@@ -101,8 +101,15 @@ const NONE: u32 = 0xffffffffu;
 @group(#{SURFELS_GROUP}) @binding(11) var<storage, read_write> ray_offsets: array<u32>;
 // Per tile: the pixel a surfel spawns at (NONE: no spawn).
 @group(#{SURFELS_GROUP}) @binding(12) var<storage, read_write> tile_pixel: array<u32>;
-// Per cell: insertion cursor; then the cells' surfel lists (slots, sorted within a cell).
-@group(#{SURFELS_GROUP}) @binding(13) var<storage, read_write> cell_cursor: array<atomic<u32>>;
+// Counters, cleared every frame before the grid is built: first ray binning's (`ray_binning`;
+// bin.wgsl, bin_order.wgsl): RAY_BINS bin counts, then their exclusive prefix sum in place with
+// the total after them, and RAY_BINS cursors; then per cell its insertion cursor
+// (CELL_CURSORS + cell); then per ray its bin (ray_bin_keys() + ray) and the rays in bin order
+// (ray_bin_order() + place). One buffer, as a stage may bind only 32 storage buffers.
+@group(#{SURFELS_GROUP}) @binding(13) var<storage, read_write> counters: array<atomic<u32>>;
+const RAY_BINS: u32 = 65536u;
+const CELL_CURSORS: u32 = 131073u;
+// The cells' surfel lists (slots, sorted within a cell).
 @group(#{SURFELS_GROUP}) @binding(14) var<storage, read_write> cell_surfels: array<u32>;
 // Per ray: the surfel that owns it; its result (two vec4 per ray).
 @group(#{SURFELS_GROUP}) @binding(15) var<storage, read_write> ray_owner: array<u32>;
@@ -117,17 +124,14 @@ const NONE: u32 = 0xffffffffu;
 // Per slot: this frame's irradiance estimate (mean of its rays) and its ray count (0: no rays),
 // which integrate's irradiance sharing reads for the neighbours (estimate.wgsl).
 @group(#{SURFELS_GROUP}) @binding(20) var<storage, read_write> frame_estimates: array<vec4<f32>>;
-// Ray binning (`ray_binning`; bin.wgsl, bin_order.wgsl): RAY_BINS counts, then their exclusive
-// prefix sum in place with the total after them; RAY_BINS cursors; per ray its bin
-// (RAY_BIN_KEYS + ray), then the rays in bin order (ray_bin_order() + place). The key region
-// starts at RAY_BIN_KEYS, the order region ray_capacity words later.
-@group(#{SURFELS_GROUP}) @binding(21) var<storage, read_write> ray_bins: array<atomic<u32>>;
-const RAY_BINS: u32 = 65536u;
-const RAY_BIN_KEYS: u32 = 131073u;
-
-// Where the rays in bin order start in `ray_bins`.
+// Where the rays in bin order start in `counters`.
 fn ray_bin_order() -> u32 {
-    return RAY_BIN_KEYS + params.ray_capacity;
+    return ray_bin_keys() + params.ray_capacity;
+}
+
+// Where the rays' bins start in `counters` (after the cells' cursors).
+fn ray_bin_keys() -> u32 {
+    return CELL_CURSORS + params.cells;
 }
 
 fn has_flag(f: u32) -> bool {

@@ -16,7 +16,7 @@
 #import gilab::ray::{spawn_ray_origin, INFINITE_DISTANCE}
 #import gilab::path::{trace_path, plain_path}
 #import gilab::cache_light::cache_direct_light
-#import gilab::surfels::{params, surfels, ray_offsets, ray_owner, ray_results, ray_bins, has_flag, gather, gather_covers, gathered_irradiance, grid_center_for, gather_outcome, hemi_oct_encode, texel_of, FLAG_SKY, FLAG_CACHE_ONLY, FLAG_BINNING, ray_bin_order, DEPTH_RES}
+#import gilab::surfels::{params, surfels, ray_offsets, ray_owner, ray_results, counters, has_flag, gather, gather_covers, gathered_irradiance, grid_center_for, gather_outcome, hemi_oct_encode, texel_of, FLAG_SKY, FLAG_CACHE_ONLY, FLAG_BINNING, ray_bin_order, DEPTH_RES}
 #import gilab::surfel_rays::surfel_ray_direction
 #import gilab::sky::sky_radiance
 
@@ -27,7 +27,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     if gid.x < min(ray_offsets[params.max_surfels], params.ray_capacity) {
         // With ray binning, invocations run the rays in bin order; each ray keeps its index
         // (its surfel, its random numbers, its result slot), so the image does not change.
-        let i = select(gid.x, atomicLoad(&ray_bins[ray_bin_order() + gid.x]), has_flag(FLAG_BINNING));
+        let i = select(gid.x, atomicLoad(&counters[ray_bin_order() + gid.x]), has_flag(FLAG_BINNING));
         let slot = ray_owner[i];
         let k = i - ray_offsets[slot];
         let s = surfels[slot];

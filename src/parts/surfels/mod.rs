@@ -85,10 +85,10 @@ crate::compute_passes! {
     }
 }
 const RAY_OWNER: &str = "parts/surfels/ray_owner.wgsl";
-/// Ray bins (16-bit keys) and where the per-ray keys start in the bins buffer (`RAY_BINS` and
-/// `RAY_BIN_KEYS` in shared.wgsl).
+/// Ray bins (16-bit keys) and where the cells' cursors start in the counters buffer (`RAY_BINS`
+/// and `CELL_CURSORS` in shared.wgsl).
 const RAY_BINS: u64 = 65536;
-const RAY_BIN_KEYS: u64 = 2 * RAY_BINS + 1;
+const CELL_CURSORS: u64 = 2 * RAY_BINS + 1;
 
 /// Pipelines in `Pass::ALL` order, plus the ones with other layouts.
 struct Pipelines {
@@ -148,15 +148,13 @@ struct Resources {
     /// The irradiance lookup's bindings for the reflections part's trace pass.
     lookup_bind_group: wgpu::BindGroup,
     args: wgpu::Buffer,
-    /// Ray binning's counts, cursors, keys and order (`ray_binning`).
-    ray_bins: wgpu::Buffer,
     /// Every per-slot, per-cell and per-ray buffer, cleared on reset.
     clear_on_reset: Vec<wgpu::Buffer>,
     surfels: wgpu::Buffer,
     pool: wgpu::Buffer,
     free_stack: wgpu::Buffer,
     cell_offsets: wgpu::Buffer,
-    cell_cursor: wgpu::Buffer,
+    counters: wgpu::Buffer,
     cell_surfels: wgpu::Buffer,
     states: wgpu::Buffer,
     debug: wgpu::Buffer,
@@ -256,7 +254,7 @@ impl SurfelCore {
     fn layouts(&mut self, gpu: &Gpu) -> &Layouts {
         self.layouts.get_or_insert_with(|| {
             let mut entries = vec![pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE)];
-            for b in 1..=21 {
+            for b in 1..=20 {
                 entries.push(pipelines::storage_entry(b, false));
             }
             Layouts {
@@ -417,7 +415,12 @@ impl SurfelCore {
         let cell_offsets = buf("surfel cell offsets", (GRID_CELLS as u64 + 1) * 4);
         let ray_offsets = buf("surfel ray offsets", (max + 1) * 4);
         let tile_pixel = buf("surfel tile pixel", tile_count as u64 * 4);
-        let cell_cursor = buf("surfel cell cursor", GRID_CELLS as u64 * 4);
+        // Ray binning's counts and cursors, the cells' cursors, then per ray its bin and the
+        // order (`counters` in shared.wgsl).
+        let counters = buf(
+            "surfel counters",
+            (CELL_CURSORS + GRID_CELLS as u64 + 2 * ray_capacity as u64) * 4,
+        );
         let cell_surfels = buf("surfel cell lists", max * 8 * 4);
         let ray_owner = buf("surfel ray owner", ray_capacity as u64 * 4);
         let ray_results = buf("surfel ray results", ray_capacity as u64 * RAY_RESULT_BYTES);
@@ -428,11 +431,6 @@ impl SurfelCore {
         let debug = buf("surfel debug", 3 * pixels * 16);
         let pixel_specular = buf("surfel pixel specular", 2 * pixels * 16);
         let frame_estimates = buf("surfel frame estimates", max * 16);
-        // Ray binning: counts and their prefix sum, cursors, then per ray its bin and the order.
-        let ray_bins = buf(
-            "surfel ray bins",
-            (RAY_BIN_KEYS + 2 * ray_capacity as u64) * 4,
-        );
         let args = pipelines::indirect_args_buffer(gpu, "surfel trace args", 1);
         let bind_group = pipelines::buffers_bind_group(
             gpu,
@@ -452,7 +450,7 @@ impl SurfelCore {
                 &cell_offsets,
                 &ray_offsets,
                 &tile_pixel,
-                &cell_cursor,
+                &counters,
                 &cell_surfels,
                 &ray_owner,
                 &ray_results,
@@ -460,7 +458,6 @@ impl SurfelCore {
                 &debug,
                 &pixel_specular,
                 &frame_estimates,
-                &ray_bins,
             ],
         );
         let args_bind_group =
@@ -517,7 +514,7 @@ impl SurfelCore {
             p.scan
                 .job(gpu, "scan: rays", s.max_surfels, &ray_offsets, &blocks)?,
             p.scan
-                .job(gpu, "scan: ray bins", RAY_BINS as u32, &ray_bins, &blocks)?,
+                .job(gpu, "scan: ray bins", RAY_BINS as u32, &counters, &blocks)?,
         ];
         self.res = Some(Resources {
             params_buffer,
@@ -527,7 +524,6 @@ impl SurfelCore {
             specular_bind_group,
             lookup_bind_group,
             args,
-            ray_bins,
             clear_on_reset: vec![
                 surfels.clone(),
                 states.clone(),
@@ -539,7 +535,7 @@ impl SurfelCore {
                 cell_offsets.clone(),
                 ray_offsets,
                 tile_pixel,
-                cell_cursor.clone(),
+                counters.clone(),
                 cell_surfels.clone(),
                 pool.clone(),
                 pixel_direct.clone(),
@@ -551,7 +547,7 @@ impl SurfelCore {
             free_stack,
             cell_offsets,
             cell_surfels,
-            cell_cursor,
+            counters,
             states,
             debug,
             scans,
@@ -861,7 +857,7 @@ impl SurfelCore {
         );
         // The coverage pass above read last frame's grid; this frame's is built from here.
         enc.clear_buffer(&r.cell_offsets, 0, None);
-        enc.clear_buffer(&r.cell_cursor, 0, None);
+        enc.clear_buffer(&r.counters, 0, None);
         pass(enc, timer, Pass::Prepare, per_slot);
         p.scan.record(enc, timer, &r.scans[2]);
         pass(enc, timer, Pass::Scatter, per_slot);
@@ -895,7 +891,6 @@ impl SurfelCore {
         .collect();
         if self.settings.ray_binning {
             // The seed's ray binning: bins counted, summed, the rays ordered by bin.
-            enc.clear_buffer(&r.ray_bins, 0, Some(RAY_BIN_KEYS * 4));
             let bin = Pass::Bin;
             pipelines::list_pass(enc, timer, bin.name(), p.get(bin), &groups[..3], &r.args, 0);
             p.scan.record(enc, timer, &r.scans[4]);
