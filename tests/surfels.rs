@@ -229,16 +229,16 @@ fn interior_luminance_after_outside_view(radial_depth: bool, apply: &str) -> f64
     v
 }
 
-fn render_interior_luminance_after_outside_view(radial_depth: bool, apply: &str) -> f64 {
+/// The thin-wall room (48², `ray_budget = 8192`, `surfel_size = 0.06` and `params`) after 48
+/// frames outside, facing the sunlit wall and the ground before it, then moved inside with its
+/// surfels and their irradiance kept (as a game would).
+fn thin_wall_engine_moved_inside(params: toml::Table) -> Engine {
     let scene = builtin::thin_wall(0.0);
     let inside = scene.default_camera();
-    let mut p = toml::Table::new();
-    p.insert("radial_depth".into(), radial_depth.into());
-    p.insert("apply_resolution".into(), apply.into());
-    p.insert("ray_budget".into(), 8192.into());
-    p.insert("surfel_size".into(), 0.06.into());
+    let mut p = toml::toml! { ray_budget = 8192
+    surfel_size = 0.06 };
+    p.extend(params);
     let mut e = engine("surfels", p, scene, [48, 48], 1);
-    // Outside, facing the sunlit wall and the ground before it.
     e.set_camera(Camera {
         position: Vec3::new(0.0, 1.5, -6.0),
         target: Vec3::new(0.0, 0.5, -2.0),
@@ -246,8 +246,15 @@ fn render_interior_luminance_after_outside_view(radial_depth: bool, apply: &str)
         fov_y: 60.0,
     });
     frames(&mut e, 48);
-    // Inside, surfels and their irradiance kept (as a game would).
     e.move_camera(inside);
+    e
+}
+
+fn render_interior_luminance_after_outside_view(radial_depth: bool, apply: &str) -> f64 {
+    let mut p = toml::Table::new();
+    p.insert("radial_depth".into(), radial_depth.into());
+    p.insert("apply_resolution".into(), apply.into());
+    let mut e = thin_wall_engine_moved_inside(p);
     frames(&mut e, 8);
     let img = e.read_output().unwrap();
     assert_eq!(e.ray_counts().unwrap().invalid_samples, 0);
@@ -285,20 +292,7 @@ fn radial_depth_stops_light_leaking_through_thin_walls() {
 /// The same sequence as `interior_luminance_after_outside_view` at the defaults, each frame
 /// alone (`accumulate = false`): the mean interior luminance of frames 9-40 after moving inside.
 fn steady_interior_luminance() -> f64 {
-    let scene = builtin::thin_wall(0.0);
-    let inside = scene.default_camera();
-    let p = toml::toml! { ray_budget = 8192
-    surfel_size = 0.06
-    accumulate = false };
-    let mut e = engine("surfels", p, scene, [48, 48], 1);
-    e.set_camera(Camera {
-        position: Vec3::new(0.0, 1.5, -6.0),
-        target: Vec3::new(0.0, 0.5, -2.0),
-        up: Vec3::Y,
-        fov_y: 60.0,
-    });
-    frames(&mut e, 48);
-    e.move_camera(inside);
+    let mut e = thin_wall_engine_moved_inside(toml::toml! { accumulate = false });
     frames(&mut e, 8);
     let mut sum = 0.0;
     for _ in 0..32 {
