@@ -1065,6 +1065,13 @@ fn posed_truth(mut s: gilab::scene::Scene, t: f32, size: [u32; 2]) -> gilab::com
     e.read_output().unwrap()
 }
 
+/// The built-in `moving` scene played at `time_scale = 12` (0.2 s of scene time a frame).
+fn moving_at_12x() -> gilab::scene::Scene {
+    let mut s = gilab::scene::builtin::build("moving", &toml::Table::new()).unwrap();
+    std::sync::Arc::make_mut(s.motion.as_mut().unwrap()).time_scale = 12.0;
+    s
+}
+
 /// The built-in `moving` scene played fast (`time_scale = 12`: 0.2 s of scene time a frame, so
 /// 8 frames see the door open and the ball and lamp move) in every family: no NaN/Inf; the
 /// frame shown at 1.4 s has the energy of the reference at that pose (within 10% for the
@@ -1074,14 +1081,9 @@ fn posed_truth(mut s: gilab::scene::Scene, t: f32, size: [u32; 2]) -> gilab::com
 #[test]
 fn every_technique_plays_the_moving_scene() {
     let size = [32, 32];
-    let scene = || {
-        let mut s = gilab::scene::builtin::build("moving", &toml::Table::new()).unwrap();
-        std::sync::Arc::make_mut(s.motion.as_mut().unwrap()).time_scale = 12.0;
-        s
-    };
     let (posed, rest) = (
-        posed_truth(scene(), 1.4, size),
-        posed_truth(scene(), 0.0, size),
+        posed_truth(moving_at_12x(), 1.4, size),
+        posed_truth(moving_at_12x(), 0.0, size),
     );
     let energy = |i: &gilab::compare::Image| common::luminance(i.mean());
     let block_error = |a: &gilab::compare::Image, b: &gilab::compare::Image| {
@@ -1135,7 +1137,7 @@ fn every_technique_plays_the_moving_scene() {
         ),
     ];
     for (technique, params, id, bound) in runs {
-        let mut e = common::engine(technique, params.clone(), scene(), size, 5);
+        let mut e = common::engine(technique, params.clone(), moving_at_12x(), size, 5);
         for _ in 0..8 {
             e.render_frame().unwrap();
         }
@@ -1161,7 +1163,7 @@ fn every_technique_plays_the_moving_scene() {
             "{technique}: closer to the rest pose ({to_rest}) than to the pose shown ({to_posed})"
         );
         if technique == "restir" || technique == "lumen" {
-            let mut again = common::engine(technique, params, scene(), size, 5);
+            let mut again = common::engine(technique, params, moving_at_12x(), size, 5);
             for _ in 0..8 {
                 again.render_frame().unwrap();
             }
@@ -1182,16 +1184,11 @@ fn every_technique_plays_the_moving_scene() {
 #[test]
 fn restir_gi_on_moving_geometry_makes_no_fireflies() {
     let size = [32, 32];
-    let scene = || {
-        let mut s = gilab::scene::builtin::build("moving", &toml::Table::new()).unwrap();
-        std::sync::Arc::make_mut(s.motion.as_mut().unwrap()).time_scale = 12.0;
-        s
-    };
-    let posed = common::luminance(posed_truth(scene(), 1.4, size).mean());
+    let posed = common::luminance(posed_truth(moving_at_12x(), 1.4, size).mean());
     let lamp = 40.0f32 + 16.0 + 4.0;
     let mut ratios = Vec::new();
     for seed in 1..=12u32 {
-        let mut e = common::engine("restir", toml::Table::new(), scene(), size, seed);
+        let mut e = common::engine("restir", toml::Table::new(), moving_at_12x(), size, seed);
         for _ in 0..8 {
             e.render_frame().unwrap();
         }

@@ -351,22 +351,28 @@ fn bright_wall_room() -> Scene {
     s
 }
 
-fn mean_relative_variance(guiding: bool) -> (f64, usize) {
-    let mut p = toml::Table::new();
-    p.insert("guiding".into(), guiding.into());
-    p.insert("ray_budget".into(), 8192.into());
-    let mut e = engine("surfels", p, bright_wall_room(), [64, 64], 3);
-    frames(&mut e, 96);
-    let states = surfels(&e).surfel_states(&e.gpu).unwrap();
+/// Mean relative variance of a frame's irradiance estimate (the estimator's variance over its
+/// mean squared) over the surfels with at least `min_rays` rays, and how many there are.
+fn surfel_relative_variance(e: &Engine, min_rays: f32) -> (f64, usize) {
+    let states = surfels(e).surfel_states(&e.gpu).unwrap();
     let rel: Vec<f64> = states
         .iter()
-        .filter(|s| s.rays_total >= 256.0)
+        .filter(|s| s.rays_total >= min_rays)
         .map(|s| {
             let m = luminance(s.irradiance.map(|v| v as f64));
             luminance(s.variance.map(|v| v as f64)) / (m * m).max(1e-12)
         })
         .collect();
     (rel.iter().sum::<f64>() / rel.len().max(1) as f64, rel.len())
+}
+
+fn mean_relative_variance(guiding: bool) -> (f64, usize) {
+    let mut p = toml::Table::new();
+    p.insert("guiding".into(), guiding.into());
+    p.insert("ray_budget".into(), 8192.into());
+    let mut e = engine("surfels", p, bright_wall_room(), [64, 64], 3);
+    frames(&mut e, 96);
+    surfel_relative_variance(&e, 256.0)
 }
 
 #[test]
@@ -478,17 +484,8 @@ fn guiding_against_cosine_over_ray_budgets() {
                 p.insert("ray_budget".into(), budget.into());
                 let mut e = engine("surfels", p, scene.clone(), [64, 64], 3);
                 frames(&mut e, 96);
-                let states = surfels(&e).surfel_states(&e.gpu).unwrap();
-                let rel: Vec<f64> = states
-                    .iter()
-                    .filter(|s| s.rays_total >= 64.0)
-                    .map(|s| {
-                        let m = luminance(s.irradiance.map(|v| v as f64));
-                        luminance(s.variance.map(|v| v as f64)) / (m * m).max(1e-12)
-                    })
-                    .collect();
                 let live = surfels(&e).pool_counts(&e.gpu).unwrap().unwrap().live;
-                (rel.iter().sum::<f64>() / rel.len().max(1) as f64, live)
+                (surfel_relative_variance(&e, 64.0).0, live)
             };
             let ((guided, live), (cosine, _)) = (run(true), run(false));
             println!(
