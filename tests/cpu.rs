@@ -25,6 +25,8 @@ fn every_wgsl_entry_file_validates() {
             libs.push(ShaderLibrary::embedded().with_variant(variant));
         }
     }
+    // NEE by the light tree (a def any pipeline may set: the reference's `light_sampling`).
+    libs.push(ShaderLibrary::discover().with_defs(&[("LIGHT_TREE", 1)]));
     for lib in libs {
         let entries = lib.entry_files().unwrap();
         assert!(entries.len() >= 3, "entry files: {entries:?}");
@@ -210,7 +212,7 @@ shared_structs! {
         first, width, height, levels,
     }
     Twin::Memory("Light") => gilab::scene::gpu_scene::GpuLight {
-        kind, tri, cdf, pmf, class_cdf, class_pmf, pad, position, intensity, direction, spot,
+        kind, tri, cdf, pmf, class_cdf, class_pmf, trail, position, intensity, direction, spot,
     }
     Twin::VertexInput("VertexIn") => gilab::scene::gpu_scene::RasterVertex { position }
     Twin::Memory("BvhNode") => gilab::scene::bvh::BvhNode { min, skip, max, tris }
@@ -2885,4 +2887,246 @@ fn registered_caches_make_what_their_key_says() {
     }
     assert!(!GiTerminate::from_index(0).cache());
     assert_eq!(GiTerminate::from_index(99), GiTerminate::PATH);
+}
+
+/// A light's own geometry, to say whether it can light a point (the tree's bounds only bound
+/// it).
+#[derive(Clone, Copy)]
+enum TreeTestLight {
+    Triangle([Vec3; 3], bool),
+    Point(Vec3),
+    Spot(Vec3, Vec3, f32),
+}
+
+impl TreeTestLight {
+    /// Whether some point of the light sends light to `p` from above the plane of normal `n`
+    /// (zero: any direction), with a small margin against rounding at the boundary.
+    fn reaches(&self, p: Vec3, n: Vec3) -> bool {
+        let above = |x: Vec3| n == Vec3::ZERO || (x - p).normalize().dot(n) > 1e-4;
+        match *self {
+            TreeTestLight::Triangle(v, two_sided) => {
+                let ng = (v[1] - v[0]).cross(v[2] - v[0]).normalize();
+                (two_sided || (p - v[0]).dot(ng) > 1e-4) && v.iter().any(|&x| above(x))
+            }
+            TreeTestLight::Point(c) => above(c),
+            TreeTestLight::Spot(c, d, cos_outer) => {
+                above(c) && (p - c).normalize().dot(d.normalize()) > cos_outer + 1e-4
+            }
+        }
+    }
+}
+
+/// Lights of every kind the tree holds: one- and two-sided triangles facing every way, points
+/// and spots, spread over a room (a fixed pseudo-random pattern), with their geometry.
+fn light_tree_test_lights() -> (
+    Vec<gilab::parts::light_tree::LightBounds>,
+    Vec<TreeTestLight>,
+) {
+    use gilab::parts::light_tree::LightBounds;
+    let mut rng = 0x1234_5678u32;
+    let mut next = move || {
+        rng ^= rng << 13;
+        rng ^= rng >> 17;
+        rng ^= rng << 5;
+        rng as f32 / u32::MAX as f32
+    };
+    let (mut lights, mut geometry) = (Vec::new(), Vec::new());
+    for i in 0..300 {
+        let c = Vec3::new(next() * 10.0 - 5.0, next() * 4.0, next() * 10.0 - 5.0);
+        let phi = 0.1 + 10.0 * next().powi(3);
+        match i % 5 {
+            0 => {
+                lights.push(LightBounds::point(c, phi));
+                geometry.push(TreeTestLight::Point(c));
+            }
+            1 => {
+                let d = Vec3::new(next() - 0.5, -1.0, next() - 0.5);
+                let outer = 0.2 + next();
+                lights.push(LightBounds::spot(c, d, outer, phi));
+                geometry.push(TreeTestLight::Spot(c, d, outer.cos()));
+            }
+            k => {
+                let e1 = Vec3::new(next() - 0.5, next() - 0.5, next() - 0.5) * 0.4;
+                let e2 = Vec3::new(next() - 0.5, next() - 0.5, next() - 0.5) * 0.4;
+                let v = [c, c + e1, c + e2];
+                lights.push(LightBounds::triangle(&v, phi, k == 4));
+                geometry.push(TreeTestLight::Triangle(v, k == 4));
+            }
+        }
+    }
+    (lights, geometry)
+}
+
+#[test]
+fn light_tree_descent_pmf_equals_the_trail_pmf() {
+    use gilab::parts::light_tree::LightTree;
+    // A built-in scene's pool (1,400 small emitters) and a mixed set of every light kind.
+    let scene = builtin::build("many-lights", &toml::from_str("lights = 1400").unwrap()).unwrap();
+    let data = gilab::scene::gpu_scene::SceneData::new(&scene);
+    let pool_geometry: Vec<TreeTestLight> = data
+        .lights
+        .iter()
+        .map(|l| {
+            let g = &data.tri_geom[l.tri as usize];
+            let v0 = Vec3::from_slice(&g.v0[..3]);
+            let v = [
+                v0,
+                v0 + Vec3::from_slice(&g.e1[..3]),
+                v0 + Vec3::from_slice(&g.e2[..3]),
+            ];
+            TreeTestLight::Triangle(v, false)
+        })
+        .collect();
+    let (mixed_bounds, mixed_geometry) = light_tree_test_lights();
+    let mixed = LightTree::build(&mixed_bounds);
+    for (name, tree, geometry) in [
+        ("many-lights 1400", &data.light_tree, &pool_geometry),
+        ("mixed", &mixed, &mixed_geometry),
+    ] {
+        let lights = geometry.len();
+        assert_eq!(
+            tree.nodes.len(),
+            2 * lights - 1,
+            "{name}: one leaf per light"
+        );
+        assert!(tree.depth < 64, "{name}: depth {}", tree.depth);
+        let mut rng = 99u32;
+        let mut next = move || {
+            rng = rng.wrapping_mul(747_796_405).wrapping_add(2_891_336_453);
+            (rng >> 8) as f32 / 16_777_216.0
+        };
+        let (mut worst, mut sums) = (0.0f32, Vec::new());
+        for q in 0..200 {
+            let p = Vec3::new(next() * 24.0 - 12.0, next() * 6.0, next() * 24.0 - 12.0);
+            let n = if q % 4 == 0 {
+                Vec3::ZERO
+            } else {
+                Vec3::new(next() - 0.5, next() - 0.5, next() - 0.5).normalize()
+            };
+            for _ in 0..20 {
+                if let Some((light, pmf)) = tree.sample(p, n, next()) {
+                    let evaluated = tree.pmf(light, p, n);
+                    worst = worst.max((pmf - evaluated).abs() / pmf);
+                    assert!(pmf > 0.0);
+                }
+            }
+            // Every light that can light p has a probability (the bounds are conservative),
+            // and all of them together at most one (a descent can end where neither child
+            // reaches p: no light, no sample).
+            let mut total = 0.0f64;
+            for (l, g) in geometry.iter().enumerate() {
+                let pmf = tree.pmf(l as u32, p, n);
+                assert!(
+                    pmf > 0.0 || !g.reaches(p, n),
+                    "{name}: light {l} reaches {p} (normal {n}) but the tree never picks it"
+                );
+                total += pmf as f64;
+            }
+            if total > 0.0 {
+                sums.push(total);
+            }
+        }
+        println!(
+            "{name}: depth {}, worst |descent - trail| / pmf {worst:.2e}, pmf sums in [{:.4}, {:.4}]",
+            tree.depth,
+            sums.iter().cloned().fold(f64::INFINITY, f64::min),
+            sums.iter().cloned().fold(0.0, f64::max)
+        );
+        assert!(
+            worst <= 1e-5,
+            "{name}: the descent's pmf and the trail's differ by {worst}"
+        );
+        assert!(
+            sums.len() > 150,
+            "{name}: lights reach only {} query points",
+            sums.len()
+        );
+        for s in &sums {
+            assert!(
+                *s <= 1.0 + 1e-4,
+                "{name}: the pmfs of all lights sum to {s}"
+            );
+        }
+    }
+}
+
+/// Irradiance at a point from the mixed lights (all visible; point-like: phi / d^2 times the
+/// receiving cosine, zero behind a one-sided emitter), estimated by the tree's samples with a
+/// pmf: the exact sum and the estimate's mean and standard error.
+fn light_tree_irradiance_estimate(
+    lights: &[gilab::parts::light_tree::LightBounds],
+    tree: &gilab::parts::light_tree::LightTree,
+    p: Vec3,
+    n: Vec3,
+    pmf_of: &dyn Fn(u32, f32) -> f32,
+) -> (f64, f64, f64) {
+    let f = |i: usize| -> f64 {
+        let l = &lights[i];
+        let d = l.centroid() - p;
+        let d2 = d.length_squared() as f64;
+        let wi = d.normalize();
+        let cos_r = n.dot(wi).max(0.0) as f64;
+        // Emission cone: inside the cone of normals, or within pi/2 of it for surfaces.
+        let cos_l = l.axis.dot(-wi);
+        let cos_l = if l.two_sided { cos_l.abs() } else { cos_l };
+        let emits = if l.cos_theta_o <= -1.0 {
+            1.0
+        } else if l.cos_theta_o >= 1.0 {
+            cos_l.max(0.0) as f64
+        } else if cos_l >= l.cos_theta_o {
+            1.0
+        } else {
+            0.0
+        };
+        l.phi as f64 * emits * cos_r / d2
+    };
+    let exact: f64 = (0..lights.len()).map(f).sum();
+    let (mut sum, mut sum2, n_samples) = (0.0f64, 0.0f64, 200_000);
+    for k in 0..n_samples {
+        let u = (k as f64 + 0.5) as f32 / n_samples as f32;
+        // Stratified u: the estimate's error is far below its iid standard error, which keeps
+        // the check conservative.
+        if let Some((light, pmf)) = tree.sample(p, n, u) {
+            let x = f(light as usize) / pmf_of(light, pmf) as f64;
+            sum += x;
+            sum2 += x * x;
+        }
+    }
+    let mean = sum / n_samples as f64;
+    let se = ((sum2 / n_samples as f64 - mean * mean).max(0.0) / n_samples as f64).sqrt();
+    (exact, mean, se)
+}
+
+#[test]
+fn light_tree_sampling_is_unbiased_and_a_wrong_pmf_is_caught() {
+    use gilab::parts::light_tree::LightTree;
+    let (lights, _) = light_tree_test_lights();
+    let tree = LightTree::build(&lights);
+    let queries = [
+        (Vec3::new(0.0, 0.0, 0.0), Vec3::Y),
+        (
+            Vec3::new(3.0, 2.0, -1.0),
+            Vec3::new(-1.0, 0.2, 0.3).normalize(),
+        ),
+        (Vec3::new(-4.5, 3.9, 4.0), Vec3::NEG_Y),
+    ];
+    for (p, n) in queries {
+        let (exact, mean, se) = light_tree_irradiance_estimate(&lights, &tree, p, n, &|_, pmf| pmf);
+        // The negative control: the pmf of the descent without the receiving normal, a plausible
+        // slip (sampling with the normal, weighting without it).
+        let (_, wrong, wrong_se) = light_tree_irradiance_estimate(&lights, &tree, p, n, &|l, _| {
+            tree.pmf(l, p, Vec3::ZERO)
+        });
+        println!(
+            "p {p}: exact {exact:.5}, tree {mean:.5} ± {se:.5}, wrong pmf {wrong:.5} ± {wrong_se:.5}"
+        );
+        assert!(
+            (mean - exact).abs() <= 4.0 * se + 1e-4 * exact,
+            "tree sampling is biased at {p}: {mean} against {exact} (se {se})"
+        );
+        assert!(
+            (wrong - exact).abs() > 4.0 * wrong_se + 1e-4 * exact,
+            "the check cannot see a wrong pmf at {p}: {wrong} against {exact}"
+        );
+    }
 }

@@ -901,7 +901,7 @@ fn surfel_ray_hits_on_seen_surfaces_are_covered_on_the_courtyard() {
 }
 
 /// Issue 57: light sampling at the surfels' ray hits on `many-lights` (1,024 lights), the
-/// three `cache_direct` choices at the defaults otherwise, 64², after 15 frames: the surfels'
+/// `cache_direct` choices (issue 60 added the light tree) at the defaults otherwise, 64², after 15 frames: the surfels'
 /// own noise (mean relative variance of their ray estimates, the MSME's, over surfels with 16
 /// rays or more; the surfels are the same in all three, spawning does not read irradiance), the
 /// mean surfel irradiance, and one frame's image (no accumulation) against a 256-spp reference.
@@ -912,7 +912,7 @@ fn light_sampling_at_surfel_hits_on_many_lights() {
     let size = [64, 64];
     let scene = builtin::many_lights(1024, 7);
     let truth = shared_reference(scene.clone(), size, 256, 5, 0, 0);
-    for mode in ["power", "regir", "reservoir"] {
+    for mode in ["power", "regir", "reservoir", "tree"] {
         let mut p = toml::Table::new();
         p.insert("cache_direct".into(), mode.into());
         p.insert("accumulate".into(), false.into());

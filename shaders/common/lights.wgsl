@@ -1,10 +1,13 @@
 // Light sampling for next-event estimation: one light picked from the power-proportional CDF
-// over emissive triangles and punctual lights, then a point on it (area) or its position (delta).
+// over emissive triangles and punctual lights (or, in a pipeline with the LIGHT_TREE def, by the
+// light tree for local lights and by power among directional ones: gilab::light_tree), then a
+// point on it (area) or its position (delta).
 #define_import_path gilab::lights
 
-#import gilab::scene::{light_pool, Light, tri_geom, tri_light_pmf, tri_uvs, material_emission, materials, tri_material, LIGHT_TRIANGLE, LIGHT_POINT, LIGHT_SPOT, LIGHT_DIRECTIONAL}
+#import gilab::scene::{light_pool, Light, tri_attr, tri_geom, tri_light_pmf, tri_uvs, material_emission, materials, tri_material, LIGHT_TRIANGLE, LIGHT_POINT, LIGHT_SPOT, LIGHT_DIRECTIONAL}
 #import gilab::sampling::sample_triangle
 #import gilab::ray::{RaySegment, spawn_ray_to, spawn_ray_to_infinity, INFINITE_DISTANCE}
+#import gilab::light_tree::{tree_sample, tree_pmf, TREE_ONE_MINUS_EPSILON}
 
 struct LightSample {
     wi: vec3<f32>,
@@ -90,10 +93,77 @@ fn triangle_emission(tri: u32, bary: vec2<f32>, to_viewer: vec3<f32>) -> vec3<f3
     return material_emission(m, tri_uvs(tri, bary));
 }
 
-// Solid-angle pdf with which sample_light would have produced a hit on emissive triangle `tri`
-// at distance `dist` along direction `wi`: used for MIS when a BSDF-sampled ray hits a light.
-fn triangle_light_pdf(tri: u32, wi: vec3<f32>, dist: f32) -> f32 {
+// Probability of picking directional lights rather than local ones under the light tree: their
+// share of the pool's power (0 without them, 1 without local lights).
+fn directional_share() -> f32 {
+    let local = light_pool.local_count;
+    if local == light_pool.count {
+        return 0.0;
+    }
+    if local == 0u {
+        return 1.0;
+    }
+    return 1.0 - light_pool.lights[local - 1u].cdf;
+}
+
+struct LightChoice {
+    light: u32,
+    // Selection probability; 0: no light (light = count).
+    pmf: f32,
+}
+
+// One light of the pool for point p (geometric normal n facing the side light is gathered on,
+// or 0) from u in [0, 1): by power, or with LIGHT_TREE by the light tree (local lights) and by
+// power (directional ones, with their share of the power).
+fn choose_light(p: vec3<f32>, n: vec3<f32>, u: f32) -> LightChoice {
+    if light_pool.count == 0u {
+        return LightChoice(0u, 0.0);
+    }
+#ifdef LIGHT_TREE
+    let p_dir = directional_share();
+    if u < p_dir {
+        let i = select_light_in_class(min(u / p_dir, TREE_ONE_MINUS_EPSILON), light_pool.local_count, light_pool.count);
+        return LightChoice(i, p_dir * light_pool.lights[i].class_pmf);
+    }
+    let t = tree_sample(p, n, min((u - p_dir) / (1.0 - p_dir), TREE_ONE_MINUS_EPSILON));
+    if t.pmf <= 0.0 {
+        return LightChoice(light_pool.count, 0.0);
+    }
+    return LightChoice(t.light, (1.0 - p_dir) * t.pmf);
+#else
+    let i = select_light(u);
+    return LightChoice(i, light_pool.lights[i].pmf);
+#endif
+}
+
+// The probability that choose_light(p, n, .) picks light i.
+fn light_choice_pmf(i: u32, p: vec3<f32>, n: vec3<f32>) -> f32 {
+    if i >= light_pool.count {
+        return 0.0;
+    }
+#ifdef LIGHT_TREE
+    if i >= light_pool.local_count {
+        return directional_share() * light_pool.lights[i].class_pmf;
+    }
+    return (1.0 - directional_share()) * tree_pmf(i, p, n);
+#else
+    return light_pool.lights[i].pmf;
+#endif
+}
+
+// Solid-angle pdf with which sample_light_at(from_p, from_n, ...) would have produced a hit on
+// emissive triangle `tri` at distance `dist` along direction `wi`: used for MIS when a
+// BSDF-sampled ray hits a light.
+fn triangle_light_pdf(tri: u32, wi: vec3<f32>, dist: f32, from_p: vec3<f32>, from_n: vec3<f32>) -> f32 {
+#ifdef LIGHT_TREE
+    let light = tri_attr[tri].pad.y;
+    if light == 0u {
+        return 0.0;
+    }
+    let pmf = light_choice_pmf(light - 1u, from_p, from_n);
+#else
     let pmf = tri_light_pmf(tri);
+#endif
     if pmf <= 0.0 {
         return 0.0;
     }
@@ -108,24 +178,34 @@ fn triangle_light_pdf(tri: u32, wi: vec3<f32>, dist: f32) -> f32 {
     return pmf * dist * dist / (cos_l * area);
 }
 
+// A light sample for point p: one light by choose_light, then a point on it.
+fn sample_light_at(p: vec3<f32>, n: vec3<f32>, u_select: f32, u: vec2<f32>) -> LightSample {
+    let c = choose_light(p, n, u_select);
+    return eval_light_chosen(c.light, sample_triangle(u), p, c.pmf);
+}
+
+// sample_light_at without a normal (the light tree then leaves the receiving cosine out).
 fn sample_light(p: vec3<f32>, u_select: f32, u: vec2<f32>) -> LightSample {
-    if light_pool.count == 0u {
-        return no_light_sample();
-    }
-    return eval_light_point(select_light(u_select), sample_triangle(u), p);
+    return sample_light_at(p, vec3<f32>(0.0), u_select, u);
 }
 
 // A light sample fixed by (light index, barycentrics on a triangle light; unused otherwise),
-// seen from the point p: what reservoirs store and re-evaluate at other pixels.
+// seen from the point p, with the pool's power pdf: what reservoirs store and re-evaluate at
+// other pixels.
 fn eval_light_point(light_index: u32, b: vec2<f32>, p: vec3<f32>) -> LightSample {
-    var s = no_light_sample();
     if light_index >= light_pool.count {
+        return no_light_sample();
+    }
+    return eval_light_chosen(light_index, b, p, light_pool.lights[light_index].pmf);
+}
+
+// eval_light_point for a light chosen with probability `pmf`.
+fn eval_light_chosen(light_index: u32, b: vec2<f32>, p: vec3<f32>, pmf: f32) -> LightSample {
+    var s = no_light_sample();
+    if light_index >= light_pool.count || pmf <= 0.0 {
         return s;
     }
     let light = light_pool.lights[light_index];
-    if light.pmf <= 0.0 {
-        return s;
-    }
     switch light.kind {
         case LIGHT_TRIANGLE: {
             let g = tri_geom[light.tri];
@@ -145,8 +225,8 @@ fn eval_light_point(light_index: u32, b: vec2<f32>, p: vec3<f32>) -> LightSample
             if cos_l <= 1e-8 {
                 return s;
             }
-            s.pdf = light.pmf * dist_sq / (cos_l * 0.5 * len);
-            s.area_pdf = light.pmf / (0.5 * len);
+            s.pdf = pmf * dist_sq / (cos_l * 0.5 * len);
+            s.area_pdf = pmf / (0.5 * len);
             s.geom = cos_l / dist_sq;
             s.normal = c / len;
             s.valid = any(s.radiance > vec3<f32>(0.0));
@@ -166,8 +246,8 @@ fn eval_light_point(light_index: u32, b: vec2<f32>, p: vec3<f32>) -> LightSample
                 falloff = a * a;
             }
             s.radiance = light.intensity.xyz * falloff / dist_sq;
-            s.pdf = light.pmf;
-            s.area_pdf = light.pmf;
+            s.pdf = pmf;
+            s.area_pdf = pmf;
             s.geom = 1.0;
             s.is_delta = true;
             s.valid = falloff > 0.0;
@@ -176,8 +256,8 @@ fn eval_light_point(light_index: u32, b: vec2<f32>, p: vec3<f32>) -> LightSample
             s.wi = -light.direction.xyz;
             s.dist = INFINITE_DISTANCE;
             s.radiance = light.intensity.xyz;
-            s.pdf = light.pmf;
-            s.area_pdf = light.pmf;
+            s.pdf = pmf;
+            s.area_pdf = pmf;
             s.geom = 1.0;
             s.is_delta = true;
             s.valid = true;

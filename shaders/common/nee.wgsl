@@ -4,7 +4,7 @@
 
 #import gilab::brdf::{Surface, bsdf_eval}
 #import gilab::scene::light_pool
-#import gilab::lights::{LightSample, sample_light, light_shadow_ray}
+#import gilab::lights::{LightSample, sample_light_at, light_shadow_ray}
 #import gilab::ray::unoccluded
 
 // Next-event estimation of one light picked by power (the shared light pool), one shadow ray.
@@ -17,7 +17,7 @@ fn direct_light(p: vec3<f32>, n_geo: vec3<f32>, n: vec3<f32>, m: Surface, wo: ve
     if light_pool.count == 0u {
         return Direct(vec3<f32>(0.0), 0u);
     }
-    return shade_light_sample(p, n_geo, n, m, wo, sample_light(p, u_select, u));
+    return shade_light_sample(p, n_geo, n, m, wo, sample_light_at(p, n_geo, u_select, u));
 }
 
 // One light sample taken at p (its pdf in solid angle, as `sample_light` gives it), shaded with

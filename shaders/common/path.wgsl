@@ -99,6 +99,10 @@ fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, 
     var throughput = vec3<f32>(1.0);
     var prev_pdf = 0.0;
     var prev_delta = true;
+    // The last vertex's point and geometric normal, where its NEE picked a light: the light
+    // tree's pdf of an emitter hit depends on them.
+    var prev_position = origin_in;
+    var prev_normal = vec3<f32>(0.0);
     var max_bounces = select(SAFETY_MAX_BOUNCES, max_depth, max_depth > 0u);
     var specular_left = options.specular_bounces;
     // The hit a path ends at: the one that reads a cache, or (traced paths) the last one,
@@ -134,7 +138,7 @@ fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, 
         if any(le > vec3<f32>(0.0)) && !(depth == 0u && skip_first_emission) {
             var w = 1.0;
             if !prev_delta {
-                w = power_heuristic(prev_pdf, (1.0 - p_sky) * triangle_light_pdf(hit.tri, dir, hit.t));
+                w = power_heuristic(prev_pdf, (1.0 - p_sky) * triangle_light_pdf(hit.tri, dir, hit.t, prev_position, prev_normal));
             }
             add_contribution(&out, throughput * le * w, depth);
         }
@@ -179,6 +183,8 @@ fn trace_path(origin_in: vec3<f32>, dir_in: vec3<f32>, rng: ptr<function, Rng>, 
         throughput *= bs.weight;
         prev_pdf = bs.pdf;
         prev_delta = bs.is_delta;
+        prev_position = surf.position;
+        prev_normal = surf.geo_normal;
         origin = spawn_ray_origin(surf.position, surf.geo_normal, bs.wi);
         dir = bs.wi;
         if depth + 1u >= RR_START_DEPTH {

@@ -6,7 +6,7 @@
 #import gilab::ray::{INFINITE_DISTANCE, unoccluded}
 #import gilab::rng::{Rng, rand, rand_pair}
 #import gilab::scene::light_pool
-#import gilab::lights::{LightSample, no_light_sample, sample_light, light_shadow_ray}
+#import gilab::lights::{LightSample, no_light_sample, sample_light_at, light_shadow_ray}
 #import gilab::sky::{sky_radiance, sample_sky, sky_nee}
 #import gilab::brdf::bsdf_eval
 #import gilab::sampling::power_heuristic
@@ -47,10 +47,12 @@ fn nee_sky_share() -> f32 {
     return select(1.0, SKY_NEE_SHARE, light_pool.count > 0u);
 }
 
-// One NEE light sample from three random numbers: the sky with probability p_sky (importance
-// sampled), else one light of the pool by its power; pdf and area_pdf include that choice. The
-// light point depends on the numbers only, never on p: ReSTIR PT's random replay relies on it.
-fn pick_nee_light(p: vec3<f32>, u_sel: f32, u_light: vec2<f32>, p_sky: f32) -> LightSample {
+// One NEE light sample at p (geometric normal n, facing the side light is gathered on) from
+// three random numbers: the sky with probability p_sky (importance sampled), else one light of
+// the pool by its power; pdf and area_pdf include that choice. By power, the light point depends
+// on the numbers only, never on p (ReSTIR PT's random replay relies on it); a pipeline with the
+// light tree (LIGHT_TREE) picks by p and n.
+fn pick_nee_light(p: vec3<f32>, n: vec3<f32>, u_sel: f32, u_light: vec2<f32>, p_sky: f32) -> LightSample {
     if u_sel < p_sky {
         let ss = sample_sky(u_light);
         let le_sky = sky_radiance(ss.dir);
@@ -59,7 +61,7 @@ fn pick_nee_light(p: vec3<f32>, u_sel: f32, u_light: vec2<f32>, p_sky: f32) -> L
     if light_pool.count == 0u {
         return no_light_sample();
     }
-    var ls = sample_light(p, (u_sel - p_sky) / (1.0 - p_sky), u_light);
+    var ls = sample_light_at(p, n, (u_sel - p_sky) / (1.0 - p_sky), u_light);
     ls.pdf *= 1.0 - p_sky;
     ls.area_pdf *= 1.0 - p_sky;
     return ls;
@@ -84,13 +86,13 @@ fn next_event(surf: HitSurface, wo: vec3<f32>, rng: ptr<function, Rng>, p_sky: f
     // Contribution weight of `ls`: 1 / pdf for one sample, RIS's w_sum / (M target) otherwise.
     var big_w = 0.0;
     if u_sel < p_sky || (light_pool.count > 0u && candidates <= 1u) {
-        ls = pick_nee_light(surf.position, u_sel, u_light, p_sky);
+        ls = pick_nee_light(surf.position, surf.geo_normal, u_sel, u_light, p_sky);
         big_w = 1.0 / max(ls.pdf, 1e-30);
     } else if light_pool.count > 0u {
         var w_sum = 0.0;
         var chosen_target = 0.0;
         for (var i = 0u; i < candidates; i++) {
-            var c = sample_light(surf.position, rand(rng), rand_pair(rng));
+            var c = sample_light_at(surf.position, surf.geo_normal, rand(rng), rand_pair(rng));
             c.pdf *= 1.0 - p_sky;
             if !c.valid || c.pdf <= 0.0 || dot(c.wi, surf.geo_normal) <= 0.0 {
                 continue;

@@ -39,7 +39,7 @@ struct TriAttr {
     scene_tri: u32,
     flags: u32,
     // x: the triangle's motion record + 1 (a node index in bvh_nodes; 0: it does not move);
-    // y: unused.
+    // y: its light's index in the light pool + 1 (0: it does not emit).
     pad: vec2<u32>,
 }
 
@@ -102,8 +102,9 @@ struct Light {
     // The same within the light's class (local: triangles, point, spot; directional).
     class_cdf: f32,
     class_pmf: f32,
-    pad_a: u32,
-    pad_b: u32,
+    // Local lights: the bit trail to the light's leaf in the light tree (low, high word;
+    // gilab::light_tree).
+    trail: vec2<u32>,
     position: vec4<f32>,
     // rgb: intensity (point/spot, W/sr) or irradiance (directional, W/m^2).
     intensity: vec4<f32>,
@@ -113,7 +114,8 @@ struct Light {
     spot: vec4<f32>,
 }
 
-// Local lights come first ([0, local_count)), directional lights after them.
+// Local lights come first ([0, local_count)), directional lights after them; the light tree's
+// nodes follow the lights in records of the same size (gilab::light_tree::tree_node).
 struct LightPool {
     count: u32,
     emissive_count: u32,

@@ -4,13 +4,16 @@
 // CACHE_REGIR, its bindings at WORLD_REGIR_GROUP (`cache_direct = "regir"`;
 // src/parts/world_regir.rs), or by a reservoir over RESERVOIR_CANDIDATES power-sampled lights,
 // one winner resampled by its unshadowed contribution at the point (CACHE_RESERVOIR,
-// `cache_direct = "reservoir"`: GIBS's light sampling at a surfel ray's hit, seed 001).
+// `cache_direct = "reservoir"`: GIBS's light sampling at a surfel ray's hit, seed 001), or by
+// the light tree at the point and its normal when the pipeline sets LIGHT_TREE
+// (`cache_direct = "tree"`; a point's light reaches it only above its normal's plane, so the
+// tree's importance may use either normal).
 #define_import_path gilab::cache_light
 
 #import gilab::rng::{Rng, rand, rand_pair}
 #import gilab::brdf::{Surface, bsdf_eval}
 #import gilab::math::luminance
-#import gilab::lights::{LightSample, sample_light, no_light_sample}
+#import gilab::lights::{LightSample, sample_light_at, no_light_sample}
 #import gilab::nee::{Direct, shade_light_sample}
 #ifdef CACHE_REGIR
 #import gilab::world_regir::world_regir_light
@@ -24,7 +27,7 @@ fn cache_light_sample(p: vec3<f32>, n: vec3<f32>, rng: ptr<function, Rng>) -> Li
         return r.sample;
     }
 #endif
-    return sample_light(p, rand(rng), rand_pair(rng));
+    return sample_light_at(p, n, rand(rng), rand_pair(rng));
 }
 
 // Candidates of `cache_direct = "reservoir"` (the seed's 4-8; src/parts/world_regir.rs).
@@ -38,7 +41,7 @@ fn reservoir_light_sample(p: vec3<f32>, n: vec3<f32>, m: Surface, wo: vec3<f32>,
     var w_sum = 0.0;
     var chosen_target = 0.0;
     for (var i = 0u; i < RESERVOIR_CANDIDATES; i++) {
-        let c = sample_light(p, rand(rng), rand_pair(rng));
+        let c = sample_light_at(p, n, rand(rng), rand_pair(rng));
         if !c.valid || c.pdf <= 0.0 {
             continue;
         }

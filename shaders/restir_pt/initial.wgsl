@@ -78,7 +78,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 // `direct = "restir"` (the sky stays here: the part leaves it to the family).
                 let counted = j > 1u || params.direct_restir == 0u;
                 // NEE at x_j: the candidate of length j + 1 ending at the light point.
-                let ls = pick_nee_light(v.pos, u.u_select, u.u_light, p_sky);
+                let ls = pick_nee_light(v.pos, v.geo, u.u_select, u.u_light, p_sky);
                 if ls.valid && ls.pdf > 0.0 && dot(ls.wi, v.geo) > 0.0 {
                     let e = bsdf_eval(v.material, v.normal, v.wo, ls.wi);
                     if any(e.f > vec3<f32>(0.0)) {
@@ -135,7 +135,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 // The emitter at x_{j+1}: the candidate of length j + 1 ending there.
                 let le = triangle_emission(hit.tri, hit.bary, -bs.wi);
                 if any(le > vec3<f32>(0.0)) && counted {
-                    let p_solid = (1.0 - p_sky) * triangle_light_pdf(hit.tri, bs.wi, hit.t);
+                    let p_solid = (1.0 - p_sky) * triangle_light_pdf(hit.tri, bs.wi, hit.t, v.pos, v.geo);
                     let w = select(power_heuristic(bs.pdf, p_solid), 1.0, bs.is_delta);
                     let c = t * le * w;
                     var suffix = le;

@@ -227,7 +227,7 @@ fn shift_path(r: PathReservoir, s: GSurface) -> Shifted {
         let u = vertex_numbers(r.seed, j);
         if rc == 0u && j + 1u == k && end == END_NEE {
             // The path's last step: NEE at y_{k-1}, to the same light point.
-            let ls = pick_nee_light(v.pos, u.u_select, u.u_light, p_sky);
+            let ls = pick_nee_light(v.pos, v.geo, u.u_select, u.u_light, p_sky);
             if !ls.valid || ls.pdf <= 0.0 || dot(ls.wi, v.geo) <= 0.0 {
                 return failed_shift(rays);
             }
@@ -275,7 +275,7 @@ fn shift_path(r: PathReservoir, s: GSurface) -> Shifted {
             let le = triangle_emission(hit.tri, hit.bary, -bs.wi);
             var w = 1.0;
             if !bs.is_delta {
-                w = power_heuristic(bs.pdf, (1.0 - p_sky) * triangle_light_pdf(hit.tri, bs.wi, hit.t));
+                w = power_heuristic(bs.pdf, (1.0 - p_sky) * triangle_light_pdf(hit.tri, bs.wi, hit.t, v.pos, v.geo));
             }
             return Shifted(t * le * w, 1.0, 0.0, 0.0, rays, false);
         }

@@ -36,12 +36,17 @@
 //!   lights of their points (`gilab::cache_light`, at the bind group a pass names with
 //!   `WORLD_REGIR_GROUP`). Used by `lumen`'s card texels and the surfels' ray hits
 //!   (`cache_direct = "regir"`).
+//! - [`light_tree::LightTree`]: a light BVH over the light pool's local lights (bounds,
+//!   orientation cones, power), built with the pool and uploaded after it; a pipeline that sets
+//!   the `LIGHT_TREE` def picks its lights by one stochastic descent (`gilab::light_tree`).
+//!   Used by the reference (`light_sampling = "tree"`).
 
 use crate::gpu::Gpu;
 use crate::render::RenderContext;
 use anyhow::Result;
 
 pub mod gi_cache;
+pub mod light_tree;
 pub mod reflections;
 pub mod restir;
 pub mod restir_direct;

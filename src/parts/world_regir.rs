@@ -43,10 +43,10 @@ const STAT_SLOTS: u64 = 64;
 pub const PARAMS: [ParamSpec; 3] = [
     ParamSpec {
         name: "cache_direct",
-        what: "how the cache picks the light for each point it lights (card texels, surfel ray hits): by power from the whole light pool, from the world-space ReGIR clipmap's cell at the point (seed 003, ReGIR lighting the cache; runs only with many lights), or by a reservoir of 8 power-sampled candidates resampled by their unshadowed contribution at the point (seed 001's light sampling at a surfel ray's hit)",
-        higher: "regir: lights near the point are picked far more often: lower noise on many lights, one build pass per frame; reservoir: the candidate that lights the point most wins, 8 light evaluations per point, no build pass",
+        what: "how the cache picks the light for each point it lights (card texels, surfel ray hits): by power from the whole light pool, from the world-space ReGIR clipmap's cell at the point (seed 003, ReGIR lighting the cache; runs only with many lights), by a reservoir of 8 power-sampled candidates resampled by their unshadowed contribution at the point (seed 001's light sampling at a surfel ray's hit), or by one descent of the light tree at the point and its normal (parts::light_tree)",
+        higher: "regir: lights near the point are picked far more often: lower noise on many lights, one build pass per frame; reservoir: the candidate that lights the point most wins, 8 light evaluations per point, no build pass; tree: lights near and facing the point, a tree walk per point, no build pass",
         lower: "power: no build pass; a point far from the bright lights gets mostly useless samples",
-        kind: ParamKind::Choice(&["power", "regir", "reservoir"]),
+        kind: ParamKind::Choice(&["power", "regir", "reservoir", "tree"]),
         default: 0.0,
     },
     ParamSpec {
@@ -73,6 +73,8 @@ pub struct WorldRegirSettings {
     pub regir: bool,
     /// `cache_direct = "reservoir"` (`CACHE_RESERVOIR` in shaders/parts/cache_light.wgsl).
     pub reservoir: bool,
+    /// `cache_direct = "tree"`: one light by the light tree (`LIGHT_TREE`, parts::light_tree).
+    pub tree: bool,
     pub slots: u32,
     pub lookup_candidates: u32,
 }
@@ -93,6 +95,8 @@ impl WorldRegirSettings {
             "regir"
         } else if self.reservoir {
             "reservoir"
+        } else if self.tree {
+            "tree"
         } else {
             "power"
         }
@@ -102,6 +106,7 @@ impl WorldRegirSettings {
         WorldRegirSettings {
             regir: p.u32("cache_direct") == 1,
             reservoir: p.u32("cache_direct") == 2,
+            tree: p.u32("cache_direct") == 3,
             slots: p.u32("cache_regir_slots").max(1),
             lookup_candidates: p.u32("cache_regir_candidates").max(1),
         }
@@ -207,10 +212,15 @@ impl WorldRegir {
         own: &wgpu::BindGroupLayout,
         light: &WorldRegirSettings,
     ) -> Result<wgpu::ComputePipeline> {
-        if light.reservoir {
+        if light.reservoir || light.tree {
+            let def = if light.reservoir {
+                "CACHE_RESERVOIR"
+            } else {
+                "LIGHT_TREE"
+            };
             return pipelines::compute_pipeline(
                 ctx.gpu,
-                &ctx.shaders.with_defs(&[("CACHE_RESERVOIR", 1)]),
+                &ctx.shaders.with_defs(&[(def, 1)]),
                 entry,
                 &[&ctx.scene.layout, ctx.frame_layout, own],
             );

@@ -351,6 +351,19 @@ impl Params {
     pub fn bool(&self, name: &str) -> bool {
         self.value(name) != 0.0
     }
+
+    /// The chosen name of a choice parameter.
+    pub fn choice(&self, name: &str) -> &'static str {
+        let spec = self
+            .specs
+            .iter()
+            .find(|s| s.name == name)
+            .unwrap_or_else(|| panic!("no parameter '{name}' in the table"));
+        match spec.kind {
+            ParamKind::Choice(c) => c[(self.value(name) as usize).min(c.len() - 1)],
+            _ => panic!("parameter '{name}' is not a choice"),
+        }
+    }
 }
 
 /// The parameter table of one technique (docs/parameters.md) (Markdown), generated from its specs.

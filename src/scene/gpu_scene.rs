@@ -4,6 +4,7 @@ use super::bvh::{Bvh, BvhNode};
 use super::{features::luminance, features::SceneFeatures, PunctualKind, Scene};
 use crate::compare::tonemap::{linear_to_srgb, srgb_to_linear};
 use crate::gpu::Gpu;
+use crate::parts::light_tree::{LightBounds, LightTree};
 use glam::{Mat4, Vec3};
 use wgpu::util::DeviceExt;
 
@@ -36,6 +37,8 @@ pub struct GpuTriAttr {
     /// The triangle's index in the scene (these arrays are in BVH order).
     pub scene_tri: u32,
     pub flags: u32,
+    /// [0]: the triangle's motion record + 1 (0: it does not move); [1]: its light's index in
+    /// the light pool + 1 (0: it does not emit).
     pub pad: [u32; 2],
 }
 
@@ -311,6 +314,12 @@ pub const LIGHT_POINT: u32 = 1;
 pub const LIGHT_SPOT: u32 = 2;
 pub const LIGHT_DIRECTIONAL: u32 = 3;
 
+// A tree node takes a light record's slot in the light pool.
+const _: () = assert!(
+    std::mem::size_of::<GpuLight>()
+        == std::mem::size_of::<crate::parts::light_tree::GpuLightTreeNode>()
+);
+
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct GpuLight {
@@ -323,7 +332,9 @@ pub struct GpuLight {
     /// for ReSTIR's per-class candidates.
     pub class_cdf: f32,
     pub class_pmf: f32,
-    pub pad: [u32; 2],
+    /// Local lights: the bit trail to the light's leaf in the light tree (low word, high
+    /// word; `parts::light_tree`).
+    pub trail: [u32; 2],
     pub position: [f32; 4],
     pub intensity: [f32; 4],
     pub direction: [f32; 4],
@@ -356,6 +367,8 @@ pub struct SceneData {
     /// inside `texels` from ENV_OFFSET on.
     pub environment: std::sync::Arc<Vec<u8>>,
     pub lights: Vec<GpuLight>,
+    /// The light tree over the local lights, uploaded after them in the light pool.
+    pub light_tree: LightTree,
     pub vertices: Vec<RasterVertex>,
     pub features: SceneFeatures,
     pub timings: SceneTimings,
@@ -383,6 +396,8 @@ pub struct SceneTimings {
     pub prepare_ms: f64,
     /// Creating and filling the GPU buffers (CPU side of the upload).
     pub upload_ms: f64,
+    /// Building the light tree (part of `prepare_ms`; again at each re-pose).
+    pub light_tree_ms: f64,
     pub threads: usize,
 }
 
@@ -464,6 +479,8 @@ impl SceneData {
             .collect();
         let Geometry {
             lights,
+            light_tree,
+            light_tree_ms,
             tri_geom,
             tri_attr,
             vertices,
@@ -471,6 +488,7 @@ impl SceneData {
         SceneData {
             timings: SceneTimings {
                 bvh_build_ms,
+                light_tree_ms,
                 prepare_ms: start.elapsed().as_secs_f64() * 1e3,
                 ..SceneTimings::default()
             },
@@ -483,6 +501,7 @@ impl SceneData {
             textures,
             environment: std::sync::Arc::new(environment),
             lights,
+            light_tree,
             vertices,
             features,
         }
@@ -493,6 +512,9 @@ impl SceneData {
 /// lights), the triangle records in BVH order and the raster vertices.
 struct Geometry {
     lights: Vec<GpuLight>,
+    /// The light tree over the local lights (`light_sampling = "tree"`), uploaded after them.
+    light_tree: LightTree,
+    light_tree_ms: f64,
     tri_geom: Vec<GpuTriGeom>,
     tri_attr: Vec<GpuTriAttr>,
     vertices: Vec<RasterVertex>,
@@ -519,6 +541,9 @@ impl Geometry {
         let mut lights = Vec::new();
         let mut powers = Vec::new();
         let mut tri_light_power = vec![0.0f32; tris.len()];
+        let mut tri_light_index = vec![0u32; tris.len()];
+        // What each local light can give a point, for the light tree.
+        let mut local_bounds = Vec::new();
         for (bvh_index, &orig) in bvh.order.iter().enumerate() {
             let mi = scene.triangle_material[orig as usize] as usize;
             let m = &scene.materials[mi];
@@ -530,6 +555,8 @@ impl Geometry {
                 * if m.double_sided { 2.0 } else { 1.0 };
             if power > 0.0 && power.is_finite() {
                 tri_light_power[bvh_index] = power;
+                tri_light_index[bvh_index] = lights.len() as u32 + 1;
+                local_bounds.push(LightBounds::triangle(t, power, m.double_sided));
                 lights.push(GpuLight {
                     kind: LIGHT_TRIANGLE,
                     tri: bvh_index as u32,
@@ -558,6 +585,16 @@ impl Geometry {
             // glTF spot falloff: smooth between cos(outer) and cos(inner).
             let (co, ci) = (l.outer_cone.cos(), l.inner_cone.cos());
             let scale = 1.0 / (ci - co).max(1e-4);
+            match l.kind {
+                PunctualKind::Point => local_bounds.push(LightBounds::point(l.position, power)),
+                PunctualKind::Spot => local_bounds.push(LightBounds::spot(
+                    l.position,
+                    l.direction,
+                    l.outer_cone,
+                    power,
+                )),
+                PunctualKind::Directional => {}
+            }
             lights.push(GpuLight {
                 kind,
                 position: l.position.extend(1.0).to_array(),
@@ -584,6 +621,12 @@ impl Geometry {
             .count();
         set_class_cdf(&mut lights[..local], &powers[..local]);
         set_class_cdf(&mut lights[local..], &powers[local..]);
+        let tree_start = std::time::Instant::now();
+        let light_tree = LightTree::build(&local_bounds);
+        for (l, trail) in lights.iter_mut().zip(&light_tree.trails) {
+            l.trail = *trail;
+        }
+        let light_tree_ms = tree_start.elapsed().as_secs_f64() * 1e3;
 
         let records = motion_records(bvh);
         let mut tri_geom = Vec::with_capacity(tris.len());
@@ -636,7 +679,10 @@ impl Geometry {
                 uv1_bc: [uv1[1].x, uv1[1].y, uv1[2].x, uv1[2].y],
                 scene_tri: orig,
                 flags,
-                pad: [records.get(bvh_index).copied().unwrap_or(0), 0],
+                pad: [
+                    records.get(bvh_index).copied().unwrap_or(0),
+                    tri_light_index[bvh_index],
+                ],
             });
             vertices.extend(p.map(|v| RasterVertex {
                 position: v.to_array(),
@@ -644,6 +690,8 @@ impl Geometry {
         }
         Geometry {
             lights,
+            light_tree,
+            light_tree_ms,
             tri_geom,
             tri_attr,
             vertices,
@@ -744,8 +792,9 @@ fn nodes_with_motion(bvh: &Bvh, motions: &[Mat4]) -> Vec<BvhNode> {
 }
 
 /// The light pool buffer's contents: a header (lights, emissive triangles, punctual lights,
-/// local lights), then the lights (one empty record when there are none).
-fn light_pool_bytes(lights: &[GpuLight]) -> Vec<u8> {
+/// local lights), then the lights (one empty record when there are none), then the light
+/// tree's nodes in records of the same size (the tree's root at record `lights.len()`).
+fn light_pool_bytes(lights: &[GpuLight], tree: &LightTree) -> Vec<u8> {
     let emissive = lights.iter().filter(|l| l.kind == LIGHT_TRIANGLE).count() as u32;
     let local = lights
         .iter()
@@ -763,6 +812,7 @@ fn light_pool_bytes(lights: &[GpuLight]) -> Vec<u8> {
     if lights.is_empty() {
         bytes.extend_from_slice(bytemuck::bytes_of(&GpuLight::default()));
     }
+    bytes.extend_from_slice(bytemuck::cast_slice(&tree.nodes));
     bytes
 }
 
@@ -809,7 +859,7 @@ impl GpuScene {
         let attr = storage("tri attr", bytemuck::cast_slice(&data.tri_attr));
         let mats = storage("materials", bytemuck::cast_slice(&data.materials));
         let texels = storage("texels", bytemuck::cast_slice(&data.texels[..]));
-        let light_bytes = light_pool_bytes(&data.lights);
+        let light_bytes = light_pool_bytes(&data.lights, &data.light_tree);
         let lights = storage("light pool", &light_bytes);
         let layout = Self::bind_group_layout(gpu);
         let bind_group = crate::render::pipelines::buffers_bind_group(
@@ -868,7 +918,9 @@ impl GpuScene {
         let bvh_build_ms = top_start.elapsed().as_secs_f64() * 1e3;
         let bvh = &self.data.bvh;
         let g = Geometry::new(scene, &tris, bvh);
-        if g.lights.len() != self.data.lights.len() || g.tri_geom.len() != self.data.tri_geom.len()
+        if g.lights.len() != self.data.lights.len()
+            || g.light_tree.nodes.len() != self.data.light_tree.nodes.len()
+            || g.tri_geom.len() != self.data.tri_geom.len()
         {
             return false;
         }
@@ -895,13 +947,15 @@ impl GpuScene {
         );
         q.write_buffer(geom, 0, bytemuck::cast_slice(&g.tri_geom));
         q.write_buffer(attr, 0, bytemuck::cast_slice(&g.tri_attr));
-        q.write_buffer(lights, 0, &light_pool_bytes(&g.lights));
+        q.write_buffer(lights, 0, &light_pool_bytes(&g.lights, &g.light_tree));
         q.write_buffer(&self.vertex_buffer, 0, bytemuck::cast_slice(&g.vertices));
         let d = &mut self.data;
         d.tris = tris;
         d.tri_geom = g.tri_geom;
         d.tri_attr = g.tri_attr;
         d.lights = g.lights;
+        d.light_tree = g.light_tree;
+        d.timings.light_tree_ms = g.light_tree_ms;
         d.vertices = g.vertices;
         d.timings.bvh_build_ms = bvh_build_ms;
         d.timings.prepare_ms = start.elapsed().as_secs_f64() * 1e3;

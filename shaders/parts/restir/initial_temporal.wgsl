@@ -9,6 +9,7 @@
 #import gilab::math::{PI, luminance, to_world}
 #import gilab::scene::light_pool
 #import gilab::lights::{select_light, select_light_in_class, class_pdf_scale}
+#import gilab::light_tree::tree_sample
 #import gilab::sampling::{sample_triangle, sample_cosine_hemisphere}
 #import gilab::brdf::{bsdf_eval, bsdf_sample}
 #import gilab::sky::{sample_sky, sky_pdf, sky_importance}
@@ -25,8 +26,9 @@ fn finish_ris(s: GSurface, r_in: Reservoir) -> Reservoir {
     return r;
 }
 
-// Local lights (emissive triangles, point and spot lights): by power within the class, or
-// the pixel's ReGIR cell. In single-pool mode: by power over every light.
+// Local lights (emissive triangles, point and spot lights): by power within the class, by the
+// light tree (`light_tree`, one descent per candidate at the pixel's point and geometric
+// normal), or the pixel's ReGIR cell. In single-pool mode: by power over every light.
 fn local_candidates(s: GSurface, rng: ptr<function, Rng>) -> Reservoir {
     var r = empty_reservoir();
     let cell = regir_cell(s.pos.xyz);
@@ -49,6 +51,12 @@ fn local_candidates(s: GSurface, rng: ptr<function, Rng>) -> Reservoir {
         var scale = 1.0;
         if params.single_pool == 1u {
             li = select_light(rand(rng));
+        } else if params.light_tree == 1u {
+            // A failed descent (no light reaches the point) is a candidate of weight 0.
+            let t = tree_sample(s.pos.xyz, s.geo_specular.xyz, rand(rng));
+            li = select(light_pool.count, t.light, t.pmf > 0.0);
+            // The sample's area pdf below holds the pool's power pmf: swap it for the tree's.
+            scale = select(0.0, t.pmf / light_pool.lights[t.light].pmf, t.pmf > 0.0);
         } else {
             li = select_light_in_class(rand(rng), 0u, light_pool.local_count);
             scale = class_pdf_scale(li);

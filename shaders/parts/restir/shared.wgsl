@@ -61,7 +61,8 @@ struct RestirParams {
     specular_bounces: u32,
     // Roughness below which a hit counts as specular for `specular_bounces`.
     specular_max_roughness: f32,
-    pad: u32,
+    // 1: the local class's initial candidates by the light tree (gilab::light_tree).
+    light_tree: u32,
 }
 
 const VISIBILITY_PER_CLASS: u32 = 1u;

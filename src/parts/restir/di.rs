@@ -161,6 +161,8 @@ fn candidate_summary(s: &RestirSettings, f: &SceneFeatures) -> String {
     let [local, directional, sky] = candidates_for(s, &c);
     let source = if s.regir && f.many_lights {
         "ReGIR cell"
+    } else if s.light_tree && s.light_classes {
+        "by the light tree"
     } else {
         "by power"
     };

@@ -31,6 +31,19 @@ pub struct Gi {
     /// `gi_terminate = "lumen-cards" | "surfels"`: the cache the sample paths end in, and the
     /// temporal pass composed to read it (group 3).
     pub(super) cache: Option<CacheTermination>,
+    /// The passes' sample paths pick NEE lights by the light tree (`LIGHT_TREE`, with
+    /// `light_tree`): the variant `passes` and `cache` were composed as.
+    pub(super) light_tree: bool,
+}
+
+/// The GI passes' shader defs: NEE at the sample paths' vertices by the light tree with
+/// `light_tree` (gilab::lights, gilab::path's emitter MIS).
+pub(super) fn gi_defs(light_tree: bool) -> &'static [(&'static str, u32)] {
+    if light_tree {
+        &[("LIGHT_TREE", 1)]
+    } else {
+        &[]
+    }
 }
 
 /// Sample paths that end in a cache (the part and the pass that reads it).
@@ -94,11 +107,21 @@ impl RestirLighting {
     /// replaced on error.
     pub fn build_gi_cache(&mut self, ctx: &RenderContext) -> Result<()> {
         let s = &self.settings;
+        // `light_tree` changed since the passes were composed: compose them again.
+        let tree_changed = s.light_tree != self.gi.light_tree && self.gi.passes.is_built();
+        if s.gi && tree_changed {
+            let layout = self.layout(ctx.gpu).clone();
+            let tree = self.settings.light_tree;
+            let built = PassPair::build(ctx, &layout, PASSES, gi_defs(tree))?;
+            self.gi.passes.set(built);
+            self.gi.light_tree = tree;
+        }
+        let s = &self.settings;
         if !(s.gi && s.gi_terminate.cache()) {
             return Ok(());
         }
         if let Some(c) = &self.gi.cache {
-            if Some(c.cache.key()) == self.cache_key() {
+            if Some(c.cache.key()) == self.cache_key() && !tree_changed {
                 return Ok(());
             }
         }
@@ -121,6 +144,7 @@ impl RestirLighting {
             // GI_TERMINATE: the path ends in a cache (gilab::path_end); the cache's own def
             // picks which.
             defs.push(("GI_TERMINATE", 1));
+            defs.extend_from_slice(gi_defs(self.settings.light_tree));
             let shaders = ctx.shaders.with_defs(&defs);
             let layout = self.layout(ctx.gpu).clone();
             pipelines::compute_pipeline(

@@ -5,7 +5,7 @@
 //! whose layouts are [scene, frame, `layout()`, its own] (bind group 3 for its own resources).
 
 use super::di::{Di, LightClasses};
-use super::gi::Gi;
+use super::gi::{gi_defs, Gi};
 use super::regir::{Regir, REGIR_DIMS};
 use super::{RestirParamsGpu, RestirSettings};
 use crate::gpu::{timing::PassTimer, Gpu};
@@ -28,16 +28,27 @@ impl PassPair {
         ctx: &RenderContext,
         layout: &wgpu::BindGroupLayout,
         files: PassFiles,
+        defs: &[(&str, u32)],
     ) -> Result<[(&'static str, wgpu::ComputePipeline); 2]> {
         let [(a, fa), (b, fb)] = files;
-        Ok([
-            (a, ctx.pipeline(fa, layout)?),
-            (b, ctx.pipeline(fb, layout)?),
-        ])
+        let shaders = ctx.shaders.with_defs(defs);
+        let pipeline = |f| {
+            pipelines::compute_pipeline(
+                ctx.gpu,
+                &shaders,
+                f,
+                &[&ctx.scene.layout, ctx.frame_layout, layout],
+            )
+        };
+        Ok([(a, pipeline(fa)?), (b, pipeline(fb)?)])
     }
 
     pub(super) fn set(&mut self, built: [(&'static str, wgpu::ComputePipeline); 2]) {
         self.passes = Some(built);
+    }
+
+    pub(super) fn is_built(&self) -> bool {
+        self.passes.is_some()
     }
 
     pub(super) fn record(
@@ -123,11 +134,13 @@ impl RestirLighting {
     pub fn build(&mut self, ctx: &RenderContext) -> Result<()> {
         let layout = self.layout(ctx.gpu).clone();
         let regir = Regir::pipelines(ctx, &layout)?;
-        let di = PassPair::build(ctx, &layout, super::di::PASSES)?;
-        let gi = PassPair::build(ctx, &layout, super::gi::PASSES)?;
+        let di = PassPair::build(ctx, &layout, super::di::PASSES, &[])?;
+        let gi_tree = self.settings.light_tree;
+        let gi = PassPair::build(ctx, &layout, super::gi::PASSES, gi_defs(gi_tree))?;
         self.regir.set_pipelines(regir);
         self.di.passes.set(di);
         self.gi.passes.set(gi);
+        self.gi.light_tree = gi_tree;
         // The cache a GI path may end in is rebuilt with the rest (hot reload), or built now.
         if self.gi.cache.is_some() {
             self.rebuild_gi_cache(ctx)?;
@@ -277,7 +290,7 @@ impl RestirLighting {
             path_light_candidates: s.path_light_candidates.max(1),
             specular_bounces: s.specular_bounces,
             specular_max_roughness: s.specular_max_roughness,
-            pad: 0,
+            light_tree: (s.light_tree && s.light_classes) as u32,
         }
     }
 }

@@ -35,7 +35,8 @@ pub struct RestirParamsGpu {
     pub path_light_candidates: u32,
     pub specular_bounces: u32,
     pub specular_max_roughness: f32,
-    pub pad: u32,
+    /// 1: the local class's initial candidates by the light tree (`light_tree`).
+    pub light_tree: u32,
 }
 
 /// ReSTIR's parameters: docs, ranges and defaults in one place (the talk's defaults: 8 initial
@@ -228,6 +229,14 @@ const OWN_PARAMS: &[ParamSpec] = &[
         default: 1.0,
     },
     ParamSpec {
+        name: "light_tree",
+        what: "pick lights by the light tree (parts::light_tree: one descent, importance at the point and its normal) instead of by power: DI's initial candidates of the local class (ReGIR's cells take precedence where ReGIR runs; light_classes must be on) and the NEE at every vertex of GI's sample paths (their passes composed with LIGHT_TREE)",
+        higher: "on: candidates near and facing the point without a build pass; a tree walk per candidate",
+        lower: "off: candidates by power (or ReGIR's cells)",
+        kind: ParamKind::Bool,
+        default: 0.0,
+    },
+    ParamSpec {
         name: "regir_cell_size",
         what: "ReGIR cell edge in world units (0 = scene diagonal / 24)",
         higher: "fewer, coarser cells: pre-selection less local",
@@ -345,6 +354,8 @@ pub struct RestirSettings {
     pub cache_light: crate::parts::world_regir::WorldRegirSettings,
     /// Use ReGIR when the scene has many lights.
     pub regir: bool,
+    /// Local candidates by the light tree (where ReGIR does not run).
+    pub light_tree: bool,
     /// Cell edge in world units; 0 = automatic (scene diagonal / 24).
     pub regir_cell_size: f32,
     pub regir_lights_per_cell: u32,
@@ -378,6 +389,7 @@ impl RestirSettings {
             cache_ray_budget: p.u32("cache_ray_budget"),
             cache_light: crate::parts::world_regir::WorldRegirSettings::from_params(p),
             regir: p.bool("regir"),
+            light_tree: p.bool("light_tree"),
             regir_cell_size: p.f32("regir_cell_size"),
             regir_lights_per_cell: p.u32("regir_lights_per_cell"),
         }

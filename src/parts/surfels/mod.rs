@@ -670,7 +670,7 @@ impl SurfelCore {
                 format!(
                     "{} directions; NEE at hits{}; surfel irradiance at hits (multi-bounce), a path where none covers the hit",
                     if s.guiding { "guided (6x6 map, mixed with cosine)" } else { "cosine" },
-                    if !lights { " skipped: no lights" } else if s.cache_light.regir && f.many_lights { " (light from the world ReGIR clipmap)" } else if s.cache_light.reservoir { " (light by a reservoir of 8 candidates)" } else { " (light by power)" }
+                    if !lights { " skipped: no lights" } else if s.cache_light.regir && f.many_lights { " (light from the world ReGIR clipmap)" } else if s.cache_light.reservoir { " (light by a reservoir of 8 candidates)" } else if s.cache_light.tree { " (light by the light tree)" } else { " (light by power)" }
                 ),
             ),
             pass("estimate", true, format!("each surfel's frame estimate (mean of its rays){}; radial depth {}", if s.sharing { " for irradiance sharing" } else { "" }, if s.radial_depth { "on" } else { "off" })),

@@ -5,8 +5,9 @@
 //! mean and per-pixel variance stay accurate in float32 over many thousands of samples.
 //!
 //! Per path vertex: emission (MIS-weighted after non-delta bounces), next-event estimation of
-//! one light picked power-proportionally from emissive triangles and punctual lights (power
-//! heuristic against BSDF sampling), a BSDF sample (GGX visible normals or cosine), and
+//! one light picked power-proportionally from emissive triangles and punctual lights, or by the
+//! light tree (`light_sampling = "tree"`, `parts::light_tree`; power heuristic against BSDF
+//! sampling either way), a BSDF sample (GGX visible normals or cosine), and
 //! Russian roulette from the third bounce. `max_depth` 0 means unbounded (roulette only).
 //! Shader: shaders/reference/path_trace.wgsl.
 
@@ -26,7 +27,10 @@ pub struct ReferencePathTracer {
     accumulate: bool,
     /// Also average the direct-light and one-bounce images from the same paths.
     depth_images: bool,
-    pipeline: Option<wgpu::ComputePipeline>,
+    /// `light_sampling = "tree"`: NEE picks lights by the light tree.
+    light_tree: bool,
+    /// The path tracing pipeline by light sampling (power, tree), each built when first wanted.
+    pipelines: [Option<wgpu::ComputePipeline>; 2],
     layout: Option<wgpu::BindGroupLayout>,
     /// With `depth_images`: per pixel the means and M2 of the two depth-limited images (four
     /// planes of vec4); 16 bytes otherwise.
@@ -78,6 +82,14 @@ pub const PARAMS: &[ParamSpec] = &[
         kind: ParamKind::Bool,
         default: 0.0,
     },
+    ParamSpec {
+        name: "light_sampling",
+        what: "how next-event estimation picks a light: `power` in proportion to each light's power (one CDF over the pool); `tree` by one descent of the light tree (parts::light_tree: bounds, orientation cones and power, importance at the shading point and its normal), directional lights by their power share. Both are unbiased",
+        higher: "tree: fewer wasted shadow rays where many lights are far, behind or facing away (many-lights)",
+        lower: "power: no tree walk per sample; as good where one or two lights dominate",
+        kind: ParamKind::Choice(&["power", "tree"]),
+        default: 0.0,
+    },
 ];
 const SLOT_BYTES: u64 = 256;
 /// Rays one path costs before anything is measured (camera + a few bounces with shadow rays).
@@ -91,7 +103,8 @@ impl Default for ReferencePathTracer {
             max_depth: 0,
             accumulate: true,
             depth_images: false,
-            pipeline: None,
+            light_tree: false,
+            pipelines: [None, None],
             layout: None,
             depth_accum: None,
             bind_group: None,
@@ -103,6 +116,23 @@ impl Default for ReferencePathTracer {
 }
 
 impl ReferencePathTracer {
+    /// The path tracing pipeline, with NEE by the light tree (`LIGHT_TREE`) or by power.
+    fn path_pipeline(
+        ctx: &RenderContext,
+        layout: &wgpu::BindGroupLayout,
+        light_tree: bool,
+    ) -> Result<wgpu::ComputePipeline> {
+        if !light_tree {
+            return ctx.pipeline("reference/path_trace.wgsl", layout);
+        }
+        pipelines::compute_pipeline(
+            ctx.gpu,
+            &ctx.shaders.with_defs(&[("LIGHT_TREE", 1)]),
+            "reference/path_trace.wgsl",
+            &[&ctx.scene.layout, ctx.frame_layout, layout],
+        )
+    }
+
     /// The depth planes' buffer, sized for `depth_images` (a new one starts from zero), and the
     /// bind group that holds it.
     fn bind_depth_images(&mut self, gpu: &Gpu) {
@@ -186,8 +216,13 @@ impl Technique for ReferencePathTracer {
             runs: f.has_emissive(),
             why: if f.has_emissive() {
                 format!(
-                    "{} emissive triangles in the light pool",
-                    f.emissive_triangle_count
+                    "{} emissive triangles in the light pool, picked {}",
+                    f.emissive_triangle_count,
+                    if self.light_tree {
+                        "by the light tree"
+                    } else {
+                        "by power"
+                    }
                 )
             } else {
                 "no emissive triangles".into()
@@ -243,7 +278,7 @@ impl Technique for ReferencePathTracer {
             ],
         );
         // Build everything first so a failure leaves the previous pipeline in place.
-        let pipeline = ctx.pipeline("reference/path_trace.wgsl", &layout)?;
+        let pipeline = Self::path_pipeline(ctx, &layout, self.light_tree)?;
         let slots = self.sample_slots.take().unwrap_or_else(|| {
             let mut bytes = vec![0u8; (SLOT_BYTES * MAX_SAMPLES_PER_FRAME as u64) as usize];
             for i in 0..MAX_SAMPLES_PER_FRAME {
@@ -267,7 +302,9 @@ impl Technique for ReferencePathTracer {
                 mapped_at_creation: false,
             })
         });
-        self.pipeline = Some(pipeline);
+        // The other light sampling's pipeline is built again when next wanted.
+        self.pipelines = [None, None];
+        self.pipelines[self.light_tree as usize] = Some(pipeline);
         self.layout = Some(layout);
         self.sample_slots = Some(slots);
         self.settings_buffer = Some(settings);
@@ -279,6 +316,10 @@ impl Technique for ReferencePathTracer {
     /// `max_depth` and `accumulate` travel in the technique's own uniform; `samples_per_frame` is the number of
     /// dispatches, so neither needs more than a uniform write.
     fn apply_params(&mut self, ctx: &RenderContext) -> Result<()> {
+        if let (Some(layout), None) = (&self.layout, &self.pipelines[self.light_tree as usize]) {
+            self.pipelines[self.light_tree as usize] =
+                Some(Self::path_pipeline(ctx, layout, self.light_tree)?);
+        }
         if let Some(b) = &self.settings_buffer {
             ctx.gpu.queue.write_buffer(
                 b,
@@ -308,7 +349,9 @@ impl Technique for ReferencePathTracer {
         enc: &mut wgpu::CommandEncoder,
         timer: &mut PassTimer,
     ) {
-        let (Some(pipeline), Some(bg)) = (&self.pipeline, &self.bind_group) else {
+        let (Some(pipeline), Some(bg)) =
+            (&self.pipelines[self.light_tree as usize], &self.bind_group)
+        else {
             return;
         };
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
@@ -334,6 +377,7 @@ impl Technique for ReferencePathTracer {
         self.max_depth = self.params.u32("max_depth");
         self.accumulate = self.params.bool("accumulate");
         self.depth_images = self.params.bool("depth_images");
+        self.light_tree = self.params.choice("light_sampling") == "tree";
         Ok(())
     }
 
