@@ -214,6 +214,9 @@ shared_structs! {
     Twin::Memory("Light") => gilab::scene::gpu_scene::GpuLight {
         kind, tri, cdf, pmf, class_cdf, class_pmf, trail, position, intensity, direction, spot,
     }
+    Twin::Memory("Light") => gilab::parts::light_tree::GpuLightTreeNode {
+        leaf, index, phi, cos_theta_o, cos_theta_e, two_sided, pad, lo, hi, axis, pad_b,
+    }
     Twin::VertexInput("VertexIn") => gilab::scene::gpu_scene::RasterVertex { position }
     Twin::Memory("BvhNode") => gilab::scene::bvh::BvhNode { min, skip, max, tris }
     Twin::InstanceNodes => gilab::scene::bvh::InstanceRecord {
@@ -256,7 +259,7 @@ shared_structs! {
         candidates, candidate_visibility, temporal, max_history, spatial_count, spatial_radius,
         unbiased, bidirectional, pixels, accumulate, gi, gi_bounces, regir, regir_cell_size,
         regir_dims, regir_slots, directional_candidates, sky_candidates, single_pool, gi_cosine,
-        path_light_candidates, specular_bounces, specular_max_roughness, pad,
+        path_light_candidates, specular_bounces, specular_max_roughness, light_tree,
     }
     Twin::Memory("Card") => gilab::parts::surface_cache::cards::GpuCard {
         box_min, box_max, rect, draw,
@@ -293,8 +296,18 @@ const RENAMES: &[(&str, &str, &str)] = &[
     ("GpuTriGeom", "vertex_a", "v0"),
     ("GpuTriGeom", "edge_b", "e1"),
     ("GpuTriGeom", "edge_c", "e2"),
-    ("GpuLight", "pad_a", "pad"),
-    ("GpuLight", "pad_b", "pad"),
+    // A light tree node takes a light's record in the light pool (gilab::light_tree::tree_node).
+    ("GpuLightTreeNode", "kind", "leaf"),
+    ("GpuLightTreeNode", "tri", "index"),
+    ("GpuLightTreeNode", "cdf", "phi"),
+    ("GpuLightTreeNode", "pmf", "cos_theta_o"),
+    ("GpuLightTreeNode", "class_cdf", "cos_theta_e"),
+    ("GpuLightTreeNode", "class_pmf", "two_sided"),
+    ("GpuLightTreeNode", "trail", "pad"),
+    ("GpuLightTreeNode", "position", "lo"),
+    ("GpuLightTreeNode", "intensity", "hi"),
+    ("GpuLightTreeNode", "direction", "axis"),
+    ("GpuLightTreeNode", "spot", "pad_b"),
     ("BvhNode", "bounds_min", "min"),
     ("BvhNode", "bounds_max", "max"),
     ("InstanceRecord", "to_object_x", "column_x"),

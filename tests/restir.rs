@@ -754,3 +754,35 @@ fn gi_reconnections_follow_moving_objects() {
         off.len()
     );
 }
+
+/// Switching `light_tree` on in a running engine composes ReSTIR's GI passes again with the
+/// tree (their NEE): the frames after the switch equal those of an engine built with it.
+#[test]
+fn switching_the_light_tree_on_equals_starting_with_it() {
+    let size = [32, 32];
+    let frames = |e: &mut gilab::render::engine::Engine| {
+        e.reset();
+        for _ in 0..2 {
+            e.render_frame().unwrap();
+        }
+        e.read_output().unwrap()
+    };
+    let on = toml::toml! { light_tree = true };
+    let mut switched = engine(
+        "restir",
+        toml::Table::new(),
+        builtin::many_lights(64, 3),
+        size,
+        5,
+    );
+    let before = frames(&mut switched);
+    switched.set_params_from_table(&on).unwrap();
+    let after = frames(&mut switched);
+    let mut started = engine("restir", on, builtin::many_lights(64, 3), size, 5);
+    let fresh = frames(&mut started);
+    assert_eq!(
+        after.rgb, fresh.rgb,
+        "the switch composes what a fresh build does"
+    );
+    assert_ne!(after.rgb, before.rgb, "the tree changes the image");
+}

@@ -27,10 +27,11 @@ struct LightTreeNode {
 
 // Node `i` of the tree: record count + i of the light pool, in a light's fields
 // (GpuLightTreeNode: kind = leaf, tri = index, cdf = phi, pmf = cos_theta_o, class_cdf =
-// cos_theta_e, class_pmf = two_sided's bits, position = lo, intensity = hi, direction = axis).
+// cos_theta_e, class_pmf = two_sided (1 or 0), position = lo, intensity = hi, direction = axis;
+// tests/cpu.rs checks the layout).
 fn tree_node(i: u32) -> LightTreeNode {
     let r = light_pool.lights[light_pool.count + i];
-    return LightTreeNode(r.kind == 1u, r.tri, r.cdf, r.pmf, r.class_cdf, bitcast<u32>(r.class_pmf) != 0u, r.position.xyz, r.intensity.xyz, r.direction.xyz);
+    return LightTreeNode(r.kind == 1u, r.tri, r.cdf, r.pmf, r.class_cdf, r.class_pmf != 0.0, r.position.xyz, r.intensity.xyz, r.direction.xyz);
 }
 
 fn tree_safe_sqrt(x: f32) -> f32 {

@@ -243,7 +243,7 @@ pub struct GpuLightTreeNode {
     pub cos_theta_o: f32,
     pub cos_theta_e: f32,
     /// 1 when two-sided.
-    pub two_sided: u32,
+    pub two_sided: f32,
     pub pad: [u32; 2],
     pub lo: [f32; 4],
     pub hi: [f32; 4],
@@ -260,7 +260,7 @@ impl GpuLightTreeNode {
             axis: Vec3::from_slice(&self.axis[..3]),
             cos_theta_o: self.cos_theta_o,
             cos_theta_e: self.cos_theta_e,
-            two_sided: self.two_sided != 0,
+            two_sided: self.two_sided != 0.0,
         }
     }
 }
@@ -399,7 +399,7 @@ fn node_record(b: &LightBounds, leaf: bool, index: u32) -> GpuLightTreeNode {
         phi: b.phi,
         cos_theta_o: b.cos_theta_o,
         cos_theta_e: b.cos_theta_e,
-        two_sided: b.two_sided as u32,
+        two_sided: if b.two_sided { 1.0 } else { 0.0 },
         pad: [0; 2],
         lo: b.lo.extend(0.0).to_array(),
         hi: b.hi.extend(0.0).to_array(),
