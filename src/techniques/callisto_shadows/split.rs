@@ -99,10 +99,17 @@ impl Split {
                 changed = true;
             }
         }
+        // A light's place in the light tree (its bit trail) moves when another light moves: it
+        // says nothing about this light.
+        let without_trail = |l: &GpuLight| GpuLight {
+            trail: [0; 2],
+            ..*l
+        };
         for (i, l) in data.lights.iter().enumerate() {
             if same_scene
                 && !self.dynamic_lights[i]
-                && (bytemuck::bytes_of(l) != bytemuck::bytes_of(&self.lights[i])
+                && (bytemuck::bytes_of(&without_trail(l))
+                    != bytemuck::bytes_of(&without_trail(&self.lights[i]))
                     || bytemuck::bytes_of(&geom[i]) != bytemuck::bytes_of(&self.light_geom[i]))
             {
                 self.dynamic_lights[i] = true;
