@@ -107,7 +107,12 @@ impl Run {
 
     /// Rays per pixel per frame measured since the last reset.
     pub fn measured_rays_per_pixel(&self) -> Option<f64> {
-        self.engine.rays_per_pixel_per_frame(&self.rays)
+        // The counts are the last completed frame's (cumulative since the reset), which can
+        // trail the frames submitted by one or two: divide by the frames they cover, not by
+        // the engine's frame count (that read 2/3 of a new budget's rays under load).
+        let frames = self.last_frame.as_ref()?.frame_index + 1;
+        let [w, h] = self.engine.extent;
+        Some(self.rays.total() as f64 / (w as f64 * h as f64) / frames as f64)
     }
 
     fn reset(&mut self) {
