@@ -1,6 +1,7 @@
 //! Parts connected across families (issue 34, shared/seeds/003 "Making Connections"): ReSTIR GI
 //! sample paths that end in Lumen's surface cache (`gi_terminate = "lumen-cards"`), in Lumen's
-//! world radiance cache (`"lumen-world"`) or in the surfels (`"surfels"`) against paths traced
+//! world radiance cache (`"lumen-world"`), in the surfels (`"surfels"`) or in the hash radiance
+//! cache (`"hash-cache"`) against paths traced
 //! to the end, the reference and the furnace's closed form; stability, determinism and the
 //! refusal of unknown terminations; and the
 //! caches lit by the world ReGIR clipmap (`cache_direct = "regir"`) against power sampling.
@@ -84,6 +85,7 @@ fn cache_terminations_keep_multi_bounce_light() {
         ("lumen-cards", "cache"),
         ("lumen-world", "cache"),
         ("surfels", "surfel"),
+        ("hash-cache", "cache"),
     ] {
         let (img, rpp, e) = run(
             params(terminate, 1),
@@ -170,6 +172,7 @@ fn furnace_with_each_termination() {
         ("lumen-cards", 1, 64, 0.04),
         ("lumen-world", 1, 64, 0.04),
         ("surfels", 1, 64, 0.04),
+        ("hash-cache", 1, 64, 0.04),
     ] {
         // A 128² atlas: the furnace is uniform, texel resolution changes nothing here. No
         // ReGIR: the sphere's triangles make it a many-light scene, and the 16³ grid's build
@@ -201,7 +204,7 @@ fn furnace_with_each_termination() {
 /// Hard cases stay finite with each cache; the same seed gives the same image twice.
 #[test]
 fn cache_terminations_are_finite_and_deterministic() {
-    for terminate in ["lumen-cards", "lumen-world", "surfels"] {
+    for terminate in ["lumen-cards", "lumen-world", "surfels", "hash-cache"] {
         let run_once = || {
             let (img, _, _) = run(
                 params(terminate, 1),

@@ -284,6 +284,12 @@ shared_structs! {
         shadow_cache, cache_samples, cache_cell, cache_slots, motion_base, records_at,
         dynamic_count, light_mask_base, dynamic_base, hash_base, pad,
     }
+    Twin::Memory("HashCacheParams") => gilab::parts::hash_cache::HashCacheParamsGpu {
+        capacity, stale_frames, max_samples, cell_size, cells_per_distance, block, pad,
+    }
+    Twin::Memory("ShadeSettings") => gilab::techniques::hash_cache::ShadeSettingsGpu {
+        accumulate, use_cache, pad,
+    }
     Twin::Memory("PtParams") => gilab::techniques::restir_pt::PtParamsGpu {
         max_bounces, temporal, max_history, spatial_count, spatial_radius, rc_alpha, rc_distance,
         pixels, accumulate, direct_restir, debug, pad,
@@ -326,6 +332,10 @@ const RENAMES: &[(&str, &str, &str)] = &[
     ("DisplayParams", "pad2", "pad"),
     ("MetricParams", "pad0", "pad"),
     ("MetricParams", "pad1", "pad"),
+    ("HashCacheParamsGpu", "pad_a", "pad"),
+    ("HashCacheParamsGpu", "pad_b", "pad"),
+    ("ShadeSettingsGpu", "pad_a", "pad"),
+    ("ShadeSettingsGpu", "pad_b", "pad"),
     ("WorldRegirParamsGpu", "pad_a", "pad"),
     ("WorldRegirParamsGpu", "pad_b", "pad"),
     ("TracingParamsGpu", "pad_a", "pad"),

@@ -1097,7 +1097,7 @@ fn every_technique_plays_the_moving_scene() {
     // 1.4 s: the caches' lag after 8 frames of motion is part of what is measured).
     // (technique, parameters, target id, bound): the unbiased techniques within 10%, the
     // cache families within 20% (their lag is part of what is measured).
-    let runs: [(&str, toml::Table, &str, f64); 6] = [
+    let runs: [(&str, toml::Table, &str, f64); 7] = [
         (
             "reference",
             toml::Table::new(),
@@ -1133,6 +1133,12 @@ fn every_technique_plays_the_moving_scene() {
             toml::toml! { gi = true
             gi_terminate = "lumen-cards" },
             "moving-frame-energy-callisto-shadows",
+            0.20,
+        ),
+        (
+            "hash-cache",
+            toml::Table::new(),
+            "moving-frame-energy-hash-cache",
             0.20,
         ),
     ];

@@ -17,6 +17,9 @@
 #ifdef GI_TERMINATE_SURFELS
 #import gilab::surfels_path_end::{end_path as end_in_surfels}
 #endif
+#ifdef GI_TERMINATE_HASH
+#import gilab::hash_cache_path_end::{end_path as end_in_hash_cache}
+#endif
 
 // The path's end at hit (`tri`, distance `t`) of surface `surf` seen from `wo`, with the
 // path's `throughput`; `p_sky` and `candidates` as the path's own NEE takes them.
@@ -29,5 +32,8 @@ fn end_path(surf: HitSurface, wo: vec3<f32>, tri: u32, t: f32, throughput: vec3<
 #endif
 #ifdef GI_TERMINATE_SURFELS
     return end_in_surfels(surf, wo, tri, t, throughput, p_sky, candidates, rng);
+#endif
+#ifdef GI_TERMINATE_HASH
+    return end_in_hash_cache(surf, wo, tri, t, throughput, p_sky, candidates, rng);
 #endif
 }

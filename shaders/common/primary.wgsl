@@ -7,6 +7,7 @@
 #import gilab::frame::{frame, FLAG_NO_PRIMARY_EMISSION}
 #import gilab::brdf::Surface
 #import gilab::scene::materials
+#import gilab::surface_point::HitSurface
 
 struct GSurface {
     // xyz: position, w: 1 valid / 0 miss.
@@ -110,6 +111,12 @@ fn reproject(p: vec3<f32>) -> i32 {
 // from its material).
 fn surface_material(s: GSurface) -> Surface {
     return Surface(s.base_metal.xyz, s.base_metal.w, s.normal_alpha.w, s.geo_specular.w, materials[s.material].shading);
+}
+
+// The surface as a path vertex (gilab::path_vertex's NEE, a path continued from the pixel);
+// the camera sees its front.
+fn primary_hit_surface(s: GSurface) -> HitSurface {
+    return HitSurface(s.pos.xyz, s.geo_specular.xyz, s.normal_alpha.xyz, true, surface_material(s), s.material);
 }
 
 // A random pixel in a disk of `radius` pixels around `pixel` (uniform in area), or -1 off

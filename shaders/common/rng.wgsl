@@ -76,3 +76,6 @@ fn rand_pair(rng: ptr<function, Rng>) -> vec2<f32> {
 const STREAM_PT_INITIAL: u32 = 41u;
 const STREAM_PT_TEMPORAL: u32 = 42u;
 const STREAM_PT_SPATIAL: u32 = 43u;
+// The hash radiance cache: its update paths, and the hash-cache technique's pixel paths.
+const STREAM_HASH_UPDATE: u32 = 44u;
+const STREAM_HASH_PIXEL: u32 = 45u;

@@ -69,6 +69,8 @@ pub const DEFAULT_SURFELS_GROUP: u32 = 2;
 pub const DEFAULT_WORLD_REGIR_GROUP: u32 = 2;
 /// Group of the world radiance cache's bindings when no pipeline def says (Lumen's probe group).
 pub const DEFAULT_WORLD_CACHE_GROUP: u32 = 3;
+/// Group of the hash radiance cache's bindings when no pipeline def says (its own passes').
+pub const DEFAULT_HASH_CACHE_GROUP: u32 = 2;
 
 impl ShaderVariant {
     fn defs(self) -> std::collections::HashMap<String, ShaderDefValue> {
@@ -177,6 +179,10 @@ impl ShaderLibrary {
         defs.insert(
             "WORLD_CACHE_GROUP".into(),
             ShaderDefValue::UInt(DEFAULT_WORLD_CACHE_GROUP),
+        );
+        defs.insert(
+            "HASH_CACHE_GROUP".into(),
+            ShaderDefValue::UInt(DEFAULT_HASH_CACHE_GROUP),
         );
         for (name, value) in &self.pipeline_defs {
             defs.insert(name.clone(), ShaderDefValue::UInt(*value));

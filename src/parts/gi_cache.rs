@@ -54,6 +54,7 @@ pub const CACHES: &[CacheKind] = &[
     crate::parts::surface_cache::CARDS,
     crate::parts::surface_cache::WORLD,
     crate::parts::surfel_cache::KIND,
+    crate::parts::hash_cache::KIND,
 ];
 
 pub trait GiCache {

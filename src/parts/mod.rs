@@ -40,12 +40,18 @@
 //!   orientation cones, power), built with the pool and uploaded after it; a pipeline that sets
 //!   the `LIGHT_TREE` def picks its lights by one stochastic descent (`gilab::light_tree`).
 //!   Used by the reference (`light_sampling = "tree"`).
+//! - [`hash_cache::HashCache`]: a spatially hashed world-space radiance cache (SHaRC-style:
+//!   cells by position, facing and a camera-distance level; updated by full paths from one
+//!   pixel in 25; lookup `gilab::hash_cache`, at the bind group a pass names with
+//!   `HASH_CACHE_GROUP`). Used by the `hash-cache` technique and by ReSTIR GI
+//!   (`gi_terminate = "hash-cache"`).
 
 use crate::gpu::Gpu;
 use crate::render::RenderContext;
 use anyhow::Result;
 
 pub mod gi_cache;
+pub mod hash_cache;
 pub mod light_tree;
 pub mod reflections;
 pub mod restir;

@@ -3,6 +3,7 @@
 //! HDR output. The registry below is the one table a new technique is added to.
 
 pub mod callisto_shadows;
+pub mod hash_cache;
 pub mod lumen;
 pub mod reference;
 pub mod restir;
@@ -49,6 +50,11 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         id: "callisto-shadows",
         what: "Callisto Protocol ray-traced shadows: one shadow ray per light per pixel from 16x16 tile light lists (depth-bounds and cone culling), variable rate per light and 2x2 quad with bilateral reconstruction, power-sampled tail rays for the lights outside the list, temporally accumulated shadow mask of the punctual lights; optional ReSTIR GI for indirect light",
         create: || Box::new(callisto_shadows::CallistoShadows::default()),
+    },
+    TechniqueInfo {
+        id: "hash-cache",
+        what: "spatially hashed radiance cache (SHaRC-style): one path per pixel from its primary surface, ending in a world-space hash grid of cells (position, facing, a level by camera distance) where its footprint is wider than the cell; the cells are averaged from full update paths of one pixel in 25",
+        create: || Box::new(hash_cache::HashCacheTechnique::default()),
     },
 ];
 

@@ -166,7 +166,7 @@ const OWN_PARAMS: &[ParamSpec] = &[
     },
     ParamSpec {
         name: "gi_terminate",
-        what: "where a GI sample path ends: path (traced to gi_bounces), or at its first hit (hit gi_bounces with a cache) in a radiance cache that holds the further bounces, built and updated in the same frame: lumen-cards (Lumen's surface cache; the seed's connection), lumen-world (Lumen's world radiance cache seen from the hit: one BSDF ray to the probes' TMin, the surface cache where it hits, the world probes past it) or surfels (the surfels' irradiance where surfels cover the hit, the path traced on where none do)",
+        what: "where a GI sample path ends: path (traced to gi_bounces), or at its first hit (hit gi_bounces with a cache) in a radiance cache that holds the further bounces, built and updated in the same frame: lumen-cards (Lumen's surface cache; the seed's connection), lumen-world (Lumen's world radiance cache seen from the hit: one BSDF ray to the probes' TMin, the surface cache where it hits, the world probes past it) surfels (the surfels' irradiance where surfels cover the hit, the path traced on where none do) or hash-cache (the spatially hashed radiance cache's cell where the last segment is longer than the cell and the cell has samples, traced on elsewhere)",
         higher: "a cache: multi-bounce light at the price of one ray per path, biased by the cache (coarse texels or surfels, diffuse only, lag; lumen-cards: no light where no card covers a hit)",
         lower: "path: unbiased with gi_bounces = 0, every bounce traced",
         kind: ParamKind::Choice(&GiTerminate::NAMES),

@@ -1,0 +1,113 @@
+// The `hash-cache` technique's pixels (src/techniques/hash_cache): a path from each pixel's
+// primary surface, as the reference traces it (NEE with MIS, BSDF sampling, Russian roulette),
+// that ends in the hash radiance cache (gilab::hash_cache) at the first hit whose cell is
+// narrower than the path's footprint there and holds samples: the hit's emission (MIS-weighted)
+// plus the cell's reflected light times the hit's albedo. That is RTXGI 2's SHaRC query rule: a
+// diffuse bounce's segment longer than about a cell ends, a glossy path goes on until its cone
+// is wider than the cell. The footprint grows by t / sqrt(pdf) a segment (the width of the
+// solid angle 1 / pdf a sample stands for), not at all past a mirror.
+#import gilab::rng::{rng_init, rand, rand_pair, STREAM_HASH_PIXEL}
+#import gilab::frame::frame
+#import gilab::counters::{flush_counts, no_counts, count_cache_lookup, RAY_INDIRECT, RAY_SHADOW, COUNT_INVALID_SAMPLES}
+#import gilab::math::max_component
+#import gilab::ray::spawn_ray_origin
+#import gilab::bvh::{trace_closest, NO_HIT}
+#import gilab::surface::{hit_surface, pixel_spread}
+#import gilab::brdf::bsdf_sample
+#import gilab::lights::{triangle_emission, triangle_light_pdf}
+#import gilab::sky::{sky_radiance, sky_pdf}
+#import gilab::sampling::power_heuristic
+#import gilab::path_vertex::{next_event, nee_sky_share}
+#import gilab::primary::{current_surface, primary_hit_surface, primary_emission}
+#import gilab::accumulate::accumulate_sample
+#import gilab::hash_cache::{hash_lookup, cell_size_at, cache_albedo}
+#import gilab::hash_cache_path_end::lookup_outcome
+
+struct ShadeSettings {
+    // 1: average frames (converging); 0: each frame alone.
+    accumulate: u32,
+    // 0: paths never end in the cache (the same paths traced to the end: the A/B baseline).
+    use_cache: u32,
+    pad_a: u32,
+    pad_b: u32,
+}
+@group(3) @binding(0) var<uniform> settings: ShadeSettings;
+
+const SAFETY_MAX_BOUNCES: u32 = 1024u;
+const RR_START_DEPTH: u32 = 3u;
+
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
+    var counts = no_counts();
+    if gid.x < frame.size.x && gid.y < frame.size.y {
+        let idx = gid.y * frame.size.x + gid.x;
+        var rng = rng_init(gid.xy, frame.sample_offset, STREAM_HASH_PIXEL, frame.seed);
+        let s = current_surface(idx);
+        var l = primary_emission(s);
+        if s.pos.w > 0.5 {
+            var surf = primary_hit_surface(s);
+            var wo = s.wo_dist.xyz;
+            let p_sky = nee_sky_share();
+            var throughput = vec3<f32>(1.0);
+            var footprint = s.wo_dist.w * pixel_spread();
+            var looked_up = false;
+            for (var depth = 0u; depth < SAFETY_MAX_BOUNCES; depth++) {
+                let direct = next_event(surf, wo, &rng, p_sky, true, 1u);
+                counts[RAY_SHADOW] += direct.shadow_rays;
+                l += throughput * direct.radiance;
+                let bs = bsdf_sample(surf.material, surf.normal, wo, rand(&rng), rand_pair(&rng));
+                if !bs.valid || dot(bs.wi, surf.geo_normal) <= 0.0 {
+                    break;
+                }
+                throughput *= bs.weight;
+                let origin = spawn_ray_origin(surf.position, surf.geo_normal, bs.wi);
+                let hit = trace_closest(origin, bs.wi, 0.0, 1e30);
+                counts[RAY_INDIRECT] += 1u;
+                if hit.tri == NO_HIT {
+                    var w = 1.0;
+                    if !bs.is_delta && p_sky > 0.0 {
+                        w = power_heuristic(bs.pdf, p_sky * sky_pdf(bs.wi));
+                    }
+                    l += throughput * sky_radiance(bs.wi) * w;
+                    break;
+                }
+                let next = hit_surface(origin, bs.wi, hit);
+                let le = triangle_emission(hit.tri, hit.bary, -bs.wi);
+                if any(le > vec3<f32>(0.0)) {
+                    var w = 1.0;
+                    if !bs.is_delta {
+                        w = power_heuristic(bs.pdf, (1.0 - p_sky) * triangle_light_pdf(hit.tri, bs.wi, hit.t, surf.position, surf.geo_normal));
+                    }
+                    l += throughput * le * w;
+                }
+                if !bs.is_delta {
+                    footprint += hit.t / sqrt(max(bs.pdf, 1e-6));
+                }
+                if settings.use_cache == 1u && footprint > cell_size_at(next.position) {
+                    let c = hash_lookup(next.position, next.geo_normal);
+                    if !looked_up {
+                        looked_up = true;
+                        count_cache_lookup(&counts, lookup_outcome(next.position, c.w > 0.0));
+                    }
+                    if c.w > 0.0 {
+                        l += throughput * cache_albedo(next.material, max(dot(next.normal, -bs.wi), 0.0)) * c.xyz;
+                        break;
+                    }
+                }
+                if depth + 1u >= RR_START_DEPTH {
+                    let q = min(max_component(throughput), 0.95);
+                    if q <= 0.0 || rand(&rng) >= q {
+                        break;
+                    }
+                    throughput /= q;
+                }
+                surf = next;
+                wo = -bs.wi;
+            }
+        }
+        if !accumulate_sample(idx, l, settings.accumulate == 1u) {
+            counts[COUNT_INVALID_SAMPLES] = 1u;
+        }
+    }
+    flush_counts(local_index, counts);
+}
