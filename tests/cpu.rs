@@ -288,7 +288,7 @@ shared_structs! {
         capacity, stale_frames, max_samples, cell_size, cells_per_distance, block, pad,
     }
     Twin::Memory("ShadeSettings") => gilab::techniques::hash_cache::ShadeSettingsGpu {
-        accumulate, use_cache, pad,
+        accumulate, use_cache, debug, pad,
     }
     Twin::Memory("PtParams") => gilab::techniques::restir_pt::PtParamsGpu {
         max_bounces, temporal, max_history, spatial_count, spatial_radius, rc_alpha, rc_distance,
@@ -334,8 +334,6 @@ const RENAMES: &[(&str, &str, &str)] = &[
     ("MetricParams", "pad1", "pad"),
     ("HashCacheParamsGpu", "pad_a", "pad"),
     ("HashCacheParamsGpu", "pad_b", "pad"),
-    ("ShadeSettingsGpu", "pad_a", "pad"),
-    ("ShadeSettingsGpu", "pad_b", "pad"),
     ("WorldRegirParamsGpu", "pad_a", "pad"),
     ("WorldRegirParamsGpu", "pad_b", "pad"),
     ("TracingParamsGpu", "pad_a", "pad"),

@@ -18,9 +18,10 @@
 #import gilab::sky::{sky_radiance, sky_pdf}
 #import gilab::sampling::power_heuristic
 #import gilab::path_vertex::{next_event, nee_sky_share}
-#import gilab::primary::{current_surface, primary_hit_surface, primary_emission}
+#import gilab::primary::{current_surface, primary_hit_surface, primary_emission, surface_material}
 #import gilab::accumulate::accumulate_sample
-#import gilab::hash_cache::{hash_lookup, cell_size_at, cache_albedo}
+#import gilab::hash_cache::{hash_lookup, cell_size_at, cache_albedo, cell_key, cell_level}
+#import gilab::math::luminance
 #import gilab::hash_cache_path_end::lookup_outcome
 
 struct ShadeSettings {
@@ -28,10 +29,15 @@ struct ShadeSettings {
     accumulate: u32,
     // 0: paths never end in the cache (the same paths traced to the end: the A/B baseline).
     use_cache: u32,
-    pad_a: u32,
-    pad_b: u32,
+    // 1: write the debug views.
+    debug: u32,
+    pad: u32,
 }
 @group(3) @binding(0) var<uniform> settings: ShadeSettings;
+// Per pixel, the debug views (src/techniques/hash_cache): the primary surface's cell (its
+// checksum's low 24 bits, an id), that cell's samples, its level, and the cache's light there
+// (luminance of albedo x cell).
+@group(3) @binding(1) var<storage, read_write> debug_out: array<vec4<f32>>;
 
 const SAFETY_MAX_BOUNCES: u32 = 1024u;
 const RR_START_DEPTH: u32 = 3u;
@@ -104,6 +110,15 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 surf = next;
                 wo = -bs.wi;
             }
+        }
+        if settings.debug == 1u {
+            var d = vec4<f32>(0.0);
+            if s.pos.w > 0.5 {
+                let c = hash_lookup(s.pos.xyz, s.geo_specular.xyz);
+                let a = cache_albedo(surface_material(s), max(dot(s.normal_alpha.xyz, s.wo_dist.xyz), 0.0));
+                d = vec4<f32>(f32(cell_key(s.pos.xyz, s.geo_specular.xyz).y & 0xffffffu), c.w, f32(cell_level(s.pos.xyz)), luminance(a * c.xyz));
+            }
+            debug_out[idx] = d;
         }
         if !accumulate_sample(idx, l, settings.accumulate == 1u) {
             counts[COUNT_INVALID_SAMPLES] = 1u;

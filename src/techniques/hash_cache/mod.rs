@@ -14,7 +14,7 @@ use crate::gpu::{timing::PassTimer, Gpu};
 use crate::parts::hash_cache::{self, HashCache, HashCacheSettings};
 use crate::render::params::{ParamChanges, ParamKind, ParamSpec, Params};
 use crate::render::primary::FrameInputs;
-use crate::render::{pipelines, PassInfo, RenderContext, Technique};
+use crate::render::{pipelines, DebugView, PassInfo, RenderContext, Technique};
 use crate::scene::features::SceneFeatures;
 use anyhow::Result;
 
@@ -71,6 +71,14 @@ pub const PARAMS: &[ParamSpec] = &[
         default: 32.0,
     },
     ParamSpec {
+        name: crate::techniques::DEBUG_VIEWS,
+        what: "write the debug views (each pixel's cell, its samples, its level, the cache's light there)",
+        higher: "on: the viewer's debug views work",
+        lower: "off: no debug writes (timed runs switch it off)",
+        kind: ParamKind::Bool,
+        default: 1.0,
+    },
+    ParamSpec {
         name: "capacity_log2",
         what: "log2 of the table's slots (2^20: 40 MiB)",
         higher: "room for more cells (large scenes, fine cells)",
@@ -86,7 +94,8 @@ pub const PARAMS: &[ParamSpec] = &[
 pub struct ShadeSettingsGpu {
     pub accumulate: u32,
     pub use_cache: u32,
-    pub pad: [u32; 2],
+    pub debug: u32,
+    pub pad: u32,
 }
 
 pub struct HashCacheTechnique {
@@ -94,7 +103,10 @@ pub struct HashCacheTechnique {
     pub cache: HashCache,
     accumulate: bool,
     use_cache: bool,
+    debug: bool,
     shade: Option<wgpu::ComputePipeline>,
+    /// One vec4 per pixel: the debug views' channels 0-3.
+    debug_buffer: Option<wgpu::Buffer>,
     settings_buffer: Option<wgpu::Buffer>,
     settings_bind_group: Option<wgpu::BindGroup>,
 }
@@ -106,7 +118,9 @@ impl Default for HashCacheTechnique {
             cache: HashCache::new(HashCacheSettings::default()),
             accumulate: true,
             use_cache: true,
+            debug: true,
             shade: None,
+            debug_buffer: None,
             settings_buffer: None,
             settings_bind_group: None,
         };
@@ -120,6 +134,7 @@ impl HashCacheTechnique {
         let p = &self.params;
         self.accumulate = p.bool("accumulate");
         self.use_cache = p.bool("use_cache");
+        self.debug = p.bool(crate::techniques::DEBUG_VIEWS);
         self.cache.settings = HashCacheSettings {
             capacity_log2: p.u32("capacity_log2"),
             cells_per_distance: p.f32("cells_per_distance"),
@@ -134,7 +149,8 @@ impl HashCacheTechnique {
             let s = ShadeSettingsGpu {
                 accumulate: self.accumulate as u32,
                 use_cache: self.use_cache as u32,
-                pad: [0; 2],
+                debug: self.debug as u32,
+                pad: 0,
             };
             gpu.queue.write_buffer(b, 0, bytemuck::bytes_of(&s));
         }
@@ -182,7 +198,10 @@ impl Technique for HashCacheTechnique {
         let settings_layout = pipelines::layout(
             gpu,
             "hash-cache settings",
-            &[pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE)],
+            &[
+                pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE),
+                pipelines::storage_entry(1, false),
+            ],
         );
         let cache_layout = hash_cache::lookup_layout(gpu);
         let shade = pipelines::compute_pipeline(
@@ -203,14 +222,23 @@ impl Technique for HashCacheTechnique {
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
+        let pixels = ctx.extent[0] as u64 * ctx.extent[1] as u64;
+        let debug = pipelines::storage_buffer(gpu, "hash-cache debug", pixels * 16);
         self.settings_bind_group = Some(gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("hash-cache settings"),
             layout: &settings_layout,
-            entries: &[wgpu::BindGroupEntry {
-                binding: 0,
-                resource: buffer.as_entire_binding(),
-            }],
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: buffer.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: debug.as_entire_binding(),
+                },
+            ],
         }));
+        self.debug_buffer = Some(debug);
         self.settings_buffer = Some(buffer);
         self.shade = Some(shade);
         self.write_settings(gpu);
@@ -263,6 +291,24 @@ impl Technique for HashCacheTechnique {
         pass.set_bind_group(2, cache, &[]);
         pass.set_bind_group(3, settings, &[]);
         pass.dispatch_workgroups(ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1);
+    }
+
+    fn debug_views(&self) -> Vec<DebugView> {
+        let view = |name, channel, is_id| DebugView {
+            name,
+            channel,
+            is_id,
+        };
+        vec![
+            view("cell (colour per cell)", 0, true),
+            view("cell samples", 1, false),
+            view("cell level (edge = cell_size x 2^level)", 2, true),
+            view("cache light at the pixel (albedo x cell)", 3, false),
+        ]
+    }
+
+    fn debug_buffer(&self) -> Option<&wgpu::Buffer> {
+        self.debug_buffer.as_ref()
     }
 
     fn param_set(&self) -> &Params {
