@@ -39,6 +39,9 @@ pub struct HashCacheSettings {
     pub stale_frames: u32,
     /// One update path per `block` × `block` pixels a frame.
     pub block: u32,
+    /// The update paths pick NEE lights by the light tree (`LIGHT_TREE`, parts::light_tree)
+    /// rather than by power.
+    pub light_tree: bool,
 }
 
 impl Default for HashCacheSettings {
@@ -49,6 +52,7 @@ impl Default for HashCacheSettings {
             history: 256,
             stale_frames: 32,
             block: 5,
+            light_tree: false,
         }
     }
 }
@@ -103,6 +107,7 @@ pub fn lookup_layout(gpu: &Gpu) -> wgpu::BindGroupLayout {
 
 struct Built {
     capacity: u32,
+    light_tree: bool,
     update: wgpu::ComputePipeline,
     resolve: wgpu::ComputePipeline,
     params: wgpu::Buffer,
@@ -149,6 +154,11 @@ impl HashCache {
         let gpu = ctx.gpu;
         let layout = lookup_layout(gpu);
         let shaders = ctx.shaders.with_defs(&lookup_defs(2));
+        let shaders = if self.settings.light_tree {
+            shaders.with_defs(&[("LIGHT_TREE", 1)])
+        } else {
+            shaders
+        };
         let layouts = [&ctx.scene.layout, ctx.frame_layout, &layout];
         let update =
             pipelines::compute_pipeline(gpu, &shaders, "parts/hash_cache/update.wgsl", &layouts)?;
@@ -185,6 +195,7 @@ impl HashCache {
         self.cell_size = ((hi - lo).length() * FINEST_CELL_OF_DIAGONAL).max(1e-4);
         self.built = Some(Built {
             capacity: capacity as u32,
+            light_tree: self.settings.light_tree,
             update,
             resolve,
             params,
@@ -204,6 +215,11 @@ impl HashCache {
     /// Slots of the table as built (0 before `build`).
     pub fn built_capacity(&self) -> u32 {
         self.built.as_ref().map_or(0, |b| b.capacity)
+    }
+
+    /// Whether the built update pipeline picks lights by the light tree.
+    pub fn built_light_tree(&self) -> bool {
+        self.built.as_ref().is_some_and(|b| b.light_tree)
     }
 
     fn write_params(&self, gpu: &Gpu) {
@@ -282,7 +298,8 @@ impl HashCache {
                 name: "hash update",
                 runs: true,
                 why: format!(
-                    "one path per {b}x{b} pixels from a random pixel's primary surface; its first six vertices add samples to their cells",
+                    "one path per {b}x{b} pixels from a random pixel's primary surface (NEE by {}); its first six vertices add samples to their cells",
+                    if s.light_tree { "the light tree" } else { "power" },
                     b = s.block
                 ),
             },
@@ -350,13 +367,17 @@ pub const KIND: crate::parts::gi_cache::CacheKind = crate::parts::gi_cache::Cach
         light: s.light,
     },
     new: |s| {
-        let mut cache = HashCache::new(HashCacheSettings::default());
+        let mut cache = HashCache::new(HashCacheSettings {
+            light_tree: s.light.tree,
+            ..HashCacheSettings::default()
+        });
         cache.holder_light = Some(s.light);
         Ok(Box::new(cache))
     },
-    describe: |_, hit| {
+    describe: |s, hit| {
         format!(
-            "in the hash radiance cache at hit {hit} where the segment is longer than the hit's cell and the cell has samples (its reflected light times the hit's albedo, no ray); traced on otherwise"
+            "in the hash radiance cache at hit {hit} where the segment is longer than the hit's cell and the cell has samples (its reflected light times the hit's albedo, no ray); traced on otherwise; update paths pick lights by {}",
+            if s.light.tree { "the light tree" } else { "power" }
         )
     },
 };

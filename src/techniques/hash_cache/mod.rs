@@ -36,6 +36,14 @@ pub const PARAMS: &[ParamSpec] = &[
         default: 1.0,
     },
     ParamSpec {
+        name: "light_sampling",
+        what: "how the pixels' and the update paths' NEE pick a light: `power` (one CDF over the pool) or `tree` (one descent of the light tree at the point and its normal, parts::light_tree); both unbiased",
+        higher: "tree: fewer wasted shadow rays, less noise in the cells where many lights are far or facing away (many-lights)",
+        lower: "power: no tree walk; as good where one or two lights dominate",
+        kind: ParamKind::Choice(&["power", "tree"]),
+        default: 0.0,
+    },
+    ParamSpec {
         name: "update_block",
         what: "one update path per update_block x update_block pixels a frame (SHaRC's 5 x 5)",
         higher: "fewer update paths: cheaper, cells converge and follow changes more slowly",
@@ -141,6 +149,7 @@ impl HashCacheTechnique {
             history: p.u32("history"),
             stale_frames: p.u32("stale_frames"),
             block: p.u32("update_block"),
+            light_tree: p.choice("light_sampling") == "tree",
         };
     }
 
@@ -204,9 +213,13 @@ impl Technique for HashCacheTechnique {
             ],
         );
         let cache_layout = hash_cache::lookup_layout(gpu);
+        let mut defs = hash_cache::lookup_defs(2).to_vec();
+        if self.cache.settings.light_tree {
+            defs.push(("LIGHT_TREE", 1));
+        }
         let shade = pipelines::compute_pipeline(
             gpu,
-            &ctx.shaders.with_defs(&hash_cache::lookup_defs(2)),
+            &ctx.shaders.with_defs(&defs),
             "hash_cache/shade.wgsl",
             &[
                 &ctx.scene.layout,
@@ -245,9 +258,13 @@ impl Technique for HashCacheTechnique {
         Ok(())
     }
 
-    /// A new capacity rebuilds the cache (empty); other settings keep its cells.
+    /// A new capacity rebuilds the cache (empty), a new light sampling the pipelines too;
+    /// other settings keep its cells.
     fn apply_params(&mut self, ctx: &RenderContext) -> Result<()> {
         let settings = self.cache.settings;
+        if self.cache.is_built() && self.cache.built_light_tree() != settings.light_tree {
+            return self.build(ctx);
+        }
         if self.cache.is_built() {
             if self.cache_capacity_built() != settings.capacity() {
                 self.cache.build(ctx)?;
