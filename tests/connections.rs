@@ -113,6 +113,14 @@ fn cache_terminations_keep_multi_bounce_light() {
         );
         assert!(cache_rays > 0, "{terminate}: the cache traced no rays");
         assert_eq!(img.non_finite_count(), 0);
+        if terminate == "hash-cache" {
+            // Where the cache misses, paths are traced on: the energy alone would not show a
+            // cache that never ends a path.
+            let lookups = e.ray_counts().unwrap().cache_lookups;
+            let covered = lookups.covered_seen().unwrap_or(0.0);
+            eprintln!("  hash-cache: {}", lookups.summary());
+            assert!(covered >= 0.9, "hash-cache: covered lookups {covered}");
+        }
     }
 }
 

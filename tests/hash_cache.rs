@@ -144,8 +144,9 @@ fn hard_cases_are_finite_and_deterministic() {
 }
 
 /// Eviction: cells of a view the camera left are freed after `stale_frames` frames without a
-/// sample. Cornell seen whole, then only its floor: after the stale frames the table holds
-/// about what a cache that only ever saw the floor holds (within 15%), far fewer than before.
+/// sample. Cornell seen whole, then only its floor from close by (finer cells, so more of
+/// them): after the stale frames the table holds about what a cache that only ever saw the
+/// floor holds (within 15%), not the whole box's cells besides.
 #[test]
 fn cells_out_of_view_are_evicted() {
     // Inside the box (about 5.5 units a side), looking down at the floor.
@@ -178,6 +179,74 @@ fn cells_out_of_view_are_evicted() {
         after.occupied,
         fresh.occupied
     );
+}
+
+/// A scripted change keeps the cells (as a game would; the engine rebuilds the technique for
+/// it): the lamp on Cornell's back wall is switched on after 24 frames, and the cache still
+/// holds the same cells, with the dark light they had, so its light at the pixels (albedo ×
+/// cell) lags behind the lamp. The first frame after the switch reads the old cells; after
+/// more frames the cells take the new light in, and the frame's light rises.
+#[test]
+fn a_scripted_change_keeps_the_cells() {
+    let mut p = toml::Table::new();
+    p.insert("accumulate".into(), false.into());
+    let mut e = engine(
+        "hash-cache",
+        p,
+        builtin::cornell_with_lamp(Some(0.0)),
+        [32, 32],
+        1,
+    );
+    frames(&mut e, 24);
+    let before = stats(&e);
+    let on = builtin::cornell_with_lamp(Some(40.0));
+    let gpu_scene = std::sync::Arc::new(gilab::scene::gpu_scene::GpuScene::upload(&e.gpu, &on));
+    e.change_scene(std::sync::Arc::new(on), gpu_scene).unwrap();
+    let kept = stats(&e);
+    frames(&mut e, 1);
+    let first = stats(&e);
+    frames(&mut e, 31);
+    let later = stats(&e);
+    eprintln!(
+        "hash-cache, lamp switched on: cells {} (mean light over albedo {:.4}); after the switch {} ({:.4}); frame 1 after {:.4}, frame 32 after {:.4}",
+        before.occupied,
+        before.mean_light,
+        kept.occupied,
+        kept.mean_light,
+        first.mean_light,
+        later.mean_light
+    );
+    assert_eq!(
+        kept.occupied, before.occupied,
+        "the switch emptied the table"
+    );
+    assert_eq!(kept.mean_light, before.mean_light);
+    assert!(
+        later.mean_light > 1.2 * first.mean_light,
+        "the cells should take the lamp's light in: {} then {}",
+        first.mean_light,
+        later.mean_light
+    );
+}
+
+/// `light_sampling = "tree"` (NEE of the pixels' and the update paths by the light tree) keeps
+/// the Cornell box's energy within 3% of the reference, as power sampling does.
+#[test]
+fn light_tree_sampling_keeps_the_energy() {
+    let truth = common::cornell_truth_64();
+    let (img, _, _) = common::render_after_warmup(
+        "hash-cache",
+        toml::toml! { light_sampling = "tree" },
+        builtin::cornell(),
+        [64, 64],
+        16,
+        32,
+        1,
+    );
+    let ratio = energy(&img) / energy(&truth);
+    eprintln!("hash-cache cornell 64², light tree: energy {ratio:.4} of the reference");
+    assert!((ratio - 1.0).abs() < 0.03, "energy {ratio}");
+    assert_eq!(img.non_finite_count(), 0);
 }
 
 /// The thin-wall room (its reference inside is exactly 0: tests/gpu.rs), the surfels' leak

@@ -2,7 +2,8 @@
 // primary surface, as the reference traces it (NEE with MIS, BSDF sampling, Russian roulette),
 // that ends in the hash radiance cache (gilab::hash_cache) at the first hit whose cell is
 // narrower than the path's footprint there and holds samples: the hit's emission (MIS-weighted)
-// plus the cell's reflected light times the hit's albedo. That is RTXGI 2's SHaRC query rule: a
+// plus the cell's reflected light times the hit's albedo (never at a smooth hit, whose light
+// depends on the view: the path goes on there). That is RTXGI 2's SHaRC query rule: a
 // diffuse bounce's segment longer than about a cell ends, a glossy path goes on until its cone
 // is wider than the cell. The footprint grows by t / sqrt(pdf) a segment (the width of the
 // solid angle 1 / pdf a sample stands for), not at all past a mirror.
@@ -20,7 +21,7 @@
 #import gilab::path_vertex::{next_event, nee_sky_share}
 #import gilab::primary::{current_surface, primary_hit_surface, primary_emission, surface_material}
 #import gilab::accumulate::accumulate_sample
-#import gilab::hash_cache::{hash_lookup, cell_size_at, cache_albedo, cell_key, cell_level}
+#import gilab::hash_cache::{hash_lookup, cell_size_at, cache_albedo, cell_key, cell_level, cacheable}
 #import gilab::math::luminance
 #import gilab::hash_cache_path_end::lookup_outcome
 
@@ -89,7 +90,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 if !bs.is_delta {
                     footprint += hit.t / sqrt(max(bs.pdf, 1e-6));
                 }
-                if settings.use_cache == 1u && footprint > cell_size_at(next.position) {
+                if settings.use_cache == 1u && footprint > cell_size_at(next.position) && cacheable(next.material) {
                     let c = hash_lookup(next.position, next.geo_normal);
                     if !looked_up {
                         looked_up = true;

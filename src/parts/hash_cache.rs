@@ -165,32 +165,56 @@ impl HashCache {
         let resolve =
             pipelines::compute_pipeline(gpu, &shaders, "parts/hash_cache/resolve.wgsl", &layouts)?;
         let capacity = self.settings.capacity() as u64;
-        let params = gpu.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("hash cache params"),
-            size: std::mem::size_of::<HashCacheParamsGpu>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let words = pipelines::storage_buffer(gpu, "hash cache words", capacity * 6 * 4);
-        let cells = pipelines::storage_buffer(gpu, "hash cache cells", capacity * 16);
-        let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("hash cache"),
-            layout: &layout,
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: params.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: words.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: cells.as_entire_binding(),
-                },
-            ],
-        });
+        let largest = gpu.device.limits().max_storage_buffer_binding_size;
+        if capacity * 6 * 4 > largest {
+            anyhow::bail!(
+                "hash cache: 2^{} slots need a {} MiB buffer, above this GPU's largest storage binding ({} MiB): lower capacity_log2",
+                self.settings.capacity_log2,
+                (capacity * 24) >> 20,
+                largest >> 20
+            );
+        }
+        // A table of the same size keeps its cells across a rebuild (a scripted scene edit
+        // rebuilds every technique): as in a game, they catch up with the change (the lag the
+        // experiments measure). Bind groups of structurally equal layouts are interchangeable.
+        let kept = self
+            .built
+            .take()
+            .filter(|b| b.capacity as u64 == capacity)
+            .map(|b| (b.params, b.words, b.cells, b.bind_group));
+        let fresh = kept.is_none();
+        let (params, words, cells, bind_group) = match kept {
+            Some(k) => k,
+            None => {
+                let params = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("hash cache params"),
+                    size: std::mem::size_of::<HashCacheParamsGpu>() as u64,
+                    usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                });
+                let words = pipelines::storage_buffer(gpu, "hash cache words", capacity * 6 * 4);
+                let cells = pipelines::storage_buffer(gpu, "hash cache cells", capacity * 16);
+                let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("hash cache"),
+                    layout: &layout,
+                    entries: &[
+                        wgpu::BindGroupEntry {
+                            binding: 0,
+                            resource: params.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 1,
+                            resource: words.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 2,
+                            resource: cells.as_entire_binding(),
+                        },
+                    ],
+                });
+                (params, words, cells, bind_group)
+            }
+        };
         let (lo, hi) = scene_bounds(&ctx.scene.data.tris);
         self.cell_size = ((hi - lo).length() * FINEST_CELL_OF_DIAGONAL).max(1e-4);
         self.built = Some(Built {
@@ -204,7 +228,9 @@ impl HashCache {
             bind_group,
         });
         self.write_params(gpu);
-        self.reset(gpu);
+        if fresh {
+            self.reset(gpu);
+        }
         Ok(())
     }
 
@@ -226,7 +252,7 @@ impl HashCache {
         let Some(b) = &self.built else { return };
         let s = &self.settings;
         let p = HashCacheParamsGpu {
-            capacity: s.capacity(),
+            capacity: b.capacity,
             stale_frames: s.stale_frames,
             max_samples: s.history as f32,
             cell_size: self.cell_size,
@@ -238,7 +264,7 @@ impl HashCache {
     }
 
     /// New rates (history, eviction, update density, cell size) without emptying it; a new
-    /// capacity needs `build`.
+    /// capacity takes effect at the next `build`.
     pub fn set_settings(&mut self, gpu: &Gpu, settings: HashCacheSettings) {
         self.settings = settings;
         self.write_params(gpu);
@@ -282,7 +308,11 @@ impl HashCache {
         pass.set_bind_group(0, &ctx.scene.bind_group, &[]);
         pass.set_bind_group(1, ctx.frame_bind_group, &[]);
         pass.set_bind_group(2, &b.bind_group, &[]);
-        pass.dispatch_workgroups(self.settings.capacity().div_ceil(64), 1, 1);
+        // Rows of at most 1,024 workgroups: 2^24 slots would pass the 65,535 workgroups one
+        // dimension may hold (resolve.wgsl's slot is row-major over them).
+        let groups = b.capacity.div_ceil(64);
+        let row = groups.min(1024);
+        pass.dispatch_workgroups(row, groups.div_ceil(row), 1);
     }
 
     /// The lookup's bind group: valid until the next `build`.
@@ -322,7 +352,7 @@ impl HashCache {
         let Some(b) = &self.built else {
             return Ok(HashCacheStats::default());
         };
-        let capacity = self.settings.capacity();
+        let capacity = b.capacity;
         let keys: Vec<u32> = crate::gpu::readback::read_buffer(gpu, &b.words, capacity as usize)?;
         let cells: Vec<[f32; 4]> =
             crate::gpu::readback::read_buffer(gpu, &b.cells, capacity as usize)?;

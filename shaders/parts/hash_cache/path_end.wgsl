@@ -10,7 +10,7 @@
 #import gilab::primary::camera_sees
 #import gilab::counters::{CACHE_ENTRY, CACHE_MISS, CACHE_UNSEEN}
 #import gilab::path_vertex::{PathEnd, path_not_ended}
-#import gilab::hash_cache::{hash_lookup, cell_size_at, cache_albedo}
+#import gilab::hash_cache::{hash_lookup, cell_size_at, cache_albedo, cacheable}
 
 // Lookup outcome for the counters, split by whether the camera sees the hit.
 fn lookup_outcome(p: vec3<f32>, found: bool) -> u32 {
@@ -18,7 +18,7 @@ fn lookup_outcome(p: vec3<f32>, found: bool) -> u32 {
 }
 
 fn end_path(surf: HitSurface, wo: vec3<f32>, tri: u32, t: f32, throughput: vec3<f32>, p_sky: f32, candidates: u32, rng: ptr<function, Rng>) -> PathEnd {
-    if t <= cell_size_at(surf.position) {
+    if t <= cell_size_at(surf.position) || !cacheable(surf.material) {
         return path_not_ended(0u);
     }
     let c = hash_lookup(surf.position, surf.geo_normal);

@@ -4,9 +4,11 @@
 // slot breaks no other key's run and no compaction is needed for lookups to stay right.
 #import gilab::hash_cache::{hash_params, hash_words, hash_cells, FIXED_SCALE}
 
+// Dispatched as rows of workgroups (src/parts/hash_cache.rs): 2^24 slots are more workgroups
+// than one dimension may hold.
 @compute @workgroup_size(64, 1, 1)
-fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let slot = gid.x;
+fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+    let slot = gid.y * groups.x * 64u + gid.x;
     let cap = hash_params.capacity;
     if slot >= cap || atomicLoad(&hash_words[slot]) == 0u {
         return;

@@ -22,11 +22,18 @@
 const PROBE_SLOTS: u32 = 8u;
 // Levels: the finest cells are `cell_size` wide, level l 2^l times that.
 const LEVELS: u32 = 16u;
-// Fixed-point scale of the per-frame sums: 1/256 of a radiance unit, rounded stochastically.
+// Fixed-point scale of the per-frame sums: 1/256 of a unit of light over albedo, rounded
+// stochastically.
 const FIXED_SCALE: f32 = 256.0;
-// Largest radiance one sample adds (keeps a frame's sums of a cell within 32 bits: 2^32 /
-// (4096 x 256) = 4,096 samples of it).
+// Largest light over albedo one sample adds (a reflected radiance of 4,096 x the albedo: a
+// firefly clamp only far above the scenes' light), and the most samples a cell takes a frame,
+// so that its sums stay within 32 bits: 4,096 x 4,096 x 256 = 2^32. Samples past that are
+// dropped, whatever their value (no bias: which ones arrive first does not depend on it).
 const MAX_SAMPLE: f32 = 4096.0;
+const MAX_SAMPLES_PER_FRAME: u32 = 4096u;
+// Surfaces smoother than this (GGX alpha below 0.3^2, ReSTIR's `specular_max_roughness`) are
+// neither written nor read: their light depends on the view, which a cell does not keep.
+const MIN_CACHED_ALPHA: f32 = 0.09;
 
 struct HashCacheParams {
     // Slots in the table (a power of two).
@@ -123,8 +130,9 @@ fn insert_slot(key: vec2<u32>) -> i32 {
     }
     for (var i = 0u; i < PROBE_SLOTS; i++) {
         let slot = probe_slot(key, i);
-        // Twice: the weak exchange may fail without another writer.
-        for (var attempt = 0u; attempt < 2u; attempt++) {
+        // Again while the slot is still empty: the weak exchange may fail without another
+        // writer, and moving on would put the key in a second slot (bounded, as a safeguard).
+        for (var attempt = 0u; attempt < 64u; attempt++) {
             let r = atomicCompareExchangeWeak(&hash_words[slot], 0u, key.y);
             if r.exchanged || r.old_value == key.y {
                 return i32(slot);
@@ -135,6 +143,12 @@ fn insert_slot(key: vec2<u32>) -> i32 {
         }
     }
     return -1;
+}
+
+// Whether a surface's light may be cached: rough enough that its reflected light hardly
+// depends on the view.
+fn cacheable(m: Surface) -> bool {
+    return m.alpha >= MIN_CACHED_ALPHA;
 }
 
 // What the cache divides a surface's reflected light by, and a reader multiplies it back with:
@@ -154,12 +168,16 @@ fn hash_lookup(p: vec3<f32>, n: vec3<f32>) -> vec4<f32> {
 }
 
 // Adds one sample of reflected radiance over albedo to a slot's sums this frame; `u` in [0, 1)
-// rounds it.
+// rounds it. The count is claimed first: a sample past MAX_SAMPLES_PER_FRAME gives its claim
+// back and adds nothing.
 fn add_sample(slot: u32, l: vec3<f32>, u: f32) {
     let base = hash_params.capacity + 4u * slot;
+    if atomicAdd(&hash_words[base + 3u], 1u) >= MAX_SAMPLES_PER_FRAME {
+        atomicSub(&hash_words[base + 3u], 1u);
+        return;
+    }
     let v = vec3<u32>(floor(clamp(l, vec3<f32>(0.0), vec3<f32>(MAX_SAMPLE)) * FIXED_SCALE + u));
     atomicAdd(&hash_words[base], v.x);
     atomicAdd(&hash_words[base + 1u], v.y);
     atomicAdd(&hash_words[base + 2u], v.z);
-    atomicAdd(&hash_words[base + 3u], 1u);
 }

@@ -19,13 +19,14 @@
 #import gilab::sampling::power_heuristic
 #import gilab::path_vertex::{next_event, nee_sky_share}
 #import gilab::primary::{current_surface, primary_hit_surface}
-#import gilab::hash_cache::{hash_params, cell_key, insert_slot, add_sample, cache_albedo}
+#import gilab::hash_cache::{hash_params, cell_key, insert_slot, add_sample, cache_albedo, cacheable}
 
 // Vertices of a path that write a sample (later ones still light these).
 const MAX_VERTICES: u32 = 6u;
 const SAFETY_MAX_BOUNCES: u32 = 1024u;
 const RR_START_DEPTH: u32 = 3u;
-// Surfaces darker than this write no sample (their light over albedo is noise).
+// Surfaces darker than this in any channel write no sample (their light over albedo is noise,
+// or 0 / 0).
 const MIN_ALBEDO: f32 = 0.01;
 
 // What a recorded vertex keeps: the light it reflects is what the path gathers after it,
@@ -67,8 +68,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 if depth < MAX_VERTICES {
                     let albedo = cache_albedo(surf.material, max(dot(surf.normal, wo), 0.0));
                     var slot = -1;
-                    // A channel the path carries nothing in cannot be divided back out.
-                    if max_component(albedo) >= MIN_ALBEDO && min(throughput.x, min(throughput.y, throughput.z)) > 0.0 {
+                    // A channel the path or the albedo carries nothing in cannot be divided back
+                    // out; a smooth surface's light depends on the view (not cached).
+                    if min(albedo.x, min(albedo.y, albedo.z)) >= MIN_ALBEDO && min(throughput.x, min(throughput.y, throughput.z)) > 0.0 && cacheable(surf.material) {
                         slot = insert_slot(cell_key(surf.position, surf.geo_normal));
                     }
                     v[depth] = Vertex(slot, albedo, throughput, light);
