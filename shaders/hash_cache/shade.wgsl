@@ -11,13 +11,8 @@
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts, count_cache_lookup, RAY_INDIRECT, RAY_SHADOW, COUNT_INVALID_SAMPLES}
 #import gilab::math::max_component
-#import gilab::ray::spawn_ray_origin
-#import gilab::bvh::{trace_closest, NO_HIT}
-#import gilab::surface::{hit_surface, pixel_spread}
-#import gilab::brdf::bsdf_sample
-#import gilab::lights::{triangle_emission, triangle_light_pdf}
-#import gilab::sky::{sky_radiance, sky_pdf}
-#import gilab::sampling::power_heuristic
+#import gilab::surface::pixel_spread
+#import gilab::hash_cache_path_step::path_step
 #import gilab::path_vertex::{next_event, nee_sky_share}
 #import gilab::primary::{current_surface, primary_hit_surface, primary_emission, surface_material}
 #import gilab::accumulate::accumulate_sample
@@ -62,33 +57,19 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 let direct = next_event(surf, wo, &rng, p_sky, true, 1u);
                 counts[RAY_SHADOW] += direct.shadow_rays;
                 l += throughput * direct.radiance;
-                let bs = bsdf_sample(surf.material, surf.normal, wo, rand(&rng), rand_pair(&rng));
-                if !bs.valid || dot(bs.wi, surf.geo_normal) <= 0.0 {
+                let st = path_step(surf, wo, p_sky, &rng);
+                if st.rays == 0u {
                     break;
                 }
-                throughput *= bs.weight;
-                let origin = spawn_ray_origin(surf.position, surf.geo_normal, bs.wi);
-                let hit = trace_closest(origin, bs.wi, 0.0, 1e30);
-                counts[RAY_INDIRECT] += 1u;
-                if hit.tri == NO_HIT {
-                    var w = 1.0;
-                    if !bs.is_delta && p_sky > 0.0 {
-                        w = power_heuristic(bs.pdf, p_sky * sky_pdf(bs.wi));
-                    }
-                    l += throughput * sky_radiance(bs.wi) * w;
+                counts[RAY_INDIRECT] += st.rays;
+                throughput *= st.weight;
+                l += throughput * st.light;
+                if !st.hit {
                     break;
                 }
-                let next = hit_surface(origin, bs.wi, hit);
-                let le = triangle_emission(hit.tri, hit.bary, -bs.wi);
-                if any(le > vec3<f32>(0.0)) {
-                    var w = 1.0;
-                    if !bs.is_delta {
-                        w = power_heuristic(bs.pdf, (1.0 - p_sky) * triangle_light_pdf(hit.tri, bs.wi, hit.t, surf.position, surf.geo_normal));
-                    }
-                    l += throughput * le * w;
-                }
-                if !bs.is_delta {
-                    footprint += hit.t / sqrt(max(bs.pdf, 1e-6));
+                let next = st.next;
+                if !st.is_delta {
+                    footprint += st.t / sqrt(max(st.pdf, 1e-6));
                 }
                 if settings.use_cache == 1u && footprint > cell_size_at(next.position) && cacheable(next.material) {
                     let c = hash_lookup(next.position, next.geo_normal);
@@ -97,7 +78,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                         count_cache_lookup(&counts, lookup_outcome(next.position, c.w > 0.0));
                     }
                     if c.w > 0.0 {
-                        l += throughput * cache_albedo(next.material, max(dot(next.normal, -bs.wi), 0.0)) * c.xyz;
+                        l += throughput * cache_albedo(next.material, max(dot(next.normal, -st.dir), 0.0)) * c.xyz;
                         break;
                     }
                 }
@@ -109,7 +90,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     throughput /= q;
                 }
                 surf = next;
-                wo = -bs.wi;
+                wo = -st.dir;
             }
         }
         if settings.debug == 1u {

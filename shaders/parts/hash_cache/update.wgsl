@@ -9,15 +9,8 @@
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts, RAY_CACHE, RAY_SHADOW}
 #import gilab::math::max_component
-#import gilab::ray::spawn_ray_origin
-#import gilab::bvh::{trace_closest, NO_HIT}
-#import gilab::surface::hit_surface
-#import gilab::surface_point::HitSurface
-#import gilab::brdf::bsdf_sample
-#import gilab::lights::{triangle_emission, triangle_light_pdf}
-#import gilab::sky::{sky_radiance, sky_pdf}
-#import gilab::sampling::power_heuristic
 #import gilab::path_vertex::{next_event, nee_sky_share}
+#import gilab::hash_cache_path_step::path_step
 #import gilab::primary::{current_surface, primary_hit_surface}
 #import gilab::hash_cache::{hash_params, cell_key, insert_slot, add_sample, cache_albedo, cacheable}
 
@@ -79,30 +72,15 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 let direct = next_event(surf, wo, &rng, p_sky, true, 1u);
                 counts[RAY_SHADOW] += direct.shadow_rays;
                 light += throughput * direct.radiance;
-                let bs = bsdf_sample(surf.material, surf.normal, wo, rand(&rng), rand_pair(&rng));
-                if !bs.valid || dot(bs.wi, surf.geo_normal) <= 0.0 {
+                let st = path_step(surf, wo, p_sky, &rng);
+                if st.rays == 0u {
                     break;
                 }
-                throughput *= bs.weight;
-                let origin = spawn_ray_origin(surf.position, surf.geo_normal, bs.wi);
-                let hit = trace_closest(origin, bs.wi, 0.0, 1e30);
-                counts[RAY_CACHE] += 1u;
-                if hit.tri == NO_HIT {
-                    var w = 1.0;
-                    if !bs.is_delta && p_sky > 0.0 {
-                        w = power_heuristic(bs.pdf, p_sky * sky_pdf(bs.wi));
-                    }
-                    light += throughput * sky_radiance(bs.wi) * w;
+                counts[RAY_CACHE] += st.rays;
+                throughput *= st.weight;
+                light += throughput * st.light;
+                if !st.hit {
                     break;
-                }
-                let next = hit_surface(origin, bs.wi, hit);
-                let le = triangle_emission(hit.tri, hit.bary, -bs.wi);
-                if any(le > vec3<f32>(0.0)) {
-                    var w = 1.0;
-                    if !bs.is_delta {
-                        w = power_heuristic(bs.pdf, (1.0 - p_sky) * triangle_light_pdf(hit.tri, bs.wi, hit.t, surf.position, surf.geo_normal));
-                    }
-                    light += throughput * le * w;
                 }
                 if depth + 1u >= RR_START_DEPTH {
                     let q = min(max_component(throughput), 0.95);
@@ -111,8 +89,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     }
                     throughput /= q;
                 }
-                surf = next;
-                wo = -bs.wi;
+                surf = st.next;
+                wo = -st.dir;
             }
             for (var k = 0u; k < recorded; k++) {
                 let x = v[k];
