@@ -290,6 +290,11 @@ shared_structs! {
     Twin::Memory("ShadeSettings") => gilab::techniques::hash_cache::ShadeSettingsGpu {
         accumulate, use_cache, debug, pad,
     }
+    Twin::Memory("DdgiParams") => gilab::techniques::ddgi::volume::DdgiParamsGpu {
+        cascades, counts, rot_x, rot_y, rot_z, rays, flags, hysteresis, bias, max_distance,
+        min_frontface, pad,
+    }
+    Twin::Memory("Cascade") => gilab::techniques::ddgi::volume::CascadeGpu { origin_spacing, base }
     Twin::Memory("PtParams") => gilab::techniques::restir_pt::PtParamsGpu {
         max_bounces, temporal, max_history, spatial_count, spatial_radius, rc_alpha, rc_distance,
         pixels, accumulate, direct_restir, debug, pad,
@@ -334,6 +339,8 @@ const RENAMES: &[(&str, &str, &str)] = &[
     ("MetricParams", "pad1", "pad"),
     ("HashCacheParamsGpu", "pad_a", "pad"),
     ("HashCacheParamsGpu", "pad_b", "pad"),
+    ("DdgiParamsGpu", "pad_a", "pad"),
+    ("DdgiParamsGpu", "pad_b", "pad"),
     ("WorldRegirParamsGpu", "pad_a", "pad"),
     ("WorldRegirParamsGpu", "pad_b", "pad"),
     ("TracingParamsGpu", "pad_a", "pad"),
@@ -896,6 +903,32 @@ fn every_gpu_struct_matches_its_wgsl_layout() {
         mirrored!("gilab::lumen", lumen::FLAG_DEBUG),
         mirrored!("gilab::lumen", lumen::FLAG_DIRECT_RESTIR),
         mirrored!("gilab::lumen", lumen::FLAG_REFLECTIONS),
+        mirrored!(
+            "gilab::ddgi",
+            gilab::techniques::ddgi::volume::FLAG_VISIBILITY
+        ),
+        mirrored!(
+            "gilab::ddgi",
+            gilab::techniques::ddgi::volume::FLAG_RELOCATION
+        ),
+        mirrored!(
+            "gilab::ddgi",
+            gilab::techniques::ddgi::volume::FLAG_CLASSIFICATION
+        ),
+        mirrored!(
+            "gilab::ddgi",
+            gilab::techniques::ddgi::volume::FLAG_MULTI_BOUNCE
+        ),
+        mirrored!(
+            "gilab::ddgi",
+            gilab::techniques::ddgi::volume::FLAG_ACCUMULATE
+        ),
+        mirrored!("gilab::ddgi", gilab::techniques::ddgi::volume::FLAG_DEBUG),
+        mirrored!(
+            "gilab::ddgi",
+            gilab::techniques::ddgi::volume::FLAG_DIRECT_RESTIR
+        ),
+        mirrored!("gilab::ddgi", gilab::techniques::ddgi::volume::FIXED_RAYS),
         mirrored!("gilab::lumen_probes", probes::PROBES_PRODUCT),
         mirrored!("gilab::lumen_probes", probes::PROBES_SCREEN_TRACES),
         mirrored!("gilab::lumen_probes", probes::PROBES_WORLD_CACHE),

@@ -42,3 +42,21 @@ fn is_finite_vec(v: vec3<f32>) -> bool {
     let a = abs(v);
     return a.x <= F32_MAX && a.y <= F32_MAX && a.z <= F32_MAX;
 }
+
+// Octahedral map of the unit sphere onto [-1, 1]² (Cigolle et al. 2014): ReSTIR's stored sky
+// directions, DDGI's probe texels.
+fn oct_encode(d: vec3<f32>) -> vec2<f32> {
+    let p = d.xy / (abs(d.x) + abs(d.y) + abs(d.z));
+    if d.z >= 0.0 {
+        return p;
+    }
+    return (1.0 - abs(p.yx)) * select(vec2<f32>(-1.0), vec2<f32>(1.0), p >= vec2<f32>(0.0));
+}
+
+fn oct_decode(e: vec2<f32>) -> vec3<f32> {
+    var d = vec3<f32>(e, 1.0 - abs(e.x) - abs(e.y));
+    if d.z < 0.0 {
+        d = vec3<f32>((1.0 - abs(d.yx)) * select(vec2<f32>(-1.0), vec2<f32>(1.0), d.xy >= vec2<f32>(0.0)), d.z);
+    }
+    return normalize(d);
+}

@@ -79,3 +79,6 @@ const STREAM_PT_SPATIAL: u32 = 43u;
 // The hash radiance cache: its update paths, and the hash-cache technique's pixel paths.
 const STREAM_HASH_UPDATE: u32 = 44u;
 const STREAM_HASH_PIXEL: u32 = 45u;
+// DDGI: the probes' rays (their hits' NEE), and the pixels' NEE.
+const STREAM_DDGI_PROBE: u32 = 46u;
+const STREAM_DDGI_PIXEL: u32 = 47u;

@@ -215,7 +215,7 @@ impl HashCache {
                 (params, words, cells, bind_group)
             }
         };
-        let (lo, hi) = scene_bounds(&ctx.scene.data.tris);
+        let (lo, hi) = ctx.scene.data.bounds();
         self.cell_size = ((hi - lo).length() * FINEST_CELL_OF_DIAGONAL).max(1e-4);
         self.built = Some(Built {
             capacity: capacity as u32,
@@ -370,21 +370,6 @@ impl HashCache {
             mean_light: if weight > 0.0 { sum / weight } else { 0.0 },
         })
     }
-}
-
-fn scene_bounds(tris: &[[glam::Vec3; 3]]) -> (glam::Vec3, glam::Vec3) {
-    let mut lo = glam::Vec3::splat(f32::MAX);
-    let mut hi = glam::Vec3::splat(f32::MIN);
-    for t in tris {
-        for v in t {
-            lo = lo.min(*v);
-            hi = hi.max(*v);
-        }
-    }
-    if lo.x > hi.x {
-        return (glam::Vec3::ZERO, glam::Vec3::ONE);
-    }
-    (lo, hi)
 }
 
 /// `gi_terminate = "hash-cache"`: the cache at its defaults.

@@ -375,6 +375,23 @@ pub struct SceneData {
 }
 
 impl SceneData {
+    /// The triangles' bounding box (the unit cube for an empty scene): the world-space caches
+    /// size their cells and volumes by it.
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        let mut lo = Vec3::splat(f32::MAX);
+        let mut hi = Vec3::splat(f32::MIN);
+        for v in self.tris.iter().flatten() {
+            lo = lo.min(*v);
+            hi = hi.max(*v);
+        }
+        if lo.x > hi.x {
+            return (Vec3::ZERO, Vec3::ONE);
+        }
+        (lo, hi)
+    }
+}
+
+impl SceneData {
     /// The shader variant this scene needs: features it lacks are compiled out.
     pub fn shader_variant(&self) -> crate::gpu::shaders::ShaderVariant {
         crate::gpu::shaders::ShaderVariant {

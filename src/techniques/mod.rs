@@ -3,6 +3,7 @@
 //! HDR output. The registry below is the one table a new technique is added to.
 
 pub mod callisto_shadows;
+pub mod ddgi;
 pub mod hash_cache;
 pub mod lumen;
 pub mod reference;
@@ -55,6 +56,11 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         id: "hash-cache",
         what: "spatially hashed radiance cache (SHaRC-style): one path per pixel from its primary surface, ending in a world-space hash grid of cells (position, facing, a level by camera distance) where its footprint is wider than the cell; the cells are averaged from full update paths of one pixel in 25",
         create: || Box::new(hash_cache::HashCacheTechnique::default()),
+    },
+    TechniqueInfo {
+        id: "ddgi",
+        what: "DDGI irradiance probes (Majercik et al. 2019/2021): a camera-following probe grid (cascades) traces rotated ray sets each frame into octahedral irradiance and distance maps with hysteresis; probes relocate out of walls and switch off where useless; pixels gather from 8 probes with Chebyshev visibility; multi-bounce through the probes",
+        create: || Box::new(ddgi::Ddgi::default()),
     },
 ];
 

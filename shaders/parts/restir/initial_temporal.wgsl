@@ -6,7 +6,7 @@
 #import gilab::rng::{Rng, rng_init, rand, rand_pair, STREAM_DI_INITIAL}
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts, RAY_CANDIDATE}
-#import gilab::math::{PI, luminance, to_world}
+#import gilab::math::{PI, luminance, to_world, oct_encode}
 #import gilab::scene::light_pool
 #import gilab::lights::{select_light, select_light_in_class, class_pdf_scale}
 #import gilab::light_tree::tree_sample
@@ -14,7 +14,7 @@
 #import gilab::brdf::{bsdf_eval, bsdf_sample}
 #import gilab::sky::{sample_sky, sky_pdf, sky_importance}
 #import gilab::primary::{GSurface, reproject, current_surface, previous_surface, surface_material, at_last_frame, similar}
-#import gilab::restir::{params, reservoirs, Reservoir, reservoir_index, parity, empty_reservoir, regir_cell, regir_slots, contribution, target_at, visible, update, oct_encode, SKY_SAMPLE, VISIBILITY_PER_CLASS, VISIBILITY_MERGED, TEMPORAL_SEGMENT}
+#import gilab::restir::{params, reservoirs, Reservoir, reservoir_index, parity, empty_reservoir, regir_cell, regir_slots, contribution, target_at, visible, update, SKY_SAMPLE, VISIBILITY_PER_CLASS, VISIBILITY_MERGED, TEMPORAL_SEGMENT}
 
 // W = w_sum / (M p-hat(y)) of a reservoir filled by RIS.
 fn finish_ris(s: GSurface, r_in: Reservoir) -> Reservoir {

@@ -10,7 +10,7 @@
 #import gilab::brdf::{Surface, bsdf_eval}
 #import gilab::lights::{LightSample, eval_light_point, light_shadow_ray}
 #import gilab::ray::{spawn_ray_to, unoccluded, INFINITE_DISTANCE}
-#import gilab::math::PI
+#import gilab::math::{PI, oct_decode}
 #import gilab::sky::sky_radiance
 #import gilab::regir::RegirSlot
 
@@ -104,22 +104,6 @@ fn empty_reservoir() -> Reservoir {
 // The sky as a light class: a sample is a direction (solid-angle measure, the same at every
 // pixel, so reuse needs no Jacobian), stored octahedral-encoded in the barycentric slots.
 const SKY_SAMPLE: u32 = 0xffffffffu;
-
-fn oct_encode(d: vec3<f32>) -> vec2<f32> {
-    let p = d.xy / (abs(d.x) + abs(d.y) + abs(d.z));
-    if d.z >= 0.0 {
-        return p;
-    }
-    return (1.0 - abs(p.yx)) * select(vec2<f32>(-1.0), vec2<f32>(1.0), p >= vec2<f32>(0.0));
-}
-
-fn oct_decode(e: vec2<f32>) -> vec3<f32> {
-    var d = vec3<f32>(e, 1.0 - abs(e.x) - abs(e.y));
-    if d.z < 0.0 {
-        d = vec3<f32>((1.0 - abs(d.yx)) * select(vec2<f32>(-1.0), vec2<f32>(1.0), d.xy >= vec2<f32>(0.0)), d.z);
-    }
-    return normalize(d);
-}
 
 // A stored sample seen from p: a light pool sample, or the sky in a direction (infinitely far).
 fn eval_sample(light: u32, bary: vec2<f32>, p: vec3<f32>) -> LightSample {

@@ -1,0 +1,209 @@
+//! DDGI irradiance probes (issue 61): the furnace's closed form, the Cornell box against the
+//! reference, the thin-wall leak with and without the paper's two fixes (Chebyshev visibility,
+//! relocation), hard cases and determinism. Docs: docs/ddgi.md.
+
+mod common;
+
+use common::{engine, luminance};
+use gilab::compare::{metrics, Image};
+use gilab::render::engine::Engine;
+use gilab::scene::{builtin, Camera};
+use gilab::techniques::ddgi::Ddgi;
+use glam::Vec3;
+
+fn energy(img: &Image) -> f64 {
+    luminance(img.mean())
+}
+
+fn frames(e: &mut Engine, n: u32) {
+    for _ in 0..n {
+        e.render_frame().unwrap();
+    }
+}
+
+/// `warmup` frames that only fill the probes (the engine's `reset` would empty them, so the
+/// accumulation restarts as after a scripted camera move), then `frames` accumulated: the
+/// image and the rays per pixel per frame of those frames, by kind ("all", "probe", "shadow").
+fn render_warm(
+    params: toml::Table,
+    scene: gilab::scene::Scene,
+    size: [u32; 2],
+    warmup: u32,
+    n: u32,
+) -> (Image, [f64; 3], Engine) {
+    let camera = scene.default_camera();
+    let mut e = engine("ddgi", params, scene, size, 1);
+    frames(&mut e, warmup);
+    let before = e.ray_counts().unwrap();
+    e.move_camera(camera);
+    frames(&mut e, n);
+    let after = e.ray_counts().unwrap();
+    assert_eq!(after.invalid_samples, 0, "NaN/Inf samples");
+    let per_px = |k: &str| {
+        let d = |c: &gilab::render::RayCounts| {
+            if k == "all" {
+                c.total()
+            } else {
+                c.kind(k)
+            }
+        };
+        (d(&after) - d(&before)) as f64 / (size[0] as f64 * size[1] as f64 * n as f64)
+    };
+    let rays = [per_px("all"), per_px("probe"), per_px("shadow")];
+    (e.read_output().unwrap(), rays, e)
+}
+
+fn table(pairs: &[(&str, toml::Value)]) -> toml::Table {
+    pairs
+        .iter()
+        .map(|(k, v)| (k.to_string(), v.clone()))
+        .collect()
+}
+
+/// White furnace (albedo 0.8, emission 1: radiance 5 everywhere). Every probe sees the same
+/// light, so what is left is the method's own loss and its approach to the fixed point: each
+/// frame adds a bounce through the probes, and a frame replaces only 1 - h of a probe's maps,
+/// so from a cold start the error shrinks by (1 - h)(1 - albedo) a frame (0.6% at the default
+/// h = 0.97: hundreds of frames, docs/ddgi.md). The fixed point does not depend on h, so it is
+/// checked at h = 0 (within 3%, issue 61); the default's run is checked to approach it from
+/// below and printed.
+#[test]
+fn furnace_within_three_percent_once_converged() {
+    let (albedo, emission) = (0.8f32, 1.0f32);
+    let expected = emission as f64 / (1.0 - albedo as f64);
+    let scene = || builtin::furnace(albedo, emission, 1);
+    let p = table(&[("hysteresis", 0.0.into())]);
+    let (img, rays, e) = render_warm(p, scene(), [32, 32], 40, 16);
+    let v = energy(&img);
+    let rpp = rays[0];
+    let memory = e
+        .technique
+        .as_any()
+        .downcast_ref::<Ddgi>()
+        .unwrap()
+        .memory_bytes();
+    eprintln!(
+        "ddgi furnace, hysteresis 0, after 40 + 16 frames: {v:.4} vs {expected:.4} ({:+.2}%), {rpp:.1} rays/px/frame, probe memory {:.2} MiB",
+        (v / expected - 1.0) * 100.0,
+        memory as f64 / (1 << 20) as f64
+    );
+    assert!((v / expected - 1.0).abs() < 0.03, "{v} vs {expected}");
+    assert_eq!(img.non_finite_count(), 0);
+
+    let p = table(&[("accumulate", false.into())]);
+    let mut e = engine("ddgi", p, scene(), [32, 32], 1);
+    let mut curve = Vec::new();
+    for f in 1..=48 {
+        e.render_frame().unwrap();
+        if f % 16 == 0 {
+            curve.push(energy(&e.read_output().unwrap()));
+        }
+    }
+    eprintln!("ddgi furnace at the defaults, frames 16, 32, 48 (each alone): {curve:.4?}");
+    assert!(
+        curve.windows(2).all(|w| w[1] > w[0]) && curve[2] < expected * 1.03,
+        "the default approaches {expected} from below: {curve:?}"
+    );
+}
+
+/// Cornell box, 64², the defaults after 32 frames' warm-up, 32 accumulated: energy within 5%
+/// of the reference (issue 61) and relMSE printed, with and without multi-bounce.
+#[test]
+fn cornell_against_the_reference() {
+    let truth = common::cornell_truth_64();
+    let e_truth = energy(&truth);
+    let mut ratios = Vec::new();
+    for multi_bounce in [true, false] {
+        let p = table(&[("multi_bounce", multi_bounce.into())]);
+        let (img, rays, _) = render_warm(p, builtin::cornell(), [64, 64], 32, 32);
+        let ratio = energy(&img) / e_truth;
+        let m = metrics::compare(&img, &truth).unwrap();
+        eprintln!(
+            "ddgi cornell 64², multi_bounce = {multi_bounce}: energy {ratio:.4} of the reference, relMSE {:.3e}, rays/px/frame {:.1} (probe {:.1}, shadow {:.1})",
+            m.rel_mse, rays[0], rays[1], rays[2],
+        );
+        assert_eq!(img.non_finite_count(), 0);
+        ratios.push(ratio);
+    }
+    assert!((ratios[0] - 1.0).abs() < 0.05, "energy {}", ratios[0]);
+    assert!(
+        ratios[1] < ratios[0],
+        "one bounce must lose light: {ratios:?}"
+    );
+}
+
+/// The thin-wall room (its reference inside is exactly 0: tests/gpu.rs): 48 frames outside
+/// facing the sunlit wall, then moved inside with the probes kept, 8 frames accumulated (the
+/// surfels' and the hash cache's sequence). DDGI's classic failure, measured: light reaches
+/// inside through probes whose cell straddles the wall. At the defaults the one volume spans
+/// the scene's 100-unit ground (spacing 12.5, the 4-unit room inside one cell), so every probe
+/// the room reads is outside; at `volume = 0.08` (spacing 1, the volume following the camera)
+/// probes stand inside the room, and the paper's fixes can work: measured with both, without
+/// the Chebyshev visibility and without relocation. Visibility must cut the leak there.
+#[test]
+fn thin_wall_leak_with_and_without_the_fixes() {
+    let dense = |extra: &[(&str, toml::Value)]| {
+        let mut t = table(&[("volume", 0.08.into())]);
+        t.extend(table(extra));
+        t
+    };
+    let mut leaks = Vec::new();
+    for (label, p) in [
+        ("defaults", table(&[])),
+        ("volume 0.08", dense(&[])),
+        (
+            "volume 0.08, no visibility",
+            dense(&[("visibility", false.into())]),
+        ),
+        (
+            "volume 0.08, no relocation",
+            dense(&[("relocation", false.into())]),
+        ),
+    ] {
+        let scene = builtin::thin_wall(0.0);
+        let inside = scene.default_camera();
+        let mut e = engine("ddgi", p, scene, [48, 48], 1);
+        e.set_camera(Camera {
+            position: Vec3::new(0.0, 1.5, -6.0),
+            target: Vec3::new(0.0, 0.5, -2.0),
+            up: Vec3::Y,
+            fov_y: 60.0,
+        });
+        frames(&mut e, 48);
+        let outside = energy(&e.read_output().unwrap());
+        e.move_camera(inside);
+        frames(&mut e, 8);
+        let leak = energy(&e.read_output().unwrap());
+        eprintln!(
+            "ddgi thin-wall, {label}: outside view luminance {outside:.4}; inside after moving in, 8 frames: {leak:.5} (reference 0, the surfels' target 0.02)"
+        );
+        assert!(outside > 1.0, "the outside view is sunlit: {outside}");
+        leaks.push(leak);
+    }
+    assert!(
+        leaks[1] < leaks[2],
+        "visibility must cut the leak: {leaks:?}"
+    );
+}
+
+/// Hard cases (emission 1e6, degenerate triangles, grazing angles) stay finite, and the same
+/// seed gives the same image twice.
+#[test]
+fn hard_cases_are_finite_and_deterministic() {
+    let run = || {
+        let mut e = engine(
+            "ddgi",
+            toml::Table::new(),
+            builtin::hard_cases(1e6),
+            [48, 48],
+            7,
+        );
+        frames(&mut e, 6);
+        assert_eq!(e.ray_counts().unwrap().invalid_samples, 0);
+        e.read_output().unwrap()
+    };
+    let a = run();
+    assert_eq!(a.non_finite_count(), 0, "hard-cases: NaN/Inf");
+    let b = run();
+    assert!(a.rgb == b.rgb, "same seed, different image");
+}
