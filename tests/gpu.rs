@@ -1097,7 +1097,7 @@ fn every_technique_plays_the_moving_scene() {
     // 1.4 s: the caches' lag after 8 frames of motion is part of what is measured).
     // (technique, parameters, target id, bound): the unbiased techniques within 10%, the
     // cache families within 20% (their lag is part of what is measured).
-    let runs: [(&str, toml::Table, &str, f64); 7] = [
+    let runs: [(&str, toml::Table, &str, f64); 8] = [
         (
             "reference",
             toml::Table::new(),
@@ -1141,6 +1141,7 @@ fn every_technique_plays_the_moving_scene() {
             "moving-frame-energy-hash-cache",
             0.20,
         ),
+        ("ddgi", toml::Table::new(), "moving-frame-energy-ddgi", 0.20),
     ];
     for (technique, params, id, bound) in runs {
         let mut e = common::engine(technique, params.clone(), moving_at_12x(), size, 5);
