@@ -132,6 +132,40 @@ fn cornell_against_the_reference() {
     );
 }
 
+/// Probe rays that end in the hash radiance cache (`probe_hits = "hash-cache"`, issue 61's
+/// reader): Cornell 64² as `cornell_against_the_reference`, energy within 5% of the reference,
+/// relMSE printed; at least 90% of the lookups on surfaces the camera sees find samples, and
+/// the cache's light stands for the hit's NEE there, so fewer shadow rays are traced than with
+/// the probes' own hit lighting.
+#[test]
+fn probe_rays_ending_in_the_hash_cache() {
+    let truth = common::cornell_truth_64();
+    let p = table(&[("probe_hits", "hash-cache".into())]);
+    let (img, rays, e) = render_warm(p, builtin::cornell(), [64, 64], 32, 32);
+    let ratio = energy(&img) / energy(&truth);
+    let m = metrics::compare(&img, &truth).unwrap();
+    let lookups = e.ray_counts().unwrap().cache_lookups;
+    eprintln!(
+        "ddgi cornell 64², probe_hits = hash-cache: energy {ratio:.4} of the reference, relMSE {:.3e}, rays/px/frame {:.1} (probe {:.1}, shadow {:.1}); lookups: {}",
+        m.rel_mse,
+        rays[0],
+        rays[1],
+        rays[2],
+        lookups.summary()
+    );
+    assert_eq!(img.non_finite_count(), 0);
+    assert!((ratio - 1.0).abs() < 0.05, "energy {ratio}");
+    let covered = lookups.covered_seen().unwrap();
+    assert!(covered >= 0.9, "covered lookups on seen surfaces {covered}");
+    let (_, own, _) = render_warm(table(&[]), builtin::cornell(), [64, 64], 0, 1);
+    assert!(
+        rays[2] < own[2],
+        "the cache replaces NEE at hits: {} against {} shadow rays/px",
+        rays[2],
+        own[2]
+    );
+}
+
 /// The thin-wall room (its reference inside is exactly 0: tests/gpu.rs): 48 frames outside
 /// facing the sunlit wall, then moved inside with the probes kept, 8 frames accumulated (the
 /// surfels' and the hash cache's sequence). DDGI's classic failure, measured: light reaches

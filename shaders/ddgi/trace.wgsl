@@ -5,6 +5,8 @@
 // emission is left out, as the pixels' own direct light counts it. A miss reads the sky; a
 // back face (of a single-sided material) returns no light and -0.2 x its distance (the paper's back-face marker, which
 // relocation and classification count and which keeps the distance maps short inside walls).
+// With `probe_hits = "hash-cache"` (DDGI_HASH_CACHE) a hit whose cell holds samples reads the
+// hash radiance cache instead (no shadow ray, no probe gather).
 #import gilab::frame::frame
 #import gilab::math::INV_PI
 #import gilab::counters::{flush_counts, no_counts, RAY_PROBE, RAY_SHADOW}
@@ -16,6 +18,11 @@
 #import gilab::ray::INFINITE_DISTANCE
 #import gilab::nee::direct_light
 #import gilab::sky::sky_radiance
+#ifdef DDGI_HASH_CACHE
+#import gilab::hash_cache::{hash_lookup, cell_size_at, cache_albedo, cacheable}
+#import gilab::hash_cache_path_end::lookup_outcome
+#import gilab::counters::count_cache_lookup
+#endif
 #import gilab::ddgi::{params, ray_results, probes_per_cascade, rays_per_probe, probe_position, probe_active, ray_direction, ddgi_gather, has_flag, FIXED_RAYS, MISS_DISTANCE, FLAG_MULTI_BOUNCE}
 
 @compute @workgroup_size(32, 1, 1)
@@ -39,9 +46,23 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 t = -0.2 * hit.t;
             } else {
                 t = hit.t;
-                if ray >= FIXED_RAYS {
+                let wo = -dir;
+                var cached = false;
+#ifdef DDGI_HASH_CACHE
+                // `probe_hits = "hash-cache"`: a segment longer than the hit's cell ends in the
+                // cache, whose cell holds the light the surface reflects (direct and indirect)
+                // over its albedo (SHaRC's query rule); elsewhere the probes' own hit lighting.
+                if ray >= FIXED_RAYS && hit.t > cell_size_at(h.position) && cacheable(h.material) {
+                    let c = hash_lookup(h.position, h.geo_normal);
+                    count_cache_lookup(&counts, lookup_outcome(h.position, c.w > 0.0));
+                    if c.w > 0.0 {
+                        l = cache_albedo(h.material, max(dot(h.normal, wo), 0.0)) * c.xyz;
+                        cached = true;
+                    }
+                }
+#endif
+                if ray >= FIXED_RAYS && !cached {
                     var rng = rng_init(vec2<u32>(slot, ray), frame.frame_index, STREAM_DDGI_PROBE, frame.seed);
-                    let wo = -dir;
                     let d = direct_light(h.position, h.geo_normal, h.normal, h.material, wo, rand(&rng), rand_pair(&rng));
                     counts[RAY_SHADOW] += d.shadow_rays;
                     l = d.radiance;

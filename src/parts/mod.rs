@@ -43,8 +43,8 @@
 //! - [`hash_cache::HashCache`]: a spatially hashed world-space radiance cache (SHaRC-style:
 //!   cells by position, facing and a camera-distance level; updated by full paths from one
 //!   pixel in 25; lookup `gilab::hash_cache`, at the bind group a pass names with
-//!   `HASH_CACHE_GROUP`). Used by the `hash-cache` technique and by ReSTIR GI
-//!   (`gi_terminate = "hash-cache"`).
+//!   `HASH_CACHE_GROUP`). Used by the `hash-cache` technique, by ReSTIR GI
+//!   (`gi_terminate = "hash-cache"`) and by DDGI's probe rays (`probe_hits = "hash-cache"`).
 
 use crate::gpu::Gpu;
 use crate::render::RenderContext;

@@ -15,6 +15,7 @@
 pub mod volume;
 
 use crate::gpu::{timing::PassTimer, Gpu};
+use crate::parts::hash_cache::{self, HashCache, HashCacheSettings};
 use crate::parts::{Part, RestirDirect};
 use crate::render::params::{ParamChanges, ParamKind, ParamSpec, Params};
 use crate::render::primary::FrameInputs;
@@ -112,6 +113,14 @@ pub const PARAMS: &[ParamSpec] = &[
         kind: ParamKind::Float { min: 0.0, max: 2.0 },
         default: 0.3,
     },
+    ParamSpec {
+        name: "probe_hits",
+        what: "what lights a probe ray's hit: `probes` (NEE plus the probes' own irradiance, the paper's) or `hash-cache` (where the segment is longer than the hit's cell and the cell has samples, the hash radiance cache's reflected light, parts::hash_cache at its defaults; elsewhere the probes')",
+        higher: "hash-cache: no shadow ray or probe gather at most hits, all bounces from the cache's full paths (its update paths' rays added)",
+        lower: "probes: self-contained, one bounce a frame through the probes",
+        kind: ParamKind::Choice(&["probes", "hash-cache"]),
+        default: 0.0,
+    },
     crate::parts::restir_direct::param(
         &["nee", "restir"],
         "direct light per pixel: next-event estimation of one light by power, or ReSTIR DI (the shared direct-light part); the probe rays' hits use NEE either way",
@@ -152,7 +161,13 @@ pub struct Ddgi {
     accumulate: bool,
     debug: bool,
     direct_restir: bool,
+    /// Probe rays' hits read the hash radiance cache (`probe_hits = "hash-cache"`).
+    hits_in_cache: bool,
     pub volume: ProbeVolume,
+    /// The hash radiance cache the probe rays read (built only when they do).
+    pub cache: HashCache,
+    /// Whether the built trace pipeline reads the cache.
+    built_with_cache: bool,
     restir_direct: RestirDirect,
     layout: Option<wgpu::BindGroupLayout>,
     pipelines: Option<Pipelines>,
@@ -173,7 +188,10 @@ impl Default for Ddgi {
             accumulate: true,
             debug: true,
             direct_restir: false,
+            hits_in_cache: false,
             volume: ProbeVolume::default(),
+            cache: HashCache::new(HashCacheSettings::default()),
+            built_with_cache: false,
             restir_direct: RestirDirect::default(),
             layout: None,
             pipelines: None,
@@ -193,6 +211,7 @@ impl Ddgi {
         self.accumulate = p.bool("accumulate");
         self.debug = p.bool(crate::techniques::DEBUG_VIEWS);
         self.direct_restir = crate::parts::restir_direct::chosen(p);
+        self.hits_in_cache = p.choice("probe_hits") == "hash-cache";
         self.settings = VolumeSettings {
             probes_per_axis: p.u32("probes_per_axis"),
             cascades: p.u32("cascades"),
@@ -322,13 +341,21 @@ impl Technique for Ddgi {
     fn passes(&self, f: &SceneFeatures) -> Vec<PassInfo> {
         let mut v = Vec::new();
         let s = &self.settings;
+        if self.hits_in_cache {
+            v.extend(self.cache.passes(f));
+        }
         v.push(PassInfo {
             name: "probe trace",
             runs: true,
             why: format!(
-                "{} probes x ({} + 32 fixed) rays: NEE{} at each hit",
+                "{} probes x ({} + 32 fixed) rays: {}NEE{} at each hit",
                 self.volume.probe_count(),
                 s.rays_per_probe,
+                if self.hits_in_cache {
+                    "the hash cache where it covers the hit, else "
+                } else {
+                    ""
+                },
                 if s.multi_bounce {
                     " + the probes' irradiance"
                 } else {
@@ -383,11 +410,31 @@ impl Technique for Ddgi {
                 &[&ctx.scene.layout, ctx.frame_layout, &layout],
             )
         };
-        let trace = make("ddgi/trace.wgsl")?;
+        let trace = if self.hits_in_cache {
+            let mut defs = hash_cache::lookup_defs(3).to_vec();
+            defs.push(("DDGI_HASH_CACHE", 1));
+            pipelines::compute_pipeline(
+                ctx.gpu,
+                &ctx.shaders.with_defs(&defs),
+                "ddgi/trace.wgsl",
+                &[
+                    &ctx.scene.layout,
+                    ctx.frame_layout,
+                    &layout,
+                    &hash_cache::lookup_layout(ctx.gpu),
+                ],
+            )?
+        } else {
+            make("ddgi/trace.wgsl")?
+        };
         let blend = make("ddgi/blend.wgsl")?;
         let shade = make("ddgi/shade.wgsl")?;
         self.restir_direct
             .prepare(ctx, self.direct_restir, true, ())?;
+        if self.hits_in_cache {
+            self.cache.build(ctx)?;
+        }
+        self.built_with_cache = self.hits_in_cache;
         self.pipelines = Some(Pipelines {
             trace,
             blend,
@@ -400,6 +447,10 @@ impl Technique for Ddgi {
     /// New sizes (probes, rays) rebuild the buffers (empty probes); other settings travel in
     /// the uniforms and keep the probes' maps.
     fn apply_params(&mut self, ctx: &RenderContext) -> Result<()> {
+        if self.pipelines.is_some() && self.built_with_cache != self.hits_in_cache {
+            // The trace pipeline reads the cache or not (a shader def): rebuilt.
+            return self.build(ctx);
+        }
         self.restir_direct
             .prepare(ctx, self.direct_restir, false, ())?;
         if self.pipelines.is_some() {
@@ -411,6 +462,7 @@ impl Technique for Ddgi {
     fn reset_history(&mut self, gpu: &Gpu) {
         self.frame = 0;
         self.restir_direct.reset(gpu);
+        self.cache.reset(gpu);
         let Some(r) = &self.res else { return };
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         for b in [&r.probes, &r.rays, &r.irradiance, &r.distance] {
@@ -443,15 +495,31 @@ impl Technique for Ddgi {
             .write_buffer(&r.params, 0, bytemuck::bytes_of(&gpu_params));
         let probes = self.volume.probe_count();
         let rows = [probes.min(1024), probes.div_ceil(1024)];
-        pipelines::technique_pass(
-            ctx,
-            enc,
-            timer,
-            "probe trace",
-            &p.trace,
-            &[&r.bind_group],
-            [self.volume.rays_per_probe().div_ceil(32), rows[0], rows[1]],
-        );
+        let trace_groups = [self.volume.rays_per_probe().div_ceil(32), rows[0], rows[1]];
+        if self.built_with_cache {
+            self.cache.record(ctx, enc, timer);
+            if let Some(cache) = self.cache.lookup() {
+                pipelines::technique_pass(
+                    ctx,
+                    enc,
+                    timer,
+                    "probe trace",
+                    &p.trace,
+                    &[&r.bind_group, cache],
+                    trace_groups,
+                );
+            }
+        } else {
+            pipelines::technique_pass(
+                ctx,
+                enc,
+                timer,
+                "probe trace",
+                &p.trace,
+                &[&r.bind_group],
+                trace_groups,
+            );
+        }
         pipelines::technique_pass(
             ctx,
             enc,
