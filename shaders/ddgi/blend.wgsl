@@ -84,15 +84,20 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
         }
         workgroupBarrier();
     }
-    if blending && weight > 1e-6 {
+    // A probe without history (new, or switched on again) takes this frame whole; a texel no
+    // ray reached is cleared rather than left with what the slot held before.
+    let reached = weight > 1e-6;
+    if blending && (reached || frames == 0) {
+        let w = max(weight, 1e-6);
         if irr_thread {
             // Sum(L cos) / Sum(cos) over directions spread evenly on the sphere is E / pi.
             let at = irradiance_index(slot, irr_texel + vec2<u32>(1u));
-            let e = PI * irr_sum / weight;
+            let e = select(vec3<f32>(0.0), PI * irr_sum / w, reached);
             irradiance_texels[at] = vec4<f32>(mix(e, irradiance_texels[at].xyz, h), 1.0);
         } else if dist_lid < DIST_TEXELS * DIST_TEXELS {
             let at = distance_index(slot, dist_texel + vec2<u32>(1u));
-            distance_texels[at] = mix(dist_sum / weight, distance_texels[at], h);
+            let m = select(vec2<f32>(0.0), dist_sum / w, reached);
+            distance_texels[at] = mix(m, distance_texels[at], h);
         }
     }
     storageBarrier();

@@ -236,8 +236,9 @@ impl Ddgi {
             .clone()
     }
 
-    /// Buffers sized by the probe count, rays per probe and image (kept when those stay).
-    fn build_resources(&mut self, ctx: &RenderContext) {
+    /// Buffers sized by the probe count, rays per probe and image (kept when those stay); a
+    /// size above the GPU's largest storage binding is refused, naming the parameters.
+    fn build_resources(&mut self, ctx: &RenderContext) -> Result<()> {
         let gpu = ctx.gpu;
         let (lo, hi) = ctx.scene.data.bounds();
         self.volume.configure(&self.settings, lo, hi);
@@ -250,7 +251,16 @@ impl Ddgi {
             .as_ref()
             .is_some_and(|r| r.sized == (probes, rays, pixels))
         {
-            return;
+            return Ok(());
+        }
+        let largest = gpu.device.limits().max_storage_buffer_binding_size;
+        let ray_bytes = volume::buffer_bytes(probes, rays).rays;
+        if ray_bytes > largest {
+            anyhow::bail!(
+                "ddgi: {probes} probes x {rays} rays need a {} MiB ray buffer, above this GPU's largest storage binding ({} MiB): lower probes_per_axis, cascades or rays_per_probe",
+                ray_bytes >> 20,
+                largest >> 20
+            );
         }
         let layout = self.layout(gpu);
         let params = gpu.device.create_buffer(&wgpu::BufferDescriptor {
@@ -295,6 +305,7 @@ impl Ddgi {
         });
         self.debug_buffer = Some(debug);
         self.reset_history(gpu);
+        Ok(())
     }
 
     fn flags(&self) -> u32 {
@@ -440,8 +451,7 @@ impl Technique for Ddgi {
             blend,
             shade,
         });
-        self.build_resources(ctx);
-        Ok(())
+        self.build_resources(ctx)
     }
 
     /// New sizes (probes, rays) rebuild the buffers (empty probes); other settings travel in
@@ -454,7 +464,7 @@ impl Technique for Ddgi {
         self.restir_direct
             .prepare(ctx, self.direct_restir, false, ())?;
         if self.pipelines.is_some() {
-            self.build_resources(ctx);
+            self.build_resources(ctx)?;
         }
         Ok(())
     }

@@ -29,8 +29,10 @@ pub const IRRADIANCE_TEXELS: u64 = 8 * 8;
 pub const DISTANCE_TEXELS: u64 = 16 * 16;
 /// Cascades the uniforms hold.
 pub const MAX_CASCADES: usize = 4;
-/// Longest distance a distance texel holds, in spacings (beyond the cell's diagonal, 1.73).
-const MAX_DISTANCE: f32 = 2.0;
+/// Longest distance a distance texel holds, in spacings: beyond the farthest point a probe
+/// serves (the cell's diagonal, 1.73, plus a relocation of up to 0.45·√3 = 0.78 and the view
+/// bias), so that no visible surface reads as occluded.
+const MAX_DISTANCE: f32 = 3.0;
 /// Relocation keeps a probe this far from the nearest front face, in spacings.
 const MIN_FRONTFACE: f32 = 0.25;
 
@@ -277,7 +279,10 @@ mod tests {
     fn rotations_are_rotations_and_differ_per_frame() {
         let a = random_rotation(1);
         let b = random_rotation(2);
-        assert!((a.length() - 1.0).abs() < 1e-5);
+        // A rotation keeps lengths and angles: the matrix is orthonormal.
+        let m = glam::Mat3::from_quat(a);
+        assert!((m * m.transpose()).abs_diff_eq(glam::Mat3::IDENTITY, 1e-5));
+        assert!((m.determinant() - 1.0).abs() < 1e-5);
         assert!(a.angle_between(b) > 1e-3);
         assert_eq!(a, random_rotation(1));
     }
