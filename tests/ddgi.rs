@@ -7,9 +7,8 @@ mod common;
 use common::{engine, luminance};
 use gilab::compare::{metrics, Image};
 use gilab::render::engine::Engine;
-use gilab::scene::{builtin, Camera};
+use gilab::scene::builtin;
 use gilab::techniques::ddgi::Ddgi;
-use glam::Vec3;
 
 fn energy(img: &Image) -> f64 {
     luminance(img.mean())
@@ -194,20 +193,7 @@ fn thin_wall_leak_with_and_without_the_fixes() {
             dense(&[("relocation", false.into())]),
         ),
     ] {
-        let scene = builtin::thin_wall(0.0);
-        let inside = scene.default_camera();
-        let mut e = engine("ddgi", p, scene, [48, 48], 1);
-        e.set_camera(Camera {
-            position: Vec3::new(0.0, 1.5, -6.0),
-            target: Vec3::new(0.0, 0.5, -2.0),
-            up: Vec3::Y,
-            fov_y: 60.0,
-        });
-        frames(&mut e, 48);
-        let outside = energy(&e.read_output().unwrap());
-        e.move_camera(inside);
-        frames(&mut e, 8);
-        let leak = energy(&e.read_output().unwrap());
+        let (outside, leak) = common::thin_wall_leak("ddgi", p);
         eprintln!(
             "ddgi thin-wall, {label}: outside view luminance {outside:.4}; inside after moving in, 8 frames: {leak:.5} (reference 0, the surfels' target 0.02)"
         );
@@ -224,20 +210,7 @@ fn thin_wall_leak_with_and_without_the_fixes() {
 /// seed gives the same image twice.
 #[test]
 fn hard_cases_are_finite_and_deterministic() {
-    let run = || {
-        let mut e = engine(
-            "ddgi",
-            toml::Table::new(),
-            builtin::hard_cases(1e6),
-            [48, 48],
-            7,
-        );
-        frames(&mut e, 6);
-        assert_eq!(e.ray_counts().unwrap().invalid_samples, 0);
-        e.read_output().unwrap()
-    };
-    let a = run();
+    let (a, b) = common::hard_cases_twice("ddgi");
     assert_eq!(a.non_finite_count(), 0, "hard-cases: NaN/Inf");
-    let b = run();
     assert!(a.rgb == b.rgb, "same seed, different image");
 }

@@ -125,21 +125,8 @@ fn cornell_against_the_reference() {
 /// the update paths add them changes nothing.
 #[test]
 fn hard_cases_are_finite_and_deterministic() {
-    let run = || {
-        let mut e = engine(
-            "hash-cache",
-            toml::Table::new(),
-            builtin::hard_cases(1e6),
-            [48, 48],
-            7,
-        );
-        frames(&mut e, 6);
-        assert_eq!(e.ray_counts().unwrap().invalid_samples, 0);
-        e.read_output().unwrap()
-    };
-    let a = run();
+    let (a, b) = common::hard_cases_twice("hash-cache");
     assert_eq!(a.non_finite_count(), 0, "hard-cases: NaN/Inf");
-    let b = run();
     assert!(a.rgb == b.rgb, "same seed, different image");
 }
 
@@ -258,20 +245,7 @@ fn light_tree_sampling_keeps_the_energy() {
 /// it must meet.
 #[test]
 fn thin_wall_leak() {
-    let scene = builtin::thin_wall(0.0);
-    let inside = scene.default_camera();
-    let mut e = engine("hash-cache", toml::Table::new(), scene, [48, 48], 1);
-    e.set_camera(Camera {
-        position: Vec3::new(0.0, 1.5, -6.0),
-        target: Vec3::new(0.0, 0.5, -2.0),
-        up: Vec3::Y,
-        fov_y: 60.0,
-    });
-    frames(&mut e, 48);
-    let outside = energy(&e.read_output().unwrap());
-    e.move_camera(inside);
-    frames(&mut e, 8);
-    let leak = energy(&e.read_output().unwrap());
+    let (outside, leak) = common::thin_wall_leak("hash-cache", toml::Table::new());
     eprintln!(
         "hash-cache thin-wall: outside view luminance {outside:.4}; inside after moving in, 8 frames: {leak:.5} (reference 0, the surfels' target 0.02)"
     );

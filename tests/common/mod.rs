@@ -591,3 +591,44 @@ pub fn off_surface(points: &[glam::Vec3], tris: &[[glam::Vec3; 3]]) -> Vec<f32> 
         .filter(|d| *d > 0.01)
         .collect()
 }
+
+/// The thin-wall leak sequence of the caches' tests (the surfels' one, issue 55): `technique`
+/// renders 48 frames of thin-wall (interior light off: its reference inside is exactly 0) from
+/// outside, facing the sunlit wall, then is moved inside with its history kept and renders 8
+/// frames accumulated. Returns the luminance of the outside view and of the inside view (the
+/// leak), both 48².
+pub fn thin_wall_leak(technique: &str, params: toml::Table) -> (f64, f64) {
+    let scene = gilab::scene::builtin::thin_wall(0.0);
+    let inside = scene.default_camera();
+    let mut e = engine(technique, params, scene, [48, 48], 1);
+    e.set_camera(gilab::scene::Camera {
+        position: glam::Vec3::new(0.0, 1.5, -6.0),
+        target: glam::Vec3::new(0.0, 0.5, -2.0),
+        up: glam::Vec3::Y,
+        fov_y: 60.0,
+    });
+    for _ in 0..48 {
+        e.render_frame().unwrap();
+    }
+    let outside = luminance(e.read_output().unwrap().mean());
+    e.move_camera(inside);
+    for _ in 0..8 {
+        e.render_frame().unwrap();
+    }
+    (outside, luminance(e.read_output().unwrap().mean()))
+}
+
+/// `technique` on the hard cases (emission 1e6, degenerate triangles, grazing angles), 48²,
+/// seed 7, 6 frames, twice: both runs' images (no NaN/Inf sample counted in either).
+pub fn hard_cases_twice(technique: &str) -> (Image, Image) {
+    let run = || {
+        let scene = gilab::scene::builtin::hard_cases(1e6);
+        let mut e = engine(technique, toml::Table::new(), scene, [48, 48], 7);
+        for _ in 0..6 {
+            e.render_frame().unwrap();
+        }
+        assert_eq!(e.ray_counts().unwrap().invalid_samples, 0, "{technique}");
+        e.read_output().unwrap()
+    };
+    (run(), run())
+}
