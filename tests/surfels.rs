@@ -900,21 +900,23 @@ fn surfel_ray_hits_on_seen_surfaces_are_covered_on_the_courtyard() {
     assert_eq!(rays.invalid_samples, 0);
 }
 
-/// Issue 57: light sampling at the surfels' ray hits on `many-lights` (1,024 lights), the
-/// `cache_direct` choices (issue 60 added the light tree) at the defaults otherwise, 64², after 15 frames: the surfels'
+/// Light sampling at the surfels' ray hits: for each (label, `cache_direct`,
+/// `cache_light_rays`), the surfels at their defaults otherwise, 64², 15 frames: the surfels'
 /// own noise (mean relative variance of their ray estimates, the MSME's, over surfels with 16
-/// rays or more; the surfels are the same in all three, spawning does not read irradiance), the
-/// mean surfel irradiance, and one frame's image (no accumulation) against a 256-spp reference.
-/// A measurement (`--ignored --nocapture`), written up in docs/surfels.md.
-#[test]
-#[ignore]
-fn light_sampling_at_surfel_hits_on_many_lights() {
+/// rays or more; the surfels are the same in every run, spawning does not read irradiance), the
+/// mean surfel irradiance, and the last frame's image (no accumulation) against a 256-spp
+/// reference. Returns each run's (mean relative variance, mean irradiance).
+fn surfel_hit_light_sampling(
+    scene: &gilab::scene::Scene,
+    runs: &[(&str, &str, i64)],
+) -> Vec<(f64, f64)> {
     let size = [64, 64];
-    let scene = builtin::many_lights(1024, 7);
     let truth = shared_reference(scene.clone(), size, 256, 5, 0, 0);
-    for mode in ["power", "regir", "reservoir", "tree"] {
+    let mut out = Vec::new();
+    for &(label, mode, rays_per_hit) in runs {
         let mut p = toml::Table::new();
         p.insert("cache_direct".into(), mode.into());
+        p.insert("cache_light_rays".into(), rays_per_hit.into());
         p.insert("accumulate".into(), false.into());
         let mut e = engine("surfels", p, scene.clone(), size, 1);
         frames(&mut e, 15);
@@ -932,13 +934,102 @@ fn light_sampling_at_surfel_hits_on_many_lights() {
         let mean_e =
             sampled.iter().map(|s| lum(s.irradiance)).sum::<f64>() / sampled.len().max(1) as f64;
         eprintln!(
-            "surfels, many-lights 64², cache_direct = {mode}, 15 frames: {} surfels, mean relative variance {rel_var:.4}, mean irradiance {mean_e:.4}; frame 15 alone: relMSE {:.4e}, energy {:.4} of the reference, {:.2} rays/px/frame, {:.1} ms GPU/frame",
+            "surfels, 64², {label} (cache_direct = {mode}, cache_light_rays = {rays_per_hit}), 15 frames: {} surfels, mean relative variance {rel_var:.4}, mean irradiance {mean_e:.4}; frame 15 alone: relMSE {:.4e}, energy {:.4} of the reference, {:.2} rays/px/frame ({:.2} shadow), {:.1} ms GPU/frame",
             sampled.len(),
             m.rel_mse,
             energy(&img) / energy(&truth),
             rays.total() as f64 / (64.0 * 64.0 * 15.0),
+            rays.by_kind[1] as f64 / (64.0 * 64.0 * 15.0),
             e.total_gpu_ms / 15.0
         );
         assert_eq!(img.non_finite_count(), 0);
+        out.push((rel_var, mean_e));
     }
+    out
+}
+
+/// Issue 57: light sampling at the surfels' ray hits on `many-lights` (1,024 lights), the
+/// `cache_direct` choices (issue 60 added the light tree) after 15 frames. A measurement
+/// (`--ignored --nocapture`), written up in docs/surfels.md.
+#[test]
+#[ignore]
+fn light_sampling_at_surfel_hits_on_many_lights() {
+    surfel_hit_light_sampling(
+        &builtin::many_lights(1024, 7),
+        &[
+            ("power", "power", 1),
+            ("regir", "regir", 1),
+            ("reservoir", "reservoir", 1),
+            ("tree", "tree", 1),
+        ],
+    );
+}
+
+/// Issue 60: GIBS's many-light figure (seed 001: random 2, reservoir 8 and lightcut 4 after 15
+/// frames on 1,400 lights), with the tree's single descent and the world ReGIR clipmap beside
+/// them. A measurement (`--ignored --nocapture`), written up in docs/light-tree.md; the same
+/// runs as an experiment: presets/experiments/gibs-many-lights.toml.
+#[test]
+#[ignore]
+fn gibs_many_light_figure() {
+    surfel_hit_light_sampling(
+        &builtin::many_lights(1400, 7),
+        &[
+            ("random 2", "power", 2),
+            ("reservoir 8", "reservoir", 1),
+            ("lightcut 4", "lightcut", 4),
+            ("tree 1", "tree", 1),
+            ("regir", "regir", 1),
+        ],
+    );
+}
+
+/// Issue 60: the stochastic lightcut at surfel ray hits (`cache_direct = "lightcut"`, 4 nodes)
+/// lights the surfels as power sampling does: on 256 lights at 32² after 8 frames, the mean
+/// over surfels of the paired difference of their irradiance is within 4 standard errors of
+/// zero (the surfels are the same in both runs: spawning does not read irradiance), and the cut
+/// grows past one node (more shadow rays than power's one per hit; printed: how many more). The algorithm's
+/// unbiasedness, with a negative control, is checked on the CPU
+/// (`light_tree_lightcut_covers_every_light_once_and_is_unbiased`, tests/cpu.rs).
+#[test]
+fn lightcut_at_surfel_hits_agrees_with_power_sampling() {
+    let scene = builtin::many_lights(256, 7);
+    let run = |mode: &str, rays: i64| {
+        let mut p = toml::Table::new();
+        p.insert("cache_direct".into(), mode.into());
+        p.insert("cache_light_rays".into(), rays.into());
+        let mut e = engine("surfels", p, scene.clone(), [32, 32], 1);
+        frames(&mut e, 8);
+        let states = surfels(&e).surfel_states(&e.gpu).unwrap();
+        let shadow = e.ray_counts().unwrap().by_kind[1];
+        assert_eq!(e.ray_counts().unwrap().invalid_samples, 0, "{mode}");
+        (states, shadow)
+    };
+    let (power, power_shadow) = run("power", 1);
+    let (cut, cut_shadow) = run("lightcut", 4);
+    assert_eq!(power.len(), cut.len(), "the same surfels in both runs");
+    let lum = |c: [f32; 3]| luminance(c.map(|v| v as f64));
+    let d: Vec<f64> = power
+        .iter()
+        .zip(&cut)
+        .map(|(a, b)| lum(b.irradiance) - lum(a.irradiance))
+        .collect();
+    let n = d.len() as f64;
+    let mean = d.iter().sum::<f64>() / n;
+    let se = (d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0) / n).sqrt();
+    let mean_power = power.iter().map(|s| lum(s.irradiance)).sum::<f64>() / n;
+    println!(
+        "{n} surfels: mean irradiance by power {mean_power:.4}, lightcut 4 - power {mean:+.4} ± {se:.4} ({:+.2}%); shadow rays {cut_shadow} against {power_shadow} ({:.2}x)",
+        100.0 * mean / mean_power,
+        cut_shadow as f64 / power_shadow as f64
+    );
+    assert!(n >= 20.0, "only {n} surfels");
+    assert!(
+        mean.abs() <= 4.0 * se,
+        "lightcut's surfel irradiance differs from power sampling's by {mean} ({se} standard error)"
+    );
+    assert!(
+        cut_shadow as f64 > 1.2 * power_shadow as f64,
+        "a cut of 4 nodes traced {cut_shadow} shadow rays against power's {power_shadow}"
+    );
 }

@@ -97,6 +97,20 @@ fn node_importance(b: LightTreeNode, p: vec3<f32>, n: vec3<f32>) -> f32 {
     return max(importance, 0.0);
 }
 
+// The most a lightcut's error bound grows over the importance near a node (LightTree's
+// LIGHTCUT_NEAR_LIMIT).
+const LIGHTCUT_NEAR_LIMIT: f32 = 1e6;
+
+// A lightcut's error bound for node b at p: its importance with the squared distance to the
+// box's nearest point in place of the centre's (LightBounds::lightcut_error).
+fn lightcut_error(b: LightTreeNode, p: vec3<f32>, n: vec3<f32>) -> f32 {
+    let d = p - 0.5 * (b.lo + b.hi);
+    let d2 = max(max(dot(d, d), 0.5 * length(b.hi - b.lo)), 1e-12);
+    let near = p - clamp(p, b.lo, b.hi);
+    let near2 = max(dot(near, near), 1e-12);
+    return node_importance(b, p, n) * min(d2 / near2, LIGHTCUT_NEAR_LIMIT);
+}
+
 // Probability of the first child of interior node `at` at p; negative when neither child can
 // light p.
 fn first_child_probability(at: u32, node: LightTreeNode, p: vec3<f32>, n: vec3<f32>) -> f32 {
@@ -116,17 +130,23 @@ struct TreeSample {
 
 // One local light for p (normal n or 0) from u in [0, 1) by a descent from the root.
 fn tree_sample(p: vec3<f32>, n: vec3<f32>, u_in: f32) -> TreeSample {
+    return tree_descend(0u, p, n, u_in);
+}
+
+// One light under node `start` for p (normal n or 0) from u in [0, 1): its probability among
+// that node's lights (LightTree::sample_from). A lightcut descends from each of its nodes.
+fn tree_descend(start: u32, p: vec3<f32>, n: vec3<f32>, u_in: f32) -> TreeSample {
     var out = TreeSample(0u, 0.0);
     if light_pool.local_count == 0u {
         return out;
     }
     var u = u_in;
-    var at = 0u;
+    var at = start;
     var pmf = 1.0;
     for (var depth = 0u; depth <= TREE_MAX_DEPTH; depth++) {
         let node = tree_node(at);
         if node.leaf {
-            if at > 0u || node_importance(node, p, n) > 0.0 {
+            if at != start || node_importance(node, p, n) > 0.0 {
                 out = TreeSample(node.index, pmf);
             }
             break;

@@ -383,7 +383,7 @@ pub const KIND: crate::parts::gi_cache::CacheKind = crate::parts::gi_cache::Cach
     },
     new: |s| {
         let mut cache = HashCache::new(HashCacheSettings {
-            light_tree: s.light.tree,
+            light_tree: s.light.uses_tree(),
             ..HashCacheSettings::default()
         });
         cache.holder_light = Some(s.light);
@@ -392,7 +392,7 @@ pub const KIND: crate::parts::gi_cache::CacheKind = crate::parts::gi_cache::Cach
     describe: |s, hit| {
         format!(
             "in the hash radiance cache at hit {hit} where the segment is longer than the hit's cell and the cell has samples (its reflected light times the hit's albedo, no ray); traced on otherwise; update paths pick lights by {}",
-            if s.light.tree { "the light tree" } else { "power" }
+            if s.light.uses_tree() { "the light tree" } else { "power" }
         )
     },
 };

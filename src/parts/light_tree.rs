@@ -143,6 +143,20 @@ impl LightBounds {
         importance.max(0.0)
     }
 
+    /// A lightcut's error bound for the node at `p`: its importance with the squared distance
+    /// to the box's nearest point in place of the centre's (lightcuts bound a node's error by
+    /// its largest possible contribution; Walter et al. 2005, Yuksel 2019). Near or around `p`
+    /// it grows without limit, so the cut splits there first.
+    pub fn lightcut_error(&self, p: Vec3, n: Vec3) -> f32 {
+        let d2 = (p - self.centroid())
+            .length_squared()
+            .max(0.5 * (self.hi - self.lo).length())
+            .max(1e-12);
+        let nearest = p.clamp(self.lo, self.hi);
+        let near2 = (p - nearest).length_squared().max(1e-12);
+        self.importance(p, n) * (d2 / near2).min(LIGHTCUT_NEAR_LIMIT)
+    }
+
     /// pbrt-v4's surface area orientation heuristic: the cost of a node with these bounds,
     /// split along `dim` of `extent` (the parent's bounds).
     fn cost(&self, extent: Vec3, dim: usize) -> f32 {
@@ -229,6 +243,14 @@ fn cone_union(a: Vec3, cos_a: f32, b: Vec3, cos_b: f32) -> (Vec3, f32) {
     let axis = glam::Quat::from_axis_angle(wr.normalize(), theta_o - theta_a) * a;
     (axis.normalize(), theta_o.cos())
 }
+
+/// Splits a lightcut may try (`LIGHTCUT_STEPS` in shaders/parts/cache_light.wgsl): a split
+/// whose children both cannot reach the point shrinks the cut, so growing it takes a bounded
+/// loop on the GPU.
+pub const LIGHTCUT_STEPS: usize = 64;
+/// The most a lightcut's error bound grows over the importance near a node
+/// (`LIGHTCUT_NEAR_LIMIT` in shaders/parts/cache_light.wgsl).
+pub const LIGHTCUT_NEAR_LIMIT: f32 = 1e6;
 
 /// One node as the GPU reads it, in a light record's slot of the light pool (96 bytes, the
 /// layout of `GpuLight`: shaders/parts/light_tree.wgsl `tree_node` decodes it). Children of an
@@ -331,13 +353,19 @@ impl LightTree {
 
     /// One light for point `p` (normal `n`, or zero) from random number `u` in [0, 1): its
     /// index and probability, None when no light can reach `p`. The GPU's `tree_sample`.
-    pub fn sample(&self, p: Vec3, n: Vec3, mut u: f32) -> Option<(u32, f32)> {
-        let mut at = 0usize;
+    pub fn sample(&self, p: Vec3, n: Vec3, u: f32) -> Option<(u32, f32)> {
+        self.sample_from(0, p, n, u)
+    }
+
+    /// One light under node `start`: its index and probability among that node's lights (a
+    /// lightcut descends from each of its nodes). The GPU's `tree_descend`.
+    pub fn sample_from(&self, start: usize, p: Vec3, n: Vec3, mut u: f32) -> Option<(u32, f32)> {
+        let mut at = start;
         let mut pmf = 1.0f32;
         loop {
             let node = self.nodes.get(at)?;
             if node.leaf == 1 {
-                if at > 0 || node.bounds().importance(p, n) > 0.0 {
+                if at != start || node.bounds().importance(p, n) > 0.0 {
                     return Some((node.index, pmf));
                 }
                 return None;
@@ -353,6 +381,57 @@ impl LightTree {
                 at = node.index as usize;
             }
         }
+    }
+
+    /// A stochastic lightcut's cut at `p` (normal `n`, or zero): at most `size` nodes that
+    /// together hold every light that can reach `p`, each with its error bound there
+    /// ([`LightBounds::lightcut_error`]). Grown from the root by splitting the interior node of
+    /// largest bound (Yuksel, "Stochastic Lightcuts", HPG 2019; GIBS's "lightcut 4", seed 001);
+    /// a child that cannot reach `p` leaves the cut. The GPU's `lightcut_direct`
+    /// (shaders/parts/cache_light.wgsl) grows it the same way.
+    pub fn lightcut(&self, p: Vec3, n: Vec3, size: usize) -> Vec<(usize, f32)> {
+        let mut cut = Vec::with_capacity(size);
+        let Some(root) = self.nodes.first() else {
+            return cut;
+        };
+        let w = root.bounds().lightcut_error(p, n);
+        if w > 0.0 {
+            cut.push((0usize, w));
+        }
+        for _ in 0..LIGHTCUT_STEPS {
+            if cut.len() >= size {
+                break;
+            }
+            // First of the largest, as the GPU's strict comparison picks it.
+            let mut best: Option<usize> = None;
+            for (k, &(at, w)) in cut.iter().enumerate() {
+                if self.nodes[at].leaf == 0 && best.is_none_or(|b| w > cut[b].1) {
+                    best = Some(k);
+                }
+            }
+            let Some(k) = best else {
+                break;
+            };
+            let at = cut[k].0;
+            let children = [at + 1, self.nodes[at].index as usize];
+            let reaching: Vec<(usize, f32)> = children
+                .iter()
+                .map(|&c| (c, self.nodes[c].bounds().lightcut_error(p, n)))
+                .filter(|&(_, w)| w > 0.0)
+                .collect();
+            match reaching.as_slice() {
+                [] => {
+                    cut.swap_remove(k);
+                }
+                [one] => cut[k] = *one,
+                [a, b] => {
+                    cut[k] = *a;
+                    cut.push(*b);
+                }
+                _ => unreachable!(),
+            }
+        }
+        cut
     }
 
     /// The probability that [`LightTree::sample`] picks local light `light` at `p` (normal

@@ -40,14 +40,22 @@ const SLOT_BYTES: u64 = crate::parts::restir::REGIR_SLOT_BYTES;
 const STAT_SLOTS: u64 = 64;
 
 /// The caches' light-sampling parameters: every family with a cache adds them to its own.
-pub const PARAMS: [ParamSpec; 3] = [
+pub const PARAMS: [ParamSpec; 4] = [
     ParamSpec {
         name: "cache_direct",
-        what: "how the cache picks the light for each point it lights (card texels, surfel ray hits): by power from the whole light pool, from the world-space ReGIR clipmap's cell at the point (seed 003, ReGIR lighting the cache; runs only with many lights), by a reservoir of 8 power-sampled candidates resampled by their unshadowed contribution at the point (seed 001's light sampling at a surfel ray's hit), or by one descent of the light tree at the point and its normal (parts::light_tree)",
-        higher: "regir: lights near the point are picked far more often: lower noise on many lights, one build pass per frame; reservoir: the candidate that lights the point most wins, 8 light evaluations per point, no build pass; tree: lights near and facing the point, a tree walk per point, no build pass",
+        what: "how the cache picks the light for each point it lights (card texels, surfel ray hits): by power from the whole light pool, from the world-space ReGIR clipmap's cell at the point (seed 003, ReGIR lighting the cache; runs only with many lights), by a reservoir of 8 power-sampled candidates resampled by their unshadowed contribution at the point (seed 001's light sampling at a surfel ray's hit), by one descent of the light tree at the point and its normal (parts::light_tree), or by a stochastic lightcut: a cut of `cache_light_rays` tree nodes chosen at the point, one descent and one shadow ray below each (seed 001's \"lightcut 4\"; at surfel ray hits; other caches take one tree descent)",
+        higher: "regir: lights near the point are picked far more often: lower noise on many lights, one build pass per frame; reservoir: the candidate that lights the point most wins, 8 light evaluations per point, no build pass; tree: lights near and facing the point, a tree walk per point, no build pass; lightcut: the strongest groups of lights each get a shadow ray: least noise per point, a ray per cut node",
         lower: "power: no build pass; a point far from the bright lights gets mostly useless samples",
-        kind: ParamKind::Choice(&["power", "regir", "reservoir", "tree"]),
+        kind: ParamKind::Choice(&["power", "regir", "reservoir", "tree", "lightcut"]),
         default: 0.0,
+    },
+    ParamSpec {
+        name: "cache_light_rays",
+        what: "shadow rays per point at surfel ray hits (the caches that shade a hit with `cache_direct`'s sampler): that many independent picks averaged (GIBS's \"random 2\" is power with 2), or the lightcut's size (its \"lightcut 4\"); directional lights add one ray to a lightcut",
+        higher: "less noise per hit, a shadow ray more each",
+        lower: "1: one light sample per hit (a lightcut of 1 is one tree descent)",
+        kind: ParamKind::Int { min: 1, max: 8 },
+        default: 1.0,
     },
     ParamSpec {
         name: "cache_regir_slots",
@@ -75,6 +83,11 @@ pub struct WorldRegirSettings {
     pub reservoir: bool,
     /// `cache_direct = "tree"`: one light by the light tree (`LIGHT_TREE`, parts::light_tree).
     pub tree: bool,
+    /// `cache_direct = "lightcut"`: a stochastic lightcut of `rays` tree nodes at surfel ray
+    /// hits (`CACHE_LIGHTCUT`), one tree descent elsewhere.
+    pub lightcut: bool,
+    /// `cache_light_rays`: light samples (shadow rays) per surfel ray hit, or the cut's size.
+    pub rays: u32,
     pub slots: u32,
     pub lookup_candidates: u32,
 }
@@ -85,6 +98,7 @@ impl WorldRegirSettings {
     pub fn to_changes(self) -> ParamChanges {
         ParamChanges::new()
             .choice("cache_direct", self.name())
+            .int("cache_light_rays", self.rays as i64)
             .int("cache_regir_slots", self.slots as i64)
             .int("cache_regir_candidates", self.lookup_candidates as i64)
     }
@@ -97,9 +111,22 @@ impl WorldRegirSettings {
             "reservoir"
         } else if self.tree {
             "tree"
+        } else if self.lightcut {
+            "lightcut"
         } else {
             "power"
         }
+    }
+
+    /// Whether a cache point's lights come from the light tree (`tree`, and `lightcut`
+    /// wherever no cut is taken).
+    pub fn uses_tree(&self) -> bool {
+        self.tree || self.lightcut
+    }
+
+    /// What a lighting pipeline is composed for: a different key needs a new pipeline.
+    pub fn shader_key(&self) -> (&'static str, u32) {
+        (self.name(), self.rays)
     }
 
     pub fn from_params(p: &Params) -> WorldRegirSettings {
@@ -107,6 +134,8 @@ impl WorldRegirSettings {
             regir: p.u32("cache_direct") == 1,
             reservoir: p.u32("cache_direct") == 2,
             tree: p.u32("cache_direct") == 3,
+            lightcut: p.u32("cache_direct") == 4,
+            rays: p.u32("cache_light_rays").clamp(1, 8),
             slots: p.u32("cache_regir_slots").max(1),
             lookup_candidates: p.u32("cache_regir_candidates").max(1),
         }
@@ -205,32 +234,41 @@ impl WorldRegir {
 
     /// A consumer's lighting pipeline (`entry` over the scene, the frame and its own group 2):
     /// composed with the clipmap's lookup and its bind group at group 3 with `regir`, with
-    /// `CACHE_RESERVOIR` with `reservoir`, as it is otherwise.
+    /// `CACHE_RESERVOIR` with `reservoir`, `LIGHT_TREE` with `tree`, both `LIGHT_TREE` and
+    /// `CACHE_LIGHTCUT` (the cut's size) with `lightcut`, `CACHE_LIGHT_RAYS` when more than one
+    /// sample a point is asked for without a cut, as it is otherwise.
     pub fn lighting_pipeline(
         ctx: &RenderContext,
         entry: &str,
         own: &wgpu::BindGroupLayout,
         light: &WorldRegirSettings,
     ) -> Result<wgpu::ComputePipeline> {
-        if light.reservoir || light.tree {
-            let def = if light.reservoir {
-                "CACHE_RESERVOIR"
-            } else {
-                "LIGHT_TREE"
-            };
+        let mut defs: Vec<(&str, u32)> = Vec::new();
+        if light.rays > 1 && !light.lightcut {
+            defs.push(("CACHE_LIGHT_RAYS", light.rays));
+        }
+        if light.reservoir {
+            defs.push(("CACHE_RESERVOIR", 1));
+        } else if light.tree {
+            defs.push(("LIGHT_TREE", 1));
+        } else if light.lightcut {
+            defs.extend([("LIGHT_TREE", 1), ("CACHE_LIGHTCUT", light.rays)]);
+        }
+        if !light.regir {
+            if defs.is_empty() {
+                return ctx.pipeline(entry, own);
+            }
             return pipelines::compute_pipeline(
                 ctx.gpu,
-                &ctx.shaders.with_defs(&[(def, 1)]),
+                &ctx.shaders.with_defs(&defs),
                 entry,
                 &[&ctx.scene.layout, ctx.frame_layout, own],
             );
         }
-        if !light.regir {
-            return ctx.pipeline(entry, own);
-        }
+        defs.extend(lookup_defs(3));
         pipelines::compute_pipeline(
             ctx.gpu,
-            &ctx.shaders.with_defs(&lookup_defs(3)),
+            &ctx.shaders.with_defs(&defs),
             entry,
             &[
                 &ctx.scene.layout,

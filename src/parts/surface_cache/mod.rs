@@ -824,7 +824,7 @@ impl SurfaceCache {
                         self.scaled_budget(s.direct_texels_per_frame),
                         if regir {
                             "from the world ReGIR clipmap"
-                        } else if s.cache_light.tree {
+                        } else if s.cache_light.uses_tree() {
                             "by the light tree"
                         } else {
                             "by power"

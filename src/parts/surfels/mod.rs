@@ -207,7 +207,7 @@ pub struct SurfelCore {
     /// built the first time it is asked for).
     world_regir: WorldRegir,
     /// The `cache_direct` the trace pipeline was composed for.
-    trace_light: &'static str,
+    trace_light: (&'static str, u32),
 }
 
 impl Default for SurfelCore {
@@ -226,7 +226,7 @@ impl Default for SurfelCore {
             extent: [0, 0],
             cache_only: false,
             world_regir: WorldRegir::default(),
-            trace_light: "power",
+            trace_light: ("power", 1),
         }
     }
 }
@@ -655,6 +655,40 @@ impl SurfelCore {
         let s = &self.settings;
         let pass = |name, runs, why: String| PassInfo { name, runs, why };
         let lights = f.light_count() > 0;
+        let hit_light = match (
+            s.cache_light.reservoir,
+            s.cache_light.tree,
+            s.cache_light.lightcut,
+            s.cache_light.rays,
+        ) {
+            (_, _, true, n) => format!(
+                " (light by a stochastic lightcut of at most {n} tree nodes, a shadow ray each)"
+            ),
+            (true, _, _, n) => format!(
+                " (light by a reservoir of 8 candidates{})",
+                if n > 1 {
+                    format!(", {n} reservoirs averaged")
+                } else {
+                    String::new()
+                }
+            ),
+            (_, true, _, n) => format!(
+                " (light by the light tree{})",
+                if n > 1 {
+                    format!(", {n} descents averaged")
+                } else {
+                    String::new()
+                }
+            ),
+            (_, _, _, n) => format!(
+                " (light by power{})",
+                if n > 1 {
+                    format!(", {n} picks averaged")
+                } else {
+                    String::new()
+                }
+            ),
+        };
         let mut v = vec![
             pass("recycle", true, "recycling heuristic (pool fill, frames unseen, distance, over-coverage); free stack push".into()),
             pass("coverage", true, format!("per {t}x{t}-pixel spawn tile: least-covered pixel, randomised spawn threshold", t = s.spawn_tile(self.extent[1]))),
@@ -670,7 +704,7 @@ impl SurfelCore {
                 format!(
                     "{} directions; NEE at hits{}; surfel irradiance at hits (multi-bounce), a path where none covers the hit",
                     if s.guiding { "guided (6x6 map, mixed with cosine)" } else { "cosine" },
-                    if !lights { " skipped: no lights" } else if s.cache_light.regir && f.many_lights { " (light from the world ReGIR clipmap)" } else if s.cache_light.reservoir { " (light by a reservoir of 8 candidates)" } else if s.cache_light.tree { " (light by the light tree)" } else { " (light by power)" }
+                    if !lights { " skipped: no lights" } else if s.cache_light.regir && f.many_lights { " (light from the world ReGIR clipmap)" } else if s.cache_light.reservoir { " (light by a reservoir of 8 candidates)" } else { &hit_light }
                 ),
             ),
             pass("estimate", true, format!("each surfel's frame estimate (mean of its rays){}; radial depth {}", if s.sharing { " for irradiance sharing" } else { "" }, if s.radial_depth { "on" } else { "off" })),
@@ -758,7 +792,7 @@ impl SurfelCore {
             .prepare(ctx, self.settings.direct_restir, true, ())?;
         self.prepare_reflections(ctx, true)?;
         self.world_regir.prepare(ctx, &self.settings.cache_light)?;
-        self.trace_light = self.settings.cache_light.name();
+        self.trace_light = self.settings.cache_light.shader_key();
         self.pipelines = Some(Pipelines {
             passes,
             ray_owner,
@@ -787,7 +821,7 @@ impl SurfelCore {
         self.ensure_restir(ctx)?;
         self.prepare_reflections(ctx, false)?;
         self.world_regir.prepare(ctx, &self.settings.cache_light)?;
-        if self.trace_light != self.settings.cache_light.name() {
+        if self.trace_light != self.settings.cache_light.shader_key() {
             let layout = self.layouts(ctx.gpu).surfels.clone();
             let pipeline = WorldRegir::lighting_pipeline(
                 ctx,
@@ -798,7 +832,7 @@ impl SurfelCore {
             if let Some(p) = self.pipelines.as_mut() {
                 p.passes[Pass::Trace as usize] = pipeline;
             }
-            self.trace_light = self.settings.cache_light.name();
+            self.trace_light = self.settings.cache_light.shader_key();
         }
         self.build_resources(ctx)?;
         self.reset_history(ctx.gpu);
@@ -877,7 +911,7 @@ impl SurfelCore {
             ctx,
             enc,
             timer,
-            self.trace_light == "regir",
+            self.trace_light.0 == "regir",
             self.features.many_lights,
         );
         let groups: Vec<&wgpu::BindGroup> = [
