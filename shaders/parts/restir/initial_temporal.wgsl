@@ -7,11 +7,13 @@
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts, RAY_CANDIDATE}
 #import gilab::math::{PI, luminance, to_world, oct_encode}
-#import gilab::scene::light_pool
-#import gilab::lights::{select_light, select_light_in_class, class_pdf_scale}
-#import gilab::light_tree::tree_sample
+#import gilab::scene::{light_pool, tri_attr}
+#import gilab::lights::{LightSample, select_light, select_light_in_class, class_pdf_scale}
+#import gilab::light_tree::{tree_sample, tree_pmf}
+#import gilab::bvh::{trace_closest, NO_HIT}
+#import gilab::ray::spawn_ray_origin
 #import gilab::sampling::{sample_triangle, sample_cosine_hemisphere}
-#import gilab::brdf::{bsdf_eval, bsdf_sample}
+#import gilab::brdf::{Surface, bsdf_eval, bsdf_sample}
 #import gilab::sky::{sample_sky, sky_pdf, sky_importance}
 #import gilab::primary::{GSurface, reproject, current_surface, previous_surface, surface_material, at_last_frame, similar}
 #import gilab::restir::{params, reservoirs, Reservoir, reservoir_index, parity, empty_reservoir, regir_cell, regir_slots, contribution, target_at, visible, update, SKY_SAMPLE, VISIBILITY_PER_CLASS, VISIBILITY_MERGED, TEMPORAL_SEGMENT}
@@ -26,10 +28,38 @@ fn finish_ris(s: GSurface, r_in: Reservoir) -> Reservoir {
     return r;
 }
 
+// The area pdf with which light sampling (below) draws point `l` of local light `li`: by power
+// in the pool (single-pool mode) or within the class, or by the light tree.
+fn local_light_pdf(s: GSurface, li: u32, l: LightSample) -> f32 {
+    if params.single_pool == 1u {
+        return l.area_pdf;
+    }
+    if params.light_tree == 1u {
+        return l.area_pdf * tree_pmf(li, s.pos.xyz, s.geo_specular.xyz) / light_pool.lights[li].pmf;
+    }
+    return l.area_pdf * class_pdf_scale(li);
+}
+
+// The area pdf with which a BSDF-sampled candidate reaches point `l` of a light: the BSDF's
+// solid-angle pdf times |cos_l| / d^2; 0 for punctual lights (no ray hits them) and below the
+// geometric surface (no BSDF candidate is traced there).
+fn bsdf_area_pdf(s: GSurface, m: Surface, l: LightSample) -> f32 {
+    if l.is_delta || dot(l.wi, s.geo_specular.xyz) <= 0.0 {
+        return 0.0;
+    }
+    return bsdf_eval(m, s.normal_alpha.xyz, s.wo_dist.xyz, l.wi).pdf * l.geom;
+}
+
 // Local lights (emissive triangles, point and spot lights): by power within the class, by the
 // light tree (`light_tree`, one descent per candidate at the pixel's point and geometric
 // normal), or the pixel's ReGIR cell. In single-pool mode: by power over every light.
-fn local_candidates(s: GSurface, rng: ptr<function, Rng>) -> Reservoir {
+// At glossy pixels (roughness below `bsdf_max_roughness`) outside ReGIR, `bsdf_candidates`
+// more come from the BSDF: a direction sampled from the lobe and a ray to the emitter it hits
+// (seed 003's "light BVH for specular": the small lights whose highlight a glossy lobe shows,
+// which light sampling rarely picks). The two strategies are combined by the balance
+// heuristic (multiple importance RIS): each candidate's weight is its target over the
+// candidate-count-weighted mix of both pdfs, so W = w_sum / (M target) stays unbiased.
+fn local_candidates(s: GSurface, rng: ptr<function, Rng>, counts: ptr<function, array<u32, 16>>) -> Reservoir {
     var r = empty_reservoir();
     let cell = regir_cell(s.pos.xyz);
     if params.regir == 1u && cell >= 0 {
@@ -46,6 +76,13 @@ fn local_candidates(s: GSurface, rng: ptr<function, Rng>) -> Reservoir {
         }
         return finish_ris(s, r);
     }
+    let m = surface_material(s);
+    let m_light = f32(params.candidates);
+    var m_bsdf = 0.0;
+    if params.bsdf_candidates > 0u && m.alpha < params.bsdf_max_roughness * params.bsdf_max_roughness {
+        m_bsdf = f32(params.bsdf_candidates);
+    }
+    let m_total = m_light + m_bsdf;
     for (var i = 0u; i < params.candidates; i++) {
         var li = 0u;
         var scale = 1.0;
@@ -66,9 +103,38 @@ fn local_candidates(s: GSurface, rng: ptr<function, Rng>) -> Reservoir {
         let pdf = c.light.area_pdf * scale;
         var w = 0.0;
         if pdf > 0.0 {
-            w = luminance(c.value) / pdf;
+            var mix_pdf = pdf;
+            if m_bsdf > 0.0 {
+                mix_pdf = (m_light * pdf + m_bsdf * bsdf_area_pdf(s, m, c.light)) / m_total;
+            }
+            w = luminance(c.value) / mix_pdf;
         }
         update(&r, Reservoir(li, b.x, b.y, 0.0, 0.0, 0.0, 0.0, 0.0), w, 1.0, rand(rng));
+    }
+    let geo = s.geo_specular.xyz;
+    for (var i = 0u; i < u32(m_bsdf); i++) {
+        let bs = bsdf_sample(m, s.normal_alpha.xyz, s.wo_dist.xyz, rand(rng), rand_pair(rng));
+        // A candidate that finds no local light has weight 0; it still counts in M.
+        var candidate = Reservoir(light_pool.count, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        var w = 0.0;
+        if bs.valid && !bs.is_delta && dot(bs.wi, geo) > 0.0 {
+            (*counts)[RAY_CANDIDATE] += 1u;
+            let hit = trace_closest(spawn_ray_origin(s.pos.xyz, geo, bs.wi), bs.wi, 0.0, 1e30);
+            if hit.tri != NO_HIT {
+                // Light + 1 of an emissive triangle, 0 for any other.
+                let light = tri_attr[hit.tri].pad.y;
+                if light > 0u && light - 1u < light_pool.local_count {
+                    let li = light - 1u;
+                    let c = contribution(s, li, hit.bary);
+                    let p_b = bsdf_area_pdf(s, m, c.light);
+                    if p_b > 0.0 {
+                        w = luminance(c.value) / ((m_light * local_light_pdf(s, li, c.light) + m_bsdf * p_b) / m_total);
+                        candidate = Reservoir(li, hit.bary.x, hit.bary.y, 0.0, 0.0, 0.0, 0.0, 0.0);
+                    }
+                }
+            }
+        }
+        update(&r, candidate, w, 1.0, rand(rng));
     }
     return finish_ris(s, r);
 }
@@ -173,7 +239,7 @@ fn initial_candidates(s: GSurface, rng: ptr<function, Rng>, counts: ptr<function
     var directional_class = empty_reservoir();
     var sky_class = empty_reservoir();
     if params.candidates > 0u {
-        local_class = local_candidates(s, rng);
+        local_class = local_candidates(s, rng, counts);
     }
     if params.directional_candidates > 0u {
         directional_class = directional_candidates(s, rng);

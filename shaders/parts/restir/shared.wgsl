@@ -63,6 +63,12 @@ struct RestirParams {
     specular_max_roughness: f32,
     // 1: the local class's initial candidates by the light tree (gilab::light_tree).
     light_tree: u32,
+    // BSDF-sampled candidates of the local class at pixels whose roughness is below
+    // bsdf_max_roughness (0: none; parts/restir/initial_temporal.wgsl).
+    bsdf_candidates: u32,
+    bsdf_max_roughness: f32,
+    pad_a: u32,
+    pad_b: u32,
 }
 
 const VISIBILITY_PER_CLASS: u32 = 1u;

@@ -166,15 +166,27 @@ fn candidate_summary(s: &RestirSettings, f: &SceneFeatures) -> String {
     } else {
         "by power"
     };
+    // BSDF-sampled candidates join the local class where the pixel's ReGIR cell does not serve.
+    let bsdf = if s.bsdf_candidates > 0 && !(s.regir && f.many_lights) {
+        format!(
+            " + {} BSDF-sampled (a ray each) at pixels of roughness below {}, balance-heuristic MIS",
+            s.bsdf_candidates, s.bsdf_max_roughness
+        )
+    } else {
+        String::new()
+    };
     if !s.light_classes {
         return format!(
-            "one pool (light_classes = false): {local} candidates from {} lights {source}, sky only through GI rays",
+            "one pool (light_classes = false): {local} candidates from {} lights {source}{bsdf}, sky only through GI rays",
             c.local + c.directional
         );
     }
     let mut parts = Vec::new();
     parts.push(if local > 0 {
-        format!("local: {local} candidates over {} lights {source}", c.local)
+        format!(
+            "local: {local} candidates over {} lights {source}{bsdf}",
+            c.local
+        )
     } else {
         "local: none in the scene".into()
     });

@@ -37,6 +37,12 @@ pub struct RestirParamsGpu {
     pub specular_max_roughness: f32,
     /// 1: the local class's initial candidates by the light tree (`light_tree`).
     pub light_tree: u32,
+    /// BSDF-sampled candidates of the local class at glossy pixels (`bsdf_candidates`).
+    pub bsdf_candidates: u32,
+    /// Roughness below which a pixel draws them (`bsdf_candidates_max_roughness`).
+    pub bsdf_max_roughness: f32,
+    pub pad_a: u32,
+    pub pad_b: u32,
 }
 
 /// ReSTIR's parameters: docs, ranges and defaults in one place (the talk's defaults: 8 initial
@@ -237,6 +243,22 @@ const OWN_PARAMS: &[ParamSpec] = &[
         default: 0.0,
     },
     ParamSpec {
+        name: "bsdf_candidates",
+        what: "BSDF-sampled initial candidates of the local class at glossy pixels (roughness below bsdf_candidates_max_roughness), a ray each to the emitter it finds, combined with the light-sampled candidates by the balance heuristic (seed 003's light BVH for specular: a glossy lobe finds the small lights its highlight shows, which light sampling rarely picks); not where the pixel's ReGIR cell serves the candidates",
+        higher: "highlights of small lights found sooner on glossy surfaces, a candidate ray each",
+        lower: "0: light-sampled candidates only",
+        kind: ParamKind::Int { min: 0, max: 8 },
+        default: 0.0,
+    },
+    ParamSpec {
+        name: "bsdf_candidates_max_roughness",
+        what: "roughness below which a pixel draws BSDF-sampled candidates (bsdf_candidates)",
+        higher: "rougher surfaces draw them too (their lobe is wide: light sampling does well there)",
+        lower: "only near-mirror surfaces draw them",
+        kind: ParamKind::Float { min: 0.0, max: 1.0 },
+        default: 0.5,
+    },
+    ParamSpec {
         name: "regir_cell_size",
         what: "ReGIR cell edge in world units (0 = scene diagonal / 24)",
         higher: "fewer, coarser cells: pre-selection less local",
@@ -356,6 +378,9 @@ pub struct RestirSettings {
     pub regir: bool,
     /// Local candidates by the light tree (where ReGIR does not run).
     pub light_tree: bool,
+    /// BSDF-sampled local candidates at glossy pixels, and the roughness that counts as glossy.
+    pub bsdf_candidates: u32,
+    pub bsdf_max_roughness: f32,
     /// Cell edge in world units; 0 = automatic (scene diagonal / 24).
     pub regir_cell_size: f32,
     pub regir_lights_per_cell: u32,
@@ -390,6 +415,8 @@ impl RestirSettings {
             cache_light: crate::parts::world_regir::WorldRegirSettings::from_params(p),
             regir: p.bool("regir"),
             light_tree: p.bool("light_tree"),
+            bsdf_candidates: p.u32("bsdf_candidates"),
+            bsdf_max_roughness: p.f32("bsdf_candidates_max_roughness"),
             regir_cell_size: p.f32("regir_cell_size"),
             regir_lights_per_cell: p.u32("regir_lights_per_cell"),
         }
