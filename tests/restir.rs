@@ -193,7 +193,13 @@ fn reuse_lowers_single_frame_error() {
         temporal < 0.85 * none,
         "temporal reuse: {temporal} vs {none}"
     );
-    assert!(spatial < 0.85 * none, "spatial reuse: {spatial} vs {none}");
+    common::targets::check(
+        "restir-spatial-reuse-single-frame",
+        common::targets::Better::Lower,
+        0.85,
+        spatial / none,
+        "relMSE of frame 16 with spatial reuse alone over none, many-lights 64², seed 1",
+    );
     // On top of temporal reuse the spatial gain is within this test's noise (2.12 against 2.16
     // in one RNG stream, 2.19 against 2.11 in another), so only a bound is checked.
     assert!(both < 0.85 * none, "temporal + spatial: {both} vs {none}");
@@ -788,10 +794,11 @@ fn switching_the_light_tree_on_equals_starting_with_it() {
 }
 
 /// A metal floor of roughness `roughness` under an n × n grid of small lights facing down (36
-/// in all the power of 36), a grey back wall; no mirror (a delta lobe is out of DI's reach, so
-/// the reference's direct light would show what ReSTIR DI cannot). Issue 60's "glossy floor
-/// under many small lights".
-fn glossy_floor_under_small_lights(roughness: f32, n: u32) -> Scene {
+/// in all the power of 36), a grey back wall, and with `pillars` three boxes that hide lights
+/// from parts of the floor; no mirror (a delta lobe is out of DI's reach, so the reference's
+/// direct light would show what ReSTIR DI cannot). Issue 60's "glossy floor under many small
+/// lights".
+fn glossy_floor_under_small_lights(roughness: f32, n: u32, pillars: bool) -> Scene {
     use gilab::scene::{Camera, Material};
     use glam::Vec3;
     let v = Vec3::new;
@@ -842,6 +849,24 @@ fn glossy_floor_under_small_lights(roughness: f32, n: u32) -> Scene {
             );
         }
     }
+    if pillars {
+        for x in [-2.5f32, 0.0, 2.5] {
+            let (lo, hi) = (v(x - 0.3, 0.0, -1.8), v(x + 0.3, 2.2, -1.2));
+            s.add_box(
+                [
+                    v(lo.x, lo.y, lo.z),
+                    v(lo.x, lo.y, hi.z),
+                    v(hi.x, lo.y, hi.z),
+                    v(hi.x, lo.y, lo.z),
+                    v(lo.x, hi.y, lo.z),
+                    v(lo.x, hi.y, hi.z),
+                    v(hi.x, hi.y, hi.z),
+                    v(hi.x, hi.y, lo.z),
+                ],
+                wall,
+            );
+        }
+    }
     s.camera = Some(Camera {
         position: v(0.0, 1.5, 7.0),
         target: v(0.0, 0.0, -2.0),
@@ -858,36 +883,48 @@ fn glossy_floor_under_small_lights(roughness: f32, n: u32) -> Scene {
 /// the relMSE is at most 0.75 of the 8 alone, by power and by the light tree (whose importance
 /// ignores the glossy lobe). Printed beside: 16 light candidates (no rays). Unbiased: on the
 /// 36-light floor, 256 frames with them accumulate to the reference's energy within 2% (its own
-/// 1,024 spp hold about 1%).
+/// 1,024 spp hold about 1%); and with pillars that hide lights from parts of the floor, with
+/// the tree and the default reuse (temporal and spatial, 1/Z weights, which assume a reservoir
+/// covers every light point its surface could see, visible or not: the BSDF candidates' rays
+/// ignore occluders for that), 128 frames within 4% (the bound of the tree's candidates with
+/// reuse in `regir_and_the_light_tree_help_many_lights_and_regir_is_skipped_for_cornell`).
 #[test]
 fn bsdf_candidates_find_glossy_highlights_without_bias() {
     let size = [64, 64];
     let flags = FLAG_NO_PRIMARY_EMISSION;
-    let run =
-        |scene: &Scene, truth: &Image, bsdf: i64, candidates: i64, tree: bool, frames: u32| {
-            let params: toml::Table = toml::toml! { accumulate = true
-            gi = false
-            temporal = false
-            spatial_count = 0
-            regir = false
-            candidates = candidates
-            bsdf_candidates = bsdf
-            light_tree = tree };
-            let (img, rays) = render("restir", params, scene.clone(), size, frames, 1, flags);
-            assert_eq!(img.non_finite_count(), 0);
-            let m = metrics::compare(&img, truth).unwrap();
-            (
-                m.rel_mse,
-                energy(&img) / energy(truth),
-                rays.total() / frames as u64,
-            )
-        };
-    let scene = glossy_floor_under_small_lights(0.1, 32);
+    // (relMSE, energy ratio, rays a frame); initial candidates alone unless `reuse`.
+    let run = |scene: &Scene,
+               truth: &Image,
+               bsdf: i64,
+               candidates: i64,
+               tree: bool,
+               frames: u32,
+               reuse: bool| {
+        let mut params: toml::Table = toml::toml! { accumulate = true
+        gi = false
+        regir = false
+        candidates = candidates
+        bsdf_candidates = bsdf
+        light_tree = tree };
+        if !reuse {
+            params.insert("temporal".into(), false.into());
+            params.insert("spatial_count".into(), 0.into());
+        }
+        let (img, rays) = render("restir", params, scene.clone(), size, frames, 1, flags);
+        assert_eq!(img.non_finite_count(), 0);
+        let m = metrics::compare(&img, truth).unwrap();
+        (
+            m.rel_mse,
+            energy(&img) / energy(truth),
+            rays.total() / frames as u64,
+        )
+    };
+    let scene = glossy_floor_under_small_lights(0.1, 32, false);
     let truth = direct_truth(scene.clone(), size, 1024, 9, flags);
     for tree in [false, true] {
-        let (light, _, light_rays) = run(&scene, &truth, 0, 8, tree, 16);
-        let (mixed, _, mixed_rays) = run(&scene, &truth, 2, 8, tree, 16);
-        let (more, _, more_rays) = run(&scene, &truth, 0, 16, tree, 16);
+        let (light, _, light_rays) = run(&scene, &truth, 0, 8, tree, 16, false);
+        let (mixed, _, mixed_rays) = run(&scene, &truth, 2, 8, tree, 16, false);
+        let (more, _, more_rays) = run(&scene, &truth, 0, 16, tree, 16, false);
         eprintln!(
             "glossy floor, 1,024 lights, 16 frames, light candidates {}: 8 light relMSE {light:.4} ({light_rays} rays a frame), 8 light + 2 BSDF {mixed:.4} ({mixed_rays}), 16 light {more:.4} ({more_rays})",
             if tree { "by the tree" } else { "by power" }
@@ -897,9 +934,57 @@ fn bsdf_candidates_find_glossy_highlights_without_bias() {
             "BSDF candidates: relMSE {mixed} against {light} without (tree: {tree})"
         );
     }
-    let scene = glossy_floor_under_small_lights(0.1, 6);
+    let scene = glossy_floor_under_small_lights(0.1, 6, false);
     let truth = direct_truth(scene.clone(), size, 1024, 9, flags);
-    let (m, ratio, _) = run(&scene, &truth, 2, 8, false, 256);
+    let (m, ratio, _) = run(&scene, &truth, 2, 8, false, 256, false);
     eprintln!("36 lights, 8 light + 2 BSDF candidates, 256 frames: energy {ratio:.4} of the reference, relMSE {m:.3e}");
     assert!((ratio - 1.0).abs() < 0.02, "energy ratio {ratio}");
+    let scene = glossy_floor_under_small_lights(0.1, 6, true);
+    let truth = direct_truth(scene.clone(), size, 1024, 9, flags);
+    let (m, ratio, _) = run(&scene, &truth, 2, 8, true, 128, true);
+    eprintln!("36 lights and pillars, 8 tree + 2 BSDF candidates with the default reuse, 128 frames: energy {ratio:.4} of the reference, relMSE {m:.3e}");
+    assert!(
+        (ratio - 1.0).abs() < 0.04,
+        "energy ratio with reuse {ratio}"
+    );
+}
+
+/// Issue 55 (honest accuracy), found while testing issue 60's BSDF candidates: ReSTIR DI at its
+/// defaults (temporal and spatial reuse, unbiased weights; ReGIR, as the 72 emissive triangles
+/// count as many lights) on a metal floor of roughness 0.1 with pillars under 36 small lights,
+/// 64², 128 frames accumulated, against the reference's direct light. With 1/Z weights the
+/// reuse turned glossy highlights into fireflies: energy 2.228 of the reference, relMSE 0.700
+/// against 0.0247 without reuse (by power, no ReGIR: 0.849 and 0.109 against 0.0114). The
+/// balance heuristic (spatial.wgsl) keeps the energy within 4% (the tree test's bound for
+/// reuse) and the error within twice that of the initial candidates alone.
+#[test]
+fn restir_di_reuse_stays_unbiased_on_a_glossy_floor() {
+    let size = [64, 64];
+    let flags = FLAG_NO_PRIMARY_EMISSION;
+    let scene = glossy_floor_under_small_lights(0.1, 6, true);
+    let truth = direct_truth(scene.clone(), size, 1024, 9, flags);
+    let run = |reuse: bool| {
+        let mut params: toml::Table = toml::toml! { gi = false };
+        if !reuse {
+            params.insert("temporal".into(), false.into());
+            params.insert("spatial_count".into(), 0.into());
+        }
+        let (img, _) = render("restir", params, scene.clone(), size, 128, 1, flags);
+        assert_eq!(img.non_finite_count(), 0);
+        let m = metrics::compare(&img, &truth).unwrap();
+        (m.rel_mse, energy(&img) / energy(&truth))
+    };
+    let (alone, alone_energy) = run(false);
+    let (reuse, reuse_energy) = run(true);
+    eprintln!(
+        "glossy floor with pillars, 128 frames: default reuse energy {reuse_energy:.4}, relMSE {reuse:.3e}; initial candidates alone energy {alone_energy:.4}, relMSE {alone:.3e}"
+    );
+    assert!(
+        (reuse_energy - 1.0).abs() < 0.04,
+        "energy with reuse {reuse_energy}"
+    );
+    assert!(
+        reuse <= 2.0 * alone,
+        "reuse relMSE {reuse} against {alone} without"
+    );
 }

@@ -7,7 +7,8 @@
 #import gilab::scene::{light_pool, Light, tri_attr, tri_geom, tri_light_pmf, tri_uvs, material_emission, materials, tri_material, LIGHT_TRIANGLE, LIGHT_POINT, LIGHT_SPOT, LIGHT_DIRECTIONAL}
 #import gilab::sampling::sample_triangle
 #import gilab::ray::{RaySegment, spawn_ray_to, spawn_ray_to_infinity, INFINITE_DISTANCE}
-#import gilab::light_tree::{tree_sample, tree_pmf, TREE_ONE_MINUS_EPSILON}
+#import gilab::light_tree::{tree_sample, tree_pmf, tree_node, TREE_ONE_MINUS_EPSILON, TREE_MAX_DEPTH}
+#import gilab::bvh::{intersect_tri, hits_aabb, safe_inv_dir}
 
 struct LightSample {
     wi: vec3<f32>,
@@ -306,4 +307,58 @@ fn light_emitter(light_index: u32, b: vec2<f32>) -> LightEmitter {
         default: {}
     }
     return e;
+}
+
+// The nearest point along a ray where an emissive triangle of the light pool sends light back
+// (light = the pool's count: none).
+struct EmitterHit {
+    light: u32,
+    t: f32,
+    bary: vec2<f32>,
+}
+
+// Entries of trace_emitter's stack: a descent pushes at most one node per level.
+const EMITTER_STACK: u32 = TREE_MAX_DEPTH + 2u;
+
+// The nearest emitting point of a triangle light along the ray, every other surface ignored: a
+// traversal of the light tree's boxes, each widened by a thousandth of its size against
+// rounding on flat boxes (seed 003's "light BVH for specular"). A hit on a face that sends no
+// light towards the origin (the back of a one-sided emitter, a dark texel) is passed through.
+// What it finds does not depend on occluders, so the pdf of finding a light point is the
+// unshadowed one (ReSTIR's BSDF-sampled candidates rely on that); an emitting face in front of
+// another emitter hides it.
+fn trace_emitter(origin: vec3<f32>, dir: vec3<f32>) -> EmitterHit {
+    var out = EmitterHit(light_pool.count, 1e30, vec2<f32>(0.0));
+    if light_pool.local_count == 0u {
+        return out;
+    }
+    let inv_dir = safe_inv_dir(dir);
+    var stack: array<u32, EMITTER_STACK>;
+    stack[0] = 0u;
+    var top = 1u;
+    while top > 0u {
+        top -= 1u;
+        let at = stack[top];
+        let node = tree_node(at);
+        let margin = vec3<f32>(1e-3 * max(max(node.hi.x - node.lo.x, node.hi.y - node.lo.y), max(node.hi.z - node.lo.z, 1e-3)));
+        if !hits_aabb(origin, inv_dir, node.lo - margin, node.hi + margin, out.t) {
+            continue;
+        }
+        if node.leaf {
+            let light = light_pool.lights[node.index];
+            if light.kind == LIGHT_TRIANGLE {
+                let h = intersect_tri(origin, dir, light.tri);
+                if h.x > 0.0 && h.x < out.t && any(triangle_emission(light.tri, h.yz, -dir) > vec3<f32>(0.0)) {
+                    out = EmitterHit(node.index, h.x, h.yz);
+                }
+            }
+            continue;
+        }
+        if top + 2u <= EMITTER_STACK {
+            stack[top] = node.index;
+            stack[top + 1u] = at + 1u;
+            top += 2u;
+        }
+    }
+    return out;
 }

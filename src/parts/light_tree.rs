@@ -249,7 +249,7 @@ fn cone_union(a: Vec3, cos_a: f32, b: Vec3, cos_b: f32) -> (Vec3, f32) {
 /// loop on the GPU.
 pub const LIGHTCUT_STEPS: usize = 64;
 /// The most a lightcut's error bound grows over the importance near a node
-/// (`LIGHTCUT_NEAR_LIMIT` in shaders/parts/cache_light.wgsl).
+/// (`LIGHTCUT_NEAR_LIMIT` in shaders/parts/light_tree.wgsl).
 pub const LIGHTCUT_NEAR_LIMIT: f32 = 1e6;
 
 /// One node as the GPU reads it, in a light record's slot of the light pool (96 bytes, the

@@ -36,6 +36,21 @@ pub struct Unmet {
 /// --test cpu known_issues` rewrites its table.
 pub const UNMET: &[Unmet] = &[
     Unmet {
+        id: "restir-spatial-reuse-single-frame",
+        test: "`tests/restir.rs` `reuse_lowers_single_frame_error`",
+        quantity: "ReSTIR DI's frame-16 relMSE with spatial reuse alone (3 neighbours, radius 4) \
+               over no reuse, many-lights 64², seed 1, against the reference's direct light. Since \
+               the balance-heuristic reuse (2026-11-29) seed 1 reads 0.873 (1/Z read 0.850, at the \
+               bound); over seeds 1-4 the two weightings gain the same (mean 0.763 against 0.760, \
+               scratch run): this seed is at the test's noise",
+        better: Better::Lower,
+        target: 0.85,
+        ratchet: 0.88,
+        measured: 0.8730,
+        date: "2026-11-29",
+        issue: 55,
+    },
+    Unmet {
         id: "surfels-default-leak",
         test: "`tests/surfels.rs` `radial_depth_stops_light_leaking_through_thin_walls`",
         quantity:

@@ -7,10 +7,9 @@
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts, RAY_CANDIDATE}
 #import gilab::math::{PI, luminance, to_world, oct_encode}
-#import gilab::scene::{light_pool, tri_attr}
-#import gilab::lights::{LightSample, select_light, select_light_in_class, class_pdf_scale}
+#import gilab::scene::light_pool
+#import gilab::lights::{LightSample, select_light, select_light_in_class, class_pdf_scale, trace_emitter}
 #import gilab::light_tree::{tree_sample, tree_pmf}
-#import gilab::bvh::{trace_closest, NO_HIT}
 #import gilab::ray::spawn_ray_origin
 #import gilab::sampling::{sample_triangle, sample_cosine_hemisphere}
 #import gilab::brdf::{Surface, bsdf_eval, bsdf_sample}
@@ -54,11 +53,13 @@ fn bsdf_area_pdf(s: GSurface, m: Surface, l: LightSample) -> f32 {
 // light tree (`light_tree`, one descent per candidate at the pixel's point and geometric
 // normal), or the pixel's ReGIR cell. In single-pool mode: by power over every light.
 // At glossy pixels (roughness below `bsdf_max_roughness`) outside ReGIR, `bsdf_candidates`
-// more come from the BSDF: a direction sampled from the lobe and a ray to the emitter it hits
-// (seed 003's "light BVH for specular": the small lights whose highlight a glossy lobe shows,
-// which light sampling rarely picks). The two strategies are combined by the balance
-// heuristic (multiple importance RIS): each candidate's weight is its target over the
-// candidate-count-weighted mix of both pdfs, so W = w_sum / (M target) stays unbiased.
+// more come from the BSDF: a direction sampled from the lobe and a ray through the light tree
+// to the first emitter along it, occluders ignored (seed 003's "light BVH for specular": the
+// small lights whose highlight a glossy lobe shows, which light sampling rarely picks). The
+// two strategies are combined by the balance heuristic (multiple importance RIS): each
+// candidate's weight is its target over the candidate-count-weighted mix of both pdfs, so
+// W = w_sum / (M target) stays unbiased. Both pdfs are unshadowed, as the 1/Z weights of reuse
+// assume: a reservoir covers every light point its surface could see, visible or not.
 fn local_candidates(s: GSurface, rng: ptr<function, Rng>, counts: ptr<function, array<u32, 16>>) -> Reservoir {
     var r = empty_reservoir();
     let cell = regir_cell(s.pos.xyz);
@@ -119,12 +120,10 @@ fn local_candidates(s: GSurface, rng: ptr<function, Rng>, counts: ptr<function, 
         var w = 0.0;
         if bs.valid && !bs.is_delta && dot(bs.wi, geo) > 0.0 {
             (*counts)[RAY_CANDIDATE] += 1u;
-            let hit = trace_closest(spawn_ray_origin(s.pos.xyz, geo, bs.wi), bs.wi, 0.0, 1e30);
-            if hit.tri != NO_HIT {
-                // Light + 1 of an emissive triangle, 0 for any other.
-                let light = tri_attr[hit.tri].pad.y;
-                if light > 0u && light - 1u < light_pool.local_count {
-                    let li = light - 1u;
+            let hit = trace_emitter(spawn_ray_origin(s.pos.xyz, geo, bs.wi), bs.wi);
+            if hit.light < light_pool.local_count {
+                {
+                    let li = hit.light;
                     let c = contribution(s, li, hit.bary);
                     let p_b = bsdf_area_pdf(s, m, c.light);
                     if p_b > 0.0 {
@@ -285,21 +284,37 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                         let mc = max(r.m, 1.0);
                         let mp = min(pr.m, params.max_history * mc);
                         var out = empty_reservoir();
-                        update(&out, r, r.target_pdf * r.big_w * r.m, r.m, rand(&rng));
                         let tp = target_at(s, pr);
-                        update(&out, pr, tp * pr.big_w * mp, mp, rand(&rng));
-                        out.target_pdf = target_at(s, out);
-                        if out.target_pdf > 0.0 && out.m > 0.0 {
-                            var z = out.m;
-                            if params.unbiased == 1u {
-                                // 1/Z over the unshadowed support: reservoirs carry samples
-                                // that reuse brought in, occluded or not.
-                                z = r.m;
-                                if target_at(ps, out) > 0.0 {
-                                    z += mp;
-                                }
+                        if params.unbiased == 1u {
+                            // The generalized balance heuristic over the two inputs' own
+                            // surfaces (this frame's and last frame's; parts/restir/spatial.wgsl
+                            // says why not 1/Z). Targets are unshadowed: reservoirs carry samples
+                            // that reuse brought in, occluded or not.
+                            let r_prev = mp * target_at(ps, r);
+                            let r_here = r.m * r.target_pdf;
+                            let p_prev = mp * target_at(ps, pr);
+                            let p_here = r.m * tp;
+                            var w_r = 0.0;
+                            if r_here > 0.0 {
+                                w_r = r_here / (r_here + r_prev) * r.target_pdf * r.big_w;
                             }
-                            out.big_w = out.w_sum / (z * out.target_pdf);
+                            var w_p = 0.0;
+                            if p_prev > 0.0 {
+                                w_p = p_prev / (p_here + p_prev) * tp * pr.big_w;
+                            }
+                            update(&out, r, w_r, r.m, rand(&rng));
+                            update(&out, pr, w_p, mp, rand(&rng));
+                            out.target_pdf = target_at(s, out);
+                            if out.target_pdf > 0.0 {
+                                out.big_w = out.w_sum / out.target_pdf;
+                            }
+                        } else {
+                            update(&out, r, r.target_pdf * r.big_w * r.m, r.m, rand(&rng));
+                            update(&out, pr, tp * pr.big_w * mp, mp, rand(&rng));
+                            out.target_pdf = target_at(s, out);
+                            if out.target_pdf > 0.0 && out.m > 0.0 {
+                                out.big_w = out.w_sum / (out.m * out.target_pdf);
+                            }
                         }
                         r = out;
                     }

@@ -167,10 +167,16 @@ fn candidate_summary(s: &RestirSettings, f: &SceneFeatures) -> String {
         "by power"
     };
     // BSDF-sampled candidates join the local class where the pixel's ReGIR cell does not serve.
-    let bsdf = if s.bsdf_candidates > 0 && !(s.regir && f.many_lights) {
+    let bsdf = if s.bsdf_candidates > 0 {
         format!(
-            " + {} BSDF-sampled (a ray each) at pixels of roughness below {}, balance-heuristic MIS",
-            s.bsdf_candidates, s.bsdf_max_roughness
+            " + {} BSDF-sampled (a ray each through the light tree) at pixels of roughness below {}{}, balance-heuristic MIS",
+            s.bsdf_candidates,
+            s.bsdf_max_roughness,
+            if s.regir && f.many_lights {
+                " outside the ReGIR grid"
+            } else {
+                ""
+            }
         )
     } else {
         String::new()

@@ -124,7 +124,7 @@ const OWN_PARAMS: &[ParamSpec] = &[
     },
     ParamSpec {
         name: "unbiased",
-        what: "1/Z contribution weights over the unshadowed support (no candidate visibility tests)",
+        what: "unbiased contribution weights: generalized balance-heuristic MIS over the unshadowed targets of the merged reservoirs' surfaces in DI's temporal and spatial reuse and GI's spatial reuse (1/Z in GI's temporal merge); no candidate visibility tests",
         higher: "on: converges to the reference",
         lower: "off: M weights and visibility reuse, cheaper, darkens contact shadows (biased)",
         kind: ParamKind::Bool,

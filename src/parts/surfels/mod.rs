@@ -662,7 +662,7 @@ impl SurfelCore {
             s.cache_light.rays,
         ) {
             (_, _, true, n) => format!(
-                " (light by a stochastic lightcut of at most {n} tree nodes, a shadow ray each)"
+                " (light by a stochastic lightcut of at most {n} tree nodes, a shadow ray each, one more for the directional lights)"
             ),
             (true, _, _, n) => format!(
                 " (light by a reservoir of 8 candidates{})",
@@ -704,7 +704,7 @@ impl SurfelCore {
                 format!(
                     "{} directions; NEE at hits{}; surfel irradiance at hits (multi-bounce), a path where none covers the hit",
                     if s.guiding { "guided (6x6 map, mixed with cosine)" } else { "cosine" },
-                    if !lights { " skipped: no lights" } else if s.cache_light.regir && f.many_lights { " (light from the world ReGIR clipmap)" } else if s.cache_light.reservoir { " (light by a reservoir of 8 candidates)" } else { &hit_light }
+                    if !lights { " skipped: no lights" } else if s.cache_light.regir && f.many_lights { if s.cache_light.rays > 1 { " (light from the world ReGIR clipmap, picks averaged)" } else { " (light from the world ReGIR clipmap)" } } else { &hit_light }
                 ),
             ),
             pass("estimate", true, format!("each surfel's frame estimate (mean of its rays){}; radial depth {}", if s.sharing { " for irradiance sharing" } else { "" }, if s.radial_depth { "on" } else { "off" })),
