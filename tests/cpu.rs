@@ -3105,6 +3105,26 @@ fn light_tree_descent_pmf_equals_the_trail_pmf() {
     }
 }
 
+/// Irradiance at `p` (normal `n`) from one of the mixed lights, all visible, point-like:
+/// phi / d^2 times the receiving cosine, zero outside its emission cone.
+fn light_tree_test_irradiance(l: &gilab::parts::light_tree::LightBounds, p: Vec3, n: Vec3) -> f64 {
+    let d = l.centroid() - p;
+    let wi = d.normalize();
+    // Emission cone: inside the cone of normals, or within pi/2 of it for surfaces.
+    let cos_l = l.axis.dot(-wi);
+    let cos_l = if l.two_sided { cos_l.abs() } else { cos_l };
+    let emits = if l.cos_theta_o <= -1.0 {
+        1.0
+    } else if l.cos_theta_o >= 1.0 {
+        cos_l.max(0.0) as f64
+    } else if cos_l >= l.cos_theta_o {
+        1.0
+    } else {
+        0.0
+    };
+    l.phi as f64 * emits * n.dot(wi).max(0.0) as f64 / d.length_squared() as f64
+}
+
 /// Irradiance at a point from the mixed lights (all visible; point-like: phi / d^2 times the
 /// receiving cosine, zero behind a one-sided emitter), estimated by the tree's samples with a
 /// pmf: the exact sum and the estimate's mean and standard error.
@@ -3115,26 +3135,7 @@ fn light_tree_irradiance_estimate(
     n: Vec3,
     pmf_of: &dyn Fn(u32, f32) -> f32,
 ) -> (f64, f64, f64) {
-    let f = |i: usize| -> f64 {
-        let l = &lights[i];
-        let d = l.centroid() - p;
-        let d2 = d.length_squared() as f64;
-        let wi = d.normalize();
-        let cos_r = n.dot(wi).max(0.0) as f64;
-        // Emission cone: inside the cone of normals, or within pi/2 of it for surfaces.
-        let cos_l = l.axis.dot(-wi);
-        let cos_l = if l.two_sided { cos_l.abs() } else { cos_l };
-        let emits = if l.cos_theta_o <= -1.0 {
-            1.0
-        } else if l.cos_theta_o >= 1.0 {
-            cos_l.max(0.0) as f64
-        } else if cos_l >= l.cos_theta_o {
-            1.0
-        } else {
-            0.0
-        };
-        l.phi as f64 * emits * cos_r / d2
-    };
+    let f = |i: usize| light_tree_test_irradiance(&lights[i], p, n);
     let exact: f64 = (0..lights.len()).map(f).sum();
     let (mut sum, mut sum2, n_samples) = (0.0f64, 0.0f64, 200_000);
     for k in 0..n_samples {
@@ -3212,23 +3213,7 @@ fn light_tree_lightcut_covers_every_light_once_and_is_unbiased() {
     use gilab::parts::light_tree::LightTree;
     let (lights, geometry) = light_tree_test_lights();
     let tree = LightTree::build(&lights);
-    let f = |i: u32, p: Vec3, n: Vec3| -> f64 {
-        let l = &lights[i as usize];
-        let d = l.centroid() - p;
-        let wi = d.normalize();
-        let cos_l = l.axis.dot(-wi);
-        let cos_l = if l.two_sided { cos_l.abs() } else { cos_l };
-        let emits = if l.cos_theta_o <= -1.0 {
-            1.0
-        } else if l.cos_theta_o >= 1.0 {
-            cos_l.max(0.0) as f64
-        } else if cos_l >= l.cos_theta_o {
-            1.0
-        } else {
-            0.0
-        };
-        l.phi as f64 * emits * n.dot(wi).max(0.0) as f64 / d.length_squared() as f64
-    };
+    let f = |i: u32, p: Vec3, n: Vec3| light_tree_test_irradiance(&lights[i as usize], p, n);
     // Mean and variance of one descent's estimate below node `at` (stratified u).
     let node_estimate = |at: usize, p: Vec3, n: Vec3| -> (f64, f64) {
         let samples = 100_000;
