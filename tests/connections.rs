@@ -209,25 +209,43 @@ fn furnace_with_each_termination() {
     }
 }
 
-/// Hard cases stay finite with each cache; the same seed gives the same image twice.
+/// Hard cases stay finite with each cache; the same seed gives the same image twice. Hot
+/// reload watches the cache's end-of-path module (added to ReSTIR GI's pass as an additional
+/// import, which no entry file imports): an edit to it rebuilds the engine, an edit to another
+/// cache's does not.
 #[test]
 fn cache_terminations_are_finite_and_deterministic() {
-    for terminate in ["lumen-cards", "lumen-world", "surfels", "hash-cache"] {
+    let ends = [
+        ("lumen-cards", "parts/surface_cache/path_end.wgsl"),
+        ("lumen-world", "parts/world_cache/path_end.wgsl"),
+        ("surfels", "parts/surfels/path_end.wgsl"),
+        ("hash-cache", "parts/hash_cache/path_end.wgsl"),
+    ];
+    let shaders = gilab::gpu::shaders::ShaderLibrary::discover();
+    for (terminate, end_file) in ends {
         let run_once = || {
-            let (img, _, _) = run(
+            run(
                 params(terminate, 1),
                 builtin::hard_cases(1e6),
                 [48, 48],
                 4,
                 4,
                 7,
-            );
-            img
+            )
         };
-        let a = run_once();
+        let (a, _, engine) = run_once();
         assert_eq!(a.non_finite_count(), 0, "{terminate}, hard-cases: NaN/Inf");
-        let b = run_once();
+        let (b, _, _) = run_once();
         assert_eq!(a.rgb, b.rgb, "{terminate}: same seed, different image");
+        for (_, other) in ends {
+            let watched = engine.uses_any_shader(&shaders.dependents(other).unwrap());
+            assert_eq!(
+                watched,
+                other == end_file,
+                "{terminate}: hot reload of {other} (entries {:?})",
+                engine.shader_entries()
+            );
+        }
     }
 }
 

@@ -20,7 +20,7 @@
 #import gilab::sky::sky_radiance
 #ifdef DDGI_HASH_CACHE
 #import gilab::hash_cache::{hash_lookup, cell_size_at, cache_albedo, cacheable}
-#import gilab::hash_cache_path_end::lookup_outcome
+#import gilab::hash_cache_outcome::lookup_outcome
 #import gilab::counters::count_cache_lookup
 #endif
 #import gilab::ddgi::{params, ray_results, probes_per_cascade, rays_per_probe, probe_position, probe_active, ray_direction, ddgi_gather, has_flag, FIXED_RAYS, MISS_DISTANCE, FLAG_MULTI_BOUNCE}

@@ -18,7 +18,7 @@
 #import gilab::accumulate::accumulate_sample
 #import gilab::hash_cache::{hash_lookup, cell_size_at, cache_albedo, cell_key, cell_level, cacheable}
 #import gilab::math::luminance
-#import gilab::hash_cache_path_end::lookup_outcome
+#import gilab::hash_cache_outcome::lookup_outcome
 
 struct ShadeSettings {
     // 1: average frames (converging); 0: each frame alone.

@@ -11,7 +11,7 @@
 
 use include_dir::{include_dir, Dir};
 use naga_oil::compose::{
-    get_preprocessor_data, ComposableModuleDescriptor, Composer, ComposerError,
+    get_preprocessor_data, ComposableModuleDescriptor, Composer, ComposerError, ImportDefinition,
     NagaModuleDescriptor, ShaderDefValue, ShaderLanguage, ShaderType,
 };
 use std::collections::{BTreeMap, HashSet};
@@ -105,6 +105,10 @@ pub struct ShaderLibrary {
     /// Defs a technique adds for some of its pipelines (`with_defs`): a part plugged in at
     /// build time, such as a cache lookup, and the bind group its bindings sit at.
     pub pipeline_defs: Vec<(String, u32)>,
+    /// Modules a technique adds to some of its pipelines (`with_imports`) as naga_oil
+    /// additional imports: a part's `override fn` of a virtual one (a cache's end of a path,
+    /// `GiCache::path_end`), which a plain `#import` would not apply.
+    pub pipeline_imports: Vec<String>,
 }
 
 impl ShaderLibrary {
@@ -131,6 +135,7 @@ impl ShaderLibrary {
             source: ShaderSource::Embedded,
             variant: ShaderVariant::default(),
             pipeline_defs: Vec::new(),
+            pipeline_imports: Vec::new(),
         }
     }
 
@@ -158,6 +163,18 @@ impl ShaderLibrary {
             out.pipeline_defs.push((name.to_string(), *value));
         }
         out.pipeline_defs.sort();
+        out
+    }
+
+    /// The same sources, variant and defs with these modules added as additional imports.
+    pub fn with_imports(&self, modules: &[&str]) -> ShaderLibrary {
+        let mut out = self.clone();
+        for m in modules {
+            if !out.pipeline_imports.iter().any(|n| n == m) {
+                out.pipeline_imports.push(m.to_string());
+            }
+        }
+        out.pipeline_imports.sort();
         out
     }
 
@@ -198,6 +215,8 @@ impl ShaderLibrary {
             .map(|(k, v)| format!("{k}={v:?}"))
             .collect();
         names.sort();
+        // The additional imports change the module too: they belong to its cache key.
+        names.extend(self.pipeline_imports.iter().map(|m| format!("+{m}")));
         names
     }
 
@@ -239,7 +258,7 @@ impl ShaderLibrary {
     pub fn compose_versioned(&self, entry: &str) -> Result<Composed, ShaderError> {
         let files = self.files()?;
         let defs = self.def_names();
-        let version = source_version(&files, entry, &defs);
+        let version = source_version(&files, entry, &defs, &self.pipeline_imports);
         let key = (entry.to_string(), defs);
         if let Some((v, module)) = COMPOSED
             .lock()
@@ -277,15 +296,24 @@ impl ShaderLibrary {
         let mut composer = Composer::default();
         let mut added = HashSet::new();
         let (_, imports, _) = get_preprocessor_data(source);
-        for import in imports {
+        let imports = imports.into_iter().map(|i| i.import);
+        for import in imports.chain(self.pipeline_imports.iter().cloned()) {
             add_module_recursive(
                 &mut composer,
                 &modules,
-                &import.import,
+                &import,
                 &mut added,
                 &mut Vec::new(),
             )?;
         }
+        let additional_imports: Vec<ImportDefinition> = self
+            .pipeline_imports
+            .iter()
+            .map(|m| ImportDefinition {
+                import: m.clone(),
+                items: Vec::new(),
+            })
+            .collect();
         let file_path = format!("shaders/{entry}");
         composer
             .make_naga_module(NagaModuleDescriptor {
@@ -293,39 +321,63 @@ impl ShaderLibrary {
                 file_path: &file_path,
                 shader_type: ShaderType::Wgsl,
                 shader_defs: self.defs(),
-                ..Default::default()
+                additional_imports: &additional_imports,
             })
             .map_err(|e| composer_error(&composer, &e))
     }
 
-    /// Entry files that import (directly or not) the given file: what hot reload must rebuild.
+    /// Files that are, or import (directly or not), the given file: what hot reload must
+    /// rebuild. Entry files, and the modules a pipeline adds by `with_imports` (which no entry
+    /// imports: an engine records them beside its entries, `import_files`).
     pub fn dependents(&self, changed: &str) -> Result<Vec<String>, ShaderError> {
         let files = self.files()?;
         let modules = modules_of(&files);
         let mut out = Vec::new();
-        for entry in self.entry_files()? {
+        for (file, source) in &files {
             let imports_changed = || {
-                import_closure(&modules, &files[&entry])
+                import_closure(&modules, source, &self.pipeline_imports)
                     .iter()
                     .any(|name| modules[name].0 == changed)
             };
-            if entry == changed || imports_changed() {
-                out.push(entry);
+            if file == changed || imports_changed() {
+                out.push(file.clone());
             }
         }
         Ok(out)
     }
+
+    /// The files of the modules added by `with_imports`, which hot reload watches like the
+    /// entry files (`pipelines::recording_entries`).
+    pub fn import_files(&self) -> Vec<String> {
+        if self.pipeline_imports.is_empty() {
+            return Vec::new();
+        }
+        let Ok(files) = self.files() else {
+            return Vec::new();
+        };
+        let modules = modules_of(&files);
+        self.pipeline_imports
+            .iter()
+            .filter_map(|m| resolve_module(&modules, m))
+            .map(|name| modules[&name].0.clone())
+            .collect()
+    }
 }
 
 /// A hash of `entry`'s source, every module it imports (directly or not) and `defs`.
-fn source_version(files: &BTreeMap<String, String>, entry: &str, defs: &[String]) -> u64 {
+fn source_version(
+    files: &BTreeMap<String, String>,
+    entry: &str,
+    defs: &[String],
+    extra_imports: &[String],
+) -> u64 {
     use std::hash::{Hash, Hasher};
     let mut hasher = std::collections::hash_map::DefaultHasher::new();
     (entry, defs).hash(&mut hasher);
     if let Some(source) = files.get(entry) {
         source.hash(&mut hasher);
         let modules = modules_of(files);
-        for name in import_closure(&modules, source) {
+        for name in import_closure(&modules, source, extra_imports) {
             modules[&name].hash(&mut hasher);
         }
     }
@@ -343,16 +395,18 @@ fn modules_of(files: &BTreeMap<String, String>) -> BTreeMap<String, (String, Str
     modules
 }
 
-/// The modules `source` imports, directly or not, in name order.
+/// The modules `source` and `extra_imports` import, directly or not, in name order.
 fn import_closure(
     modules: &BTreeMap<String, (String, String)>,
     source: &str,
+    extra_imports: &[String],
 ) -> std::collections::BTreeSet<String> {
     let mut seen = std::collections::BTreeSet::new();
     let mut stack: Vec<String> = get_preprocessor_data(source)
         .1
         .into_iter()
         .map(|i| i.import)
+        .chain(extra_imports.iter().cloned())
         .collect();
     while let Some(import) = stack.pop() {
         let Some(name) = resolve_module(modules, &import) else {

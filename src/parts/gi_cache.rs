@@ -1,7 +1,8 @@
 //! The one interface of a radiance cache that GI sample paths end in (ReSTIR GI's
 //! `gi_terminate`, in `restir` and `callisto-shadows`): the holder builds it, records its passes
 //! inside the frame that reads it, and composes its reading pass with the cache's shader defs
-//! (`common/path.wgsl`'s termination and the lookup's bind group), binding the cache's lookup.
+//! (`common/path.wgsl`'s termination and the lookup's bind group) and its end-of-path module
+//! (which overrides `gilab::path_end::end_path`), binding the cache's lookup.
 //! Implemented by the surface cache (`lumen-cards`, `lumen-world`) and the surfel cache
 //! (`surfels`). A new cache implements this trait, declares its [`CacheKind`] in its own folder
 //! and adds one line to [`CACHES`]: its `gi_terminate` name, the parameter's choices and the
@@ -80,6 +81,11 @@ pub trait GiCache {
     /// Shader defs of a pass that reads the cache with its lookup at bind group `group`, and
     /// the lookup's layout.
     fn reader(&self, gpu: &Gpu, group: u32) -> (Vec<(&'static str, u32)>, wgpu::BindGroupLayout);
+
+    /// The module (in the cache's own shader folder) whose `override fn
+    /// gilab::path_end::end_path` ends a reader's paths in this cache; the reader's pipeline
+    /// adds it as an additional import (`ShaderLibrary::with_imports`).
+    fn path_end(&self) -> &'static str;
 
     /// The world ReGIR clipmap's lookup counts (`cache_direct = "regir"`; tests).
     fn cache_regir_coverage(&self, gpu: &Gpu) -> Result<Coverage>;

@@ -429,10 +429,11 @@ impl crate::parts::gi_cache::GiCache for HashCache {
     }
 
     fn reader(&self, gpu: &Gpu, group: u32) -> (Vec<(&'static str, u32)>, wgpu::BindGroupLayout) {
-        (
-            vec![("GI_TERMINATE_HASH", 1), lookup_defs(group)[0]],
-            lookup_layout(gpu),
-        )
+        (vec![lookup_defs(group)[0]], lookup_layout(gpu))
+    }
+
+    fn path_end(&self) -> &'static str {
+        "gilab::hash_cache_path_end"
     }
 
     fn cache_regir_coverage(&self, _gpu: &Gpu) -> Result<crate::parts::world_regir::Coverage> {

@@ -148,10 +148,11 @@ impl crate::parts::gi_cache::GiCache for SurfelCache {
     }
 
     fn reader(&self, gpu: &Gpu, group: u32) -> (Vec<(&'static str, u32)>, wgpu::BindGroupLayout) {
-        (
-            vec![("GI_TERMINATE_SURFELS", 1), lookup_defs(group)[0]],
-            SurfelCache::lookup_layout(gpu),
-        )
+        (vec![lookup_defs(group)[0]], SurfelCache::lookup_layout(gpu))
+    }
+
+    fn path_end(&self) -> &'static str {
+        "gilab::surfels_path_end"
     }
 
     fn cache_regir_coverage(&self, gpu: &Gpu) -> Result<crate::parts::world_regir::Coverage> {

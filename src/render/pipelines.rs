@@ -88,6 +88,9 @@ pub fn compute_pipeline_at(
 ) -> Result<wgpu::ComputePipeline> {
     PIPELINES_REQUESTED.with(|c| c.set(c.get() + 1));
     note_entry(entry);
+    for file in shaders.import_files() {
+        note_entry(&file);
+    }
     let composed = shaders
         .compose_versioned(entry)
         .map_err(|e| anyhow!("{e}"))?;

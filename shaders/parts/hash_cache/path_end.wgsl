@@ -5,19 +5,14 @@
 // end, unbiased there.
 #define_import_path gilab::hash_cache_path_end
 
+#import gilab::path_end
 #import gilab::rng::Rng
 #import gilab::surface_point::HitSurface
-#import gilab::primary::camera_sees
-#import gilab::counters::{CACHE_ENTRY, CACHE_MISS, CACHE_UNSEEN}
+#import gilab::hash_cache_outcome::lookup_outcome
 #import gilab::path_vertex::{PathEnd, path_not_ended}
 #import gilab::hash_cache::{hash_lookup, cell_size_at, cache_albedo, cacheable}
 
-// Lookup outcome for the counters, split by whether the camera sees the hit.
-fn lookup_outcome(p: vec3<f32>, found: bool) -> u32 {
-    return select(CACHE_MISS, CACHE_ENTRY, found) + select(CACHE_UNSEEN, 0u, camera_sees(p));
-}
-
-fn end_path(surf: HitSurface, wo: vec3<f32>, tri: u32, t: f32, throughput: vec3<f32>, p_sky: f32, candidates: u32, rng: ptr<function, Rng>) -> PathEnd {
+override fn gilab::path_end::end_path(surf: HitSurface, wo: vec3<f32>, tri: u32, t: f32, throughput: vec3<f32>, p_sky: f32, candidates: u32, rng: ptr<function, Rng>) -> PathEnd {
     if t <= cell_size_at(surf.position) || !cacheable(surf.material) {
         return path_not_ended(0u);
     }

@@ -5,13 +5,14 @@
 // and unbiased, the cache's one power-sampled light per texel is coarse.
 #define_import_path gilab::surface_cache_path_end
 
+#import gilab::path_end
 #import gilab::math::INV_PI
 #import gilab::rng::Rng
 #import gilab::surface_point::HitSurface
 #import gilab::surface_cache::cache_at_hit
 #import gilab::path_vertex::{PathEnd, next_event}
 
-fn end_path(surf: HitSurface, wo: vec3<f32>, tri: u32, t: f32, throughput: vec3<f32>, p_sky: f32, candidates: u32, rng: ptr<function, Rng>) -> PathEnd {
+override fn gilab::path_end::end_path(surf: HitSurface, wo: vec3<f32>, tri: u32, t: f32, throughput: vec3<f32>, p_sky: f32, candidates: u32, rng: ptr<function, Rng>) -> PathEnd {
     let direct = next_event(surf, wo, rng, p_sky, false, candidates);
     var e = PathEnd(true, throughput * direct.radiance, vec3<f32>(0.0), direct.shadow_rays, 0u, 0u);
     let c = cache_at_hit(tri, surf.position, surf.geo_normal, t);

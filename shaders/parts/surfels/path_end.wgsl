@@ -5,6 +5,7 @@
 // albedo. Off screen no surfel covers a hit: the path is traced on to the end, unbiased there.
 #define_import_path gilab::surfels_path_end
 
+#import gilab::path_end
 #import gilab::math::INV_PI
 #import gilab::frame::frame
 #import gilab::rng::Rng
@@ -13,7 +14,7 @@
 #import gilab::surfels::{gather, gather_covers, gather_outcome, gathered_irradiance, grid_center_for}
 #import gilab::path_vertex::{PathEnd, next_event, path_not_ended}
 
-fn end_path(surf: HitSurface, wo: vec3<f32>, tri: u32, t: f32, throughput: vec3<f32>, p_sky: f32, candidates: u32, rng: ptr<function, Rng>) -> PathEnd {
+override fn gilab::path_end::end_path(surf: HitSurface, wo: vec3<f32>, tri: u32, t: f32, throughput: vec3<f32>, p_sky: f32, candidates: u32, rng: ptr<function, Rng>) -> PathEnd {
     let g = gather(surf.position, surf.normal, grid_center_for(frame.camera_pos.xyz), false);
     let outcome = gather_outcome(g, surf.position);
     if !gather_covers(g) {

@@ -7,6 +7,7 @@
 // cache, or sky). Emitters the ray meets add nothing: NEE counted them.
 #define_import_path gilab::world_cache_path_end
 
+#import gilab::path_end
 #import gilab::math::INV_PI
 #import gilab::rng::{Rng, rand, rand_pair}
 #import gilab::surface_point::HitSurface
@@ -20,7 +21,7 @@
 #import gilab::world_cache::{world_lookup, world_tmin_at}
 #import gilab::path_vertex::{PathEnd, next_event}
 
-fn end_path(surf: HitSurface, wo: vec3<f32>, tri: u32, t: f32, throughput: vec3<f32>, p_sky: f32, candidates: u32, rng: ptr<function, Rng>) -> PathEnd {
+override fn gilab::path_end::end_path(surf: HitSurface, wo: vec3<f32>, tri: u32, t: f32, throughput: vec3<f32>, p_sky: f32, candidates: u32, rng: ptr<function, Rng>) -> PathEnd {
     let direct = next_event(surf, wo, rng, 0.0, false, candidates);
     var e = PathEnd(true, throughput * direct.radiance, vec3<f32>(0.0), direct.shadow_rays, 0u, 0u);
     let m = surf.material;

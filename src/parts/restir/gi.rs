@@ -141,11 +141,14 @@ impl RestirLighting {
         };
         let built = cache.build(ctx).and_then(|()| {
             let (mut defs, lookup_layout) = cache.reader(ctx.gpu, CACHE_GROUP);
-            // GI_TERMINATE: the path ends in a cache (gilab::path_end); the cache's own def
-            // picks which.
+            // GI_TERMINATE: the path ends in a cache (gilab::path_end), the one whose module
+            // overrides its `end_path`.
             defs.push(("GI_TERMINATE", 1));
             defs.extend_from_slice(gi_defs(self.settings.light_tree));
-            let shaders = ctx.shaders.with_defs(&defs);
+            let shaders = ctx
+                .shaders
+                .with_defs(&defs)
+                .with_imports(&[cache.path_end()]);
             let layout = self.layout(ctx.gpu).clone();
             pipelines::compute_pipeline(
                 ctx.gpu,

@@ -1103,18 +1103,19 @@ impl crate::parts::gi_cache::GiCache for SurfaceCache {
 
     fn reader(&self, gpu: &Gpu, group: u32) -> (Vec<(&'static str, u32)>, wgpu::BindGroupLayout) {
         let world = self.has_world();
-        let mut defs = vec![
-            if world {
-                ("GI_TERMINATE_WORLD", 1)
-            } else {
-                ("GI_TERMINATE_CACHE", 1)
-            },
-            lookup_defs(group)[0],
-        ];
+        let mut defs = vec![lookup_defs(group)[0]];
         if world {
             defs.push(crate::parts::world_cache::lookup_defs(group)[0]);
         }
         (defs, SurfaceCache::lookup_layout(gpu, world))
+    }
+
+    fn path_end(&self) -> &'static str {
+        if self.has_world() {
+            "gilab::world_cache_path_end"
+        } else {
+            "gilab::surface_cache_path_end"
+        }
     }
 
     fn cache_regir_coverage(&self, gpu: &Gpu) -> Result<crate::parts::world_regir::Coverage> {
