@@ -209,6 +209,35 @@ fn furnace_with_each_termination() {
     }
 }
 
+/// The ambient cache (`gi_terminate = "ambient"`, the worked example of adding a cache,
+/// docs/parts.md) has a closed form in the white furnace (albedo a, emission Le): the pixel's
+/// emission, its direct light a Le, and a GI path that ends at its first hit with the lights'
+/// NEE there (a Le) plus the ambient term a S (S the sky's mean radiance, which the closed
+/// sphere never sees): Le (1 + a + a²) + a² S. With S = 0 it is the path cut after two
+/// bounces; with S = 2 the ambient term is added once. Regardless of frames: nothing warms up.
+#[test]
+fn ambient_cache_ends_the_furnace_at_its_closed_form() {
+    let (albedo, emission) = (0.8f64, 1.0f64);
+    for sky in [0.0f64, 2.0] {
+        let mut scene = builtin::furnace(albedo as f32, emission as f32, 1);
+        scene.sky = glam::Vec3::splat(sky as f32);
+        let mut p = params("ambient", 1);
+        p.insert("regir".into(), false.into());
+        let (img, rpp, _) = run(p, scene, [32, 32], 0, 16, 1);
+        let v = energy(&img);
+        let expected = emission * (1.0 + albedo + albedo * albedo) + albedo * albedo * sky;
+        eprintln!(
+            "furnace, gi_terminate = ambient, sky {sky}: {v:.4} vs {expected:.4} ({:+.2}%), {rpp:.2} rays/px/frame",
+            (v / expected - 1.0) * 100.0
+        );
+        assert!(
+            (v / expected - 1.0).abs() < 0.01,
+            "sky {sky}: {v} vs {expected}"
+        );
+        assert_eq!(img.non_finite_count(), 0);
+    }
+}
+
 /// Hard cases stay finite with each cache; the same seed gives the same image twice. Hot
 /// reload watches the cache's end-of-path module (added to ReSTIR GI's pass as an additional
 /// import, which no entry file imports): an edit to it rebuilds the engine, an edit to another
@@ -220,6 +249,7 @@ fn cache_terminations_are_finite_and_deterministic() {
         ("lumen-world", "parts/world_cache/path_end.wgsl"),
         ("surfels", "parts/surfels/path_end.wgsl"),
         ("hash-cache", "parts/hash_cache/path_end.wgsl"),
+        ("ambient", "parts/ambient_cache/path_end.wgsl"),
     ];
     let shaders = gilab::gpu::shaders::ShaderLibrary::discover();
     for (terminate, end_file) in ends {

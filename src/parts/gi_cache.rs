@@ -56,6 +56,7 @@ pub const CACHES: &[CacheKind] = &[
     crate::parts::surface_cache::WORLD,
     crate::parts::surfel_cache::KIND,
     crate::parts::hash_cache::KIND,
+    crate::parts::ambient_cache::KIND,
 ];
 
 pub trait GiCache {

@@ -50,6 +50,7 @@ use crate::gpu::Gpu;
 use crate::render::RenderContext;
 use anyhow::Result;
 
+pub mod ambient_cache;
 pub mod gi_cache;
 pub mod hash_cache;
 pub mod light_tree;

@@ -166,8 +166,8 @@ const OWN_PARAMS: &[ParamSpec] = &[
     },
     ParamSpec {
         name: "gi_terminate",
-        what: "where ReSTIR GI's sample paths end when gi is on, as in the restir technique: traced to the end, or at their first hit in Lumen's surface cache, Lumen's world radiance cache or the surfels (the cache parts, with restir's default atlas, update share and surfel ray budget)",
-        higher: "lumen-cards, lumen-world or surfels: multi-bounce light at about one bounce's price, biased by the cache",
+        what: "where ReSTIR GI's sample paths end when gi is on, as in the restir technique: traced to the end, or at their first hit in one of the caches restir's gi_terminate lists (the cache parts, with restir's default atlas, update share and surfel ray budget)",
+        higher: "a cache: multi-bounce light at about one bounce's price, biased by the cache",
         lower: "path: unbiased, every bounce traced",
         kind: ParamKind::Choice(&crate::parts::restir::GiTerminate::NAMES),
         default: 0.0,
