@@ -851,20 +851,7 @@ fn glossy_floor_under_small_lights(roughness: f32, n: u32, pillars: bool) -> Sce
     }
     if pillars {
         for x in [-2.5f32, 0.0, 2.5] {
-            let (lo, hi) = (v(x - 0.3, 0.0, -1.8), v(x + 0.3, 2.2, -1.2));
-            s.add_box(
-                [
-                    v(lo.x, lo.y, lo.z),
-                    v(lo.x, lo.y, hi.z),
-                    v(hi.x, lo.y, hi.z),
-                    v(hi.x, lo.y, lo.z),
-                    v(lo.x, hi.y, lo.z),
-                    v(lo.x, hi.y, hi.z),
-                    v(hi.x, hi.y, hi.z),
-                    v(hi.x, hi.y, lo.z),
-                ],
-                wall,
-            );
+            s.add_aabb(v(x - 0.3, 0.0, -1.8), v(x + 0.3, 2.2, -1.2), wall);
         }
     }
     s.camera = Some(Camera {

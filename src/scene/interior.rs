@@ -68,27 +68,11 @@ pub fn interior(lights: u32) -> Result<Scene> {
         v(w, h, 0.0),
         plaster,
     );
-    let cuboid = |s: &mut Scene, lo: Vec3, hi: Vec3, m: u32| {
-        s.add_box(
-            [
-                v(lo.x, lo.y, lo.z),
-                v(lo.x, lo.y, hi.z),
-                v(hi.x, lo.y, hi.z),
-                v(hi.x, lo.y, lo.z),
-                v(lo.x, hi.y, lo.z),
-                v(lo.x, hi.y, hi.z),
-                v(hi.x, hi.y, hi.z),
-                v(hi.x, hi.y, lo.z),
-            ],
-            m,
-        )
-    };
     // Two rows of four pillars, 0.6 m square.
     let mut pillars = Vec::new();
     for row in [4.0f32, 8.0] {
         for col in [3.2f32, 6.4, 9.6, 12.8] {
-            cuboid(
-                &mut s,
+            s.add_aabb(
                 v(col - 0.3, 0.0, row - 0.3),
                 v(col + 0.3, h, row + 0.3),
                 stone,
@@ -103,8 +87,7 @@ pub fn interior(lights: u32) -> Result<Scene> {
         (11.0, 10.5, 1.0),
         (14.5, 6.5, 0.8),
     ] {
-        cuboid(
-            &mut s,
+        s.add_aabb(
             v(x - size * 0.5, 0.0, z - size * 0.5),
             v(x + size * 0.5, size, z + size * 0.5),
             wood,
@@ -180,7 +163,7 @@ pub fn interior(lights: u32) -> Result<Scene> {
         v(2.0 + 12.0 * u, 0.0, 6.0)
     };
     let sliding = motion.object(&mut s, at(crate_at(0.0)), |s| {
-        cuboid(s, v(-0.45, 0.0, -0.45), v(0.45, 0.9, 0.45), wood)
+        s.add_aabb(v(-0.45, 0.0, -0.45), v(0.45, 0.9, 0.45), wood)
     })?;
     motion.track(
         sliding,

@@ -387,6 +387,24 @@ impl Scene {
         self.add_triangle([a, c, d], material);
     }
 
+    /// The axis-aligned box from corner `lo` to corner `hi`; faces wound outward.
+    pub fn add_aabb(&mut self, lo: Vec3, hi: Vec3, material: u32) {
+        let v = Vec3::new;
+        self.add_box(
+            [
+                v(lo.x, lo.y, lo.z),
+                v(lo.x, lo.y, hi.z),
+                v(hi.x, lo.y, hi.z),
+                v(hi.x, lo.y, lo.z),
+                v(lo.x, hi.y, lo.z),
+                v(lo.x, hi.y, hi.z),
+                v(hi.x, hi.y, hi.z),
+                v(hi.x, hi.y, lo.z),
+            ],
+            material,
+        );
+    }
+
     /// Axis-aligned-then-transformed box given by 8 corners; faces wound outward.
     pub fn add_box(&mut self, corners: [Vec3; 8], material: u32) {
         // corners: bottom 0..4 (ccw seen from above), top 4..8 above them.

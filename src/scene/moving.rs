@@ -114,19 +114,7 @@ pub fn moving() -> Result<Scene> {
     let (door_closed, door_open) = (v(3.0, 0.0, l - 0.08), v(1.0, 0.0, l - 0.08));
     let door = motion.object(&mut s, at(door_closed), |s| {
         let (a, b, t) = (1.0f32, 3.02f32, 0.04f32);
-        s.add_box(
-            [
-                v(-a, 0.0, -t),
-                v(-a, 0.0, t),
-                v(a, 0.0, t),
-                v(a, 0.0, -t),
-                v(-a, b, -t),
-                v(-a, b, t),
-                v(a, b, t),
-                v(a, b, -t),
-            ],
-            wood,
-        );
+        s.add_aabb(v(-a, 0.0, -t), v(a, b, t), wood);
     })?;
     let p = |x: Vec3| x.extend(0.0);
     motion.track(
