@@ -20,6 +20,11 @@ pub struct LightClasses {
     pub local: usize,
     pub directional: usize,
     pub sky: bool,
+    /// Emissive triangles: the local lights a ray can hit (BSDF-sampled candidates find
+    /// nothing else).
+    pub emissive: usize,
+    /// The lowest roughness of a specular lobe in the scene (none: no lobe).
+    pub min_specular_roughness: Option<f32>,
 }
 
 impl LightClasses {
@@ -28,7 +33,34 @@ impl LightClasses {
             local: f.emissive_triangle_count + f.point_lights + f.spot_lights,
             directional: f.directional_lights,
             sky: f.sky_visible,
+            emissive: f.emissive_triangle_count,
+            min_specular_roughness: f.min_specular_roughness,
         }
+    }
+}
+
+/// BSDF-sampled candidates a glossy pixel draws (rule 3): none where no ray can find an
+/// emitter (the local lights are all point or spot lights) or no surface is glossy enough
+/// (no specular lobe below `bsdf_candidates_max_roughness`).
+pub fn bsdf_candidates_for(s: &RestirSettings, c: &LightClasses) -> u32 {
+    let glossy = c
+        .min_specular_roughness
+        .is_some_and(|r| r < s.bsdf_max_roughness);
+    if c.emissive > 0 && glossy {
+        s.bsdf_candidates
+    } else {
+        0
+    }
+}
+
+/// Why a scene draws no BSDF-sampled candidates although `bsdf_candidates` asks for them.
+fn bsdf_candidates_skipped(s: &RestirSettings, c: &LightClasses) -> Option<&'static str> {
+    if s.bsdf_candidates == 0 || bsdf_candidates_for(s, c) > 0 {
+        None
+    } else if c.emissive == 0 {
+        Some(" (no BSDF-sampled candidates: no emissive triangle for a ray to find)")
+    } else {
+        Some(" (no BSDF-sampled candidates: no surface below bsdf_candidates_max_roughness)")
     }
 }
 
@@ -167,7 +199,9 @@ fn candidate_summary(s: &RestirSettings, f: &SceneFeatures) -> String {
         "by power"
     };
     // BSDF-sampled candidates join the local class where the pixel's ReGIR cell does not serve.
-    let bsdf = if s.bsdf_candidates > 0 {
+    let bsdf = if let Some(why) = bsdf_candidates_skipped(s, &c) {
+        why.to_string()
+    } else if bsdf_candidates_for(s, &c) > 0 {
         format!(
             " + {} BSDF-sampled (a ray each through the light tree) at pixels of roughness below {}{}, balance-heuristic MIS",
             s.bsdf_candidates,
@@ -226,4 +260,47 @@ fn candidate_summary(s: &RestirSettings, f: &SceneFeatures) -> String {
         "RIS per light class ({}), merged before visibility, {test}",
         parts.join("; ")
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Rule 3 for BSDF-sampled candidates: drawn only where a ray can find an emitter and some
+    /// surface is glossy enough to draw them; the pass list says why they are not.
+    #[test]
+    fn bsdf_candidates_run_only_where_a_ray_can_find_an_emitter_on_a_glossy_surface() {
+        let mut s = RestirSettings::from_params(&crate::render::params::Params::new(
+            "restir",
+            super::super::PARAMS,
+        ));
+        s.bsdf_candidates = 2;
+        s.bsdf_max_roughness = 0.5;
+        let classes = |emissive: usize, points: usize, rough: Option<f32>| LightClasses {
+            local: emissive + points,
+            directional: 0,
+            sky: false,
+            emissive,
+            min_specular_roughness: rough,
+        };
+        assert_eq!(bsdf_candidates_for(&s, &classes(8, 0, Some(0.1))), 2);
+        assert_eq!(bsdf_candidates_for(&s, &classes(8, 4, Some(0.49))), 2);
+        // Point lights only: a ray finds nothing.
+        let points = classes(0, 4, Some(0.1));
+        assert_eq!(bsdf_candidates_for(&s, &points), 0);
+        assert!(bsdf_candidates_skipped(&s, &points)
+            .unwrap()
+            .contains("emissive"));
+        // No surface below the roughness limit, or no specular lobe at all.
+        let rough = classes(8, 0, Some(0.5));
+        assert_eq!(bsdf_candidates_for(&s, &rough), 0);
+        assert!(bsdf_candidates_skipped(&s, &rough)
+            .unwrap()
+            .contains("roughness"));
+        assert_eq!(bsdf_candidates_for(&s, &classes(8, 0, None)), 0);
+        // Not asked for: nothing to explain.
+        s.bsdf_candidates = 0;
+        assert_eq!(bsdf_candidates_for(&s, &classes(8, 0, Some(0.1))), 0);
+        assert!(bsdf_candidates_skipped(&s, &classes(0, 4, Some(0.1))).is_none());
+    }
 }

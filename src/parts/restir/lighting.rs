@@ -291,7 +291,11 @@ impl RestirLighting {
             specular_bounces: s.specular_bounces,
             specular_max_roughness: s.specular_max_roughness,
             light_tree: (s.light_tree && s.light_classes) as u32,
-            bsdf_candidates: if local > 0 { s.bsdf_candidates } else { 0 },
+            bsdf_candidates: if local > 0 {
+                super::di::bsdf_candidates_for(s, &self.classes)
+            } else {
+                0
+            },
             bsdf_max_roughness: s.bsdf_max_roughness,
             pad_a: 0,
             pad_b: 0,
