@@ -260,7 +260,7 @@ shared_structs! {
         unbiased, bidirectional, pixels, accumulate, gi, gi_bounces, regir, regir_cell_size,
         regir_dims, regir_slots, directional_candidates, sky_candidates, single_pool, gi_cosine,
         path_light_candidates, specular_bounces, specular_max_roughness, light_tree,
-        bsdf_candidates, bsdf_max_roughness, pad_a, pad_b,
+        bsdf_candidates, bsdf_max_roughness, regir_tree, pad_b,
     }
     Twin::Memory("Card") => gilab::parts::surface_cache::cards::GpuCard {
         box_min, box_max, rect, draw,

@@ -8,6 +8,7 @@
 #import gilab::scene::light_pool
 #import gilab::lights::{select_light, select_light_in_class, class_pdf_scale, light_emitter}
 #import gilab::sampling::sample_triangle
+#import gilab::light_tree::tree_sample_region
 
 struct RegirSlot {
     light: u32,
@@ -34,8 +35,10 @@ fn regir_cell_target(light: u32, b: vec2<f32>, centre: vec3<f32>, min_dist_sq: f
 
 // One slot of the cell at `centre` (edge `cell_size`) by RIS over REGIR_CANDIDATES_PER_SLOT
 // lights: by power over every light (`all_lights`), or within the local class (triangles,
-// point and spot lights) as ReSTIR DI's classes use it.
-fn regir_fill_slot(centre: vec3<f32>, cell_size: f32, all_lights: bool, rng: ptr<function, Rng>) -> RegirSlot {
+// point and spot lights) as ReSTIR DI's classes use it, by power or (`by_tree`) by the light
+// tree's importance for the cell's bounding ball (`regir_fill = "tree"`), whose pmf is zero
+// only for lights that light no point of the cell.
+fn regir_fill_slot(centre: vec3<f32>, cell_size: f32, all_lights: bool, by_tree: bool, rng: ptr<function, Rng>) -> RegirSlot {
     let half_diag = 0.87 * cell_size;
     let min_dist_sq = half_diag * half_diag;
     var w_sum = 0.0;
@@ -46,6 +49,14 @@ fn regir_fill_slot(centre: vec3<f32>, cell_size: f32, all_lights: bool, rng: ptr
         var scale = 1.0;
         if all_lights {
             li = select_light(rand(rng));
+        } else if by_tree {
+            // The area pdf below is the pool's power pmf times the point's: swap the pmf.
+            let t = tree_sample_region(centre, half_diag, rand(rng));
+            if t.pmf <= 0.0 {
+                continue;
+            }
+            li = t.light;
+            scale = t.pmf / light_pool.lights[li].pmf;
         } else {
             li = select_light_in_class(rand(rng), 0u, light_pool.local_count);
             scale = class_pdf_scale(li);

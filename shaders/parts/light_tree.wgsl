@@ -111,11 +111,22 @@ fn lightcut_error(b: LightTreeNode, p: vec3<f32>, n: vec3<f32>) -> f32 {
     return node_importance(b, p, n) * min(d2 / near2, LIGHTCUT_NEAR_LIMIT);
 }
 
-// Probability of the first child of interior node `at` at p; negative when neither child can
-// light p.
-fn first_child_probability(at: u32, node: LightTreeNode, p: vec3<f32>, n: vec3<f32>) -> f32 {
-    let i0 = node_importance(tree_node(at + 1u), p, n);
-    let i1 = node_importance(tree_node(node.index), p, n);
+// Node b with its box grown by `grow` on every side. The directions from any point within
+// `grow` of p to b's box lie among those from p to the grown box, so importance at p with grown
+// boxes (and no normal) is zero only for lights that light no point of that ball: a region's
+// importance (a ReGIR cell's, `tree_sample_region`). grow = 0 leaves the box as it is.
+fn grown(b: LightTreeNode, grow: f32) -> LightTreeNode {
+    var out = b;
+    out.lo = b.lo - vec3<f32>(grow);
+    out.hi = b.hi + vec3<f32>(grow);
+    return out;
+}
+
+// Probability of the first child of interior node `at` at p (boxes grown by `grow`); negative
+// when neither child can light p.
+fn first_child_probability(at: u32, node: LightTreeNode, p: vec3<f32>, n: vec3<f32>, grow: f32) -> f32 {
+    let i0 = node_importance(grown(tree_node(at + 1u), grow), p, n);
+    let i1 = node_importance(grown(tree_node(node.index), grow), p, n);
     if i0 <= 0.0 && i1 <= 0.0 {
         return -1.0;
     }
@@ -136,6 +147,22 @@ fn tree_sample(p: vec3<f32>, n: vec3<f32>, u_in: f32) -> TreeSample {
 // One light under node `start` for p (normal n or 0) from u in [0, 1): its probability among
 // that node's lights (LightTree::sample_from). A lightcut descends from each of its nodes.
 fn tree_descend(start: u32, p: vec3<f32>, n: vec3<f32>, u_in: f32) -> TreeSample {
+    return tree_descend_grown(start, p, n, 0.0, u_in);
+}
+
+// One local light for the ball of radius `radius` around p from u in [0, 1), by importance
+// with every box grown by the radius and no normal: a light that can light some point of the
+// ball has a non-zero probability (ReGIR's cell fill, `regir_fill = "tree"`).
+fn tree_sample_region(p: vec3<f32>, radius: f32, u_in: f32) -> TreeSample {
+    return tree_descend_grown(0u, p, vec3<f32>(0.0), radius, u_in);
+}
+
+// The probability that tree_sample_region picks local light `light`.
+fn tree_pmf_region(light: u32, p: vec3<f32>, radius: f32) -> f32 {
+    return tree_pmf_grown(light, p, vec3<f32>(0.0), radius);
+}
+
+fn tree_descend_grown(start: u32, p: vec3<f32>, n: vec3<f32>, grow: f32, u_in: f32) -> TreeSample {
     var out = TreeSample(0u, 0.0);
     if light_pool.local_count == 0u {
         return out;
@@ -146,12 +173,12 @@ fn tree_descend(start: u32, p: vec3<f32>, n: vec3<f32>, u_in: f32) -> TreeSample
     for (var depth = 0u; depth <= TREE_MAX_DEPTH; depth++) {
         let node = tree_node(at);
         if node.leaf {
-            if at != start || node_importance(node, p, n) > 0.0 {
+            if at != start || node_importance(grown(node, grow), p, n) > 0.0 {
                 out = TreeSample(node.index, pmf);
             }
             break;
         }
-        let p0 = first_child_probability(at, node, p, n);
+        let p0 = first_child_probability(at, node, p, n, grow);
         if p0 < 0.0 {
             break;
         }
@@ -171,6 +198,10 @@ fn tree_descend(start: u32, p: vec3<f32>, n: vec3<f32>, u_in: f32) -> TreeSample
 // The probability that tree_sample picks local light `light` at p (normal n): the product of
 // the choices along its bit trail.
 fn tree_pmf(light: u32, p: vec3<f32>, n: vec3<f32>) -> f32 {
+    return tree_pmf_grown(light, p, n, 0.0);
+}
+
+fn tree_pmf_grown(light: u32, p: vec3<f32>, n: vec3<f32>, grow: f32) -> f32 {
     if light >= light_pool.local_count {
         return 0.0;
     }
@@ -180,12 +211,12 @@ fn tree_pmf(light: u32, p: vec3<f32>, n: vec3<f32>) -> f32 {
     for (var depth = 0u; depth <= TREE_MAX_DEPTH; depth++) {
         let node = tree_node(at);
         if node.leaf {
-            if node.index != light || (at == 0u && node_importance(node, p, n) <= 0.0) {
+            if node.index != light || (at == 0u && node_importance(grown(node, grow), p, n) <= 0.0) {
                 return 0.0;
             }
             return pmf;
         }
-        let p0 = first_child_probability(at, node, p, n);
+        let p0 = first_child_probability(at, node, p, n, grow);
         if p0 < 0.0 {
             return 0.0;
         }

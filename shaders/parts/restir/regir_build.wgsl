@@ -20,5 +20,5 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     var rng = rng_init(vec2<u32>(gid.x, 0u), frame.sample_offset, STREAM_REGIR_BUILD, frame.seed);
-    regir_slots[gid.x] = regir_fill_slot(regir_cell_centre(cell), params.regir_cell_size, params.single_pool == 1u, &rng);
+    regir_slots[gid.x] = regir_fill_slot(regir_cell_centre(cell), params.regir_cell_size, params.single_pool == 1u, params.regir_tree == 1u, &rng);
 }

@@ -67,7 +67,8 @@ struct RestirParams {
     // bsdf_max_roughness (0: none; parts/restir/initial_temporal.wgsl).
     bsdf_candidates: u32,
     bsdf_max_roughness: f32,
-    pad_a: u32,
+    // 1: ReGIR's cell slots draw their candidates by the light tree (`regir_fill = "tree"`).
+    regir_tree: u32,
     pad_b: u32,
 }
 

@@ -20,7 +20,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     var rng = rng_init(vec2<u32>(gid.x, 0u), frame.frame_index, STREAM_WORLD_REGIR, frame.seed);
     let c = world_regir_cell_centre(cell);
-    world_regir_slots[gid.x] = regir_fill_slot(c.xyz, c.w, true, &rng);
+    world_regir_slots[gid.x] = regir_fill_slot(c.xyz, c.w, true, false, &rng);
     if gid.x % s == 0u {
         atomicStore(&world_regir_cells[total + cell], 1u);
     }

@@ -297,7 +297,8 @@ impl RestirLighting {
                 0
             },
             bsdf_max_roughness: s.bsdf_max_roughness,
-            pad_a: 0,
+            // Local lights only: the tree holds no directional light.
+            regir_tree: (s.regir_tree && s.light_classes) as u32,
             pad_b: 0,
         }
     }

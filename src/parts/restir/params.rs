@@ -41,7 +41,8 @@ pub struct RestirParamsGpu {
     pub bsdf_candidates: u32,
     /// Roughness below which a pixel draws them (`bsdf_candidates_max_roughness`).
     pub bsdf_max_roughness: f32,
-    pub pad_a: u32,
+    /// 1: ReGIR's cell slots draw their candidates by the light tree (`regir_fill = "tree"`).
+    pub regir_tree: u32,
     pub pad_b: u32,
 }
 
@@ -274,6 +275,14 @@ const OWN_PARAMS: &[ParamSpec] = &[
         kind: ParamKind::Int { min: 1, max: 256 },
         default: 16.0,
     },
+    ParamSpec {
+        name: "regir_fill",
+        what: "how ReGIR's cell slots draw their 32 candidates from the local lights: by power, or by the light tree's importance for the cell's bounding ball (boxes grown by its half-diagonal, no normal: a light that can light some point of the cell keeps a non-zero pmf, so the slots stay unbiased)",
+        higher: "tree: candidates near the cell, fewer wasted on far lights; a tree walk per candidate",
+        lower: "power: one table lookup per candidate, most candidates far from the cell in a large scene",
+        kind: ParamKind::Choice(&["power", "tree"]),
+        default: 0.0,
+    },
 ];
 
 /// ReSTIR's parameters and the world ReGIR part's (the caches its GI paths may end in).
@@ -378,6 +387,8 @@ pub struct RestirSettings {
     pub regir: bool,
     /// Local candidates by the light tree (where ReGIR does not run).
     pub light_tree: bool,
+    /// `regir_fill = "tree"`: ReGIR's slots draw candidates by the light tree.
+    pub regir_tree: bool,
     /// BSDF-sampled local candidates at glossy pixels, and the roughness that counts as glossy.
     pub bsdf_candidates: u32,
     pub bsdf_max_roughness: f32,
@@ -415,6 +426,7 @@ impl RestirSettings {
             cache_light: crate::parts::world_regir::WorldRegirSettings::from_params(p),
             regir: p.bool("regir"),
             light_tree: p.bool("light_tree"),
+            regir_tree: p.choice("regir_fill") == "tree",
             bsdf_candidates: p.u32("bsdf_candidates"),
             bsdf_max_roughness: p.f32("bsdf_candidates_max_roughness"),
             regir_cell_size: p.f32("regir_cell_size"),

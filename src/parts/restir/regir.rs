@@ -115,10 +115,15 @@ impl RestirLighting {
                 "regir = false: candidates from the global light pool".into()
             } else if f.many_lights {
                 format!(
-                    "{} lights: the marked cells of {}^3 around the camera, {} lights each",
+                    "{} lights: the marked cells of {}^3 around the camera, {} lights each, 32 candidates a slot {}",
                     f.light_count(),
                     REGIR_DIMS,
-                    s.regir_lights_per_cell
+                    s.regir_lights_per_cell,
+                    if s.regir_tree && s.light_classes {
+                        "by the light tree's importance for the cell"
+                    } else {
+                        "by power"
+                    }
                 )
             } else {
                 format!(
