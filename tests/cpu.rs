@@ -44,6 +44,57 @@ fn every_wgsl_entry_file_validates() {
     }
 }
 
+/// Each registered cache's end of a GI path (`GiCache::path_end`, an `override fn
+/// gilab::path_end::end_path` added as an additional import) composes into ReSTIR GI's reading
+/// pass, validates, and changes it: the override is applied (a plain `#import` would not), and
+/// each cache's pass differs from the others'. Without a GPU: the GPU tests in
+/// tests/connections.rs run them.
+#[test]
+fn every_cache_end_of_path_overrides_the_path_end() {
+    use gilab::parts::gi_cache::{CacheSettings, CACHES};
+    let settings = CacheSettings {
+        atlas_size: 512,
+        update: 0.25,
+        ray_budget: 4096,
+        light: gilab::parts::world_regir::WorldRegirSettings::from_params(
+            &gilab::render::params::Params::new("restir", gilab::parts::restir::PARAMS),
+        ),
+    };
+    let entry = "parts/restir/gi_temporal.wgsl";
+    // Every cache's lookup at group 3, as ReSTIR GI's reader binds it (`CACHE_GROUP`; the
+    // world cache's bindings sit beside the surface cache's there).
+    let base = ShaderLibrary::discover().with_defs(&[
+        ("GI_TERMINATE", 1),
+        ("SURFACE_CACHE_GROUP", 3),
+        ("WORLD_CACHE_GROUP", 3),
+        ("SURFELS_GROUP", 3),
+        ("HASH_CACHE_GROUP", 3),
+        ("AMBIENT_CACHE_GROUP", 3),
+    ]);
+    let plain = format!("{:?}", base.compose(entry).unwrap());
+    let mut seen = vec![plain];
+    for kind in CACHES {
+        let cache = (kind.new)(&settings).unwrap();
+        let lib = base.with_imports(&[cache.path_end()]);
+        let module = lib
+            .compose(entry)
+            .unwrap_or_else(|e| panic!("{}: {e}\n{}", kind.name, e.report));
+        naga::valid::Validator::new(
+            naga::valid::ValidationFlags::all(),
+            naga::valid::Capabilities::default(),
+        )
+        .validate(&module)
+        .unwrap_or_else(|e| panic!("{}: {e:?}", kind.name));
+        let text = format!("{module:?}");
+        assert!(
+            !seen.contains(&text),
+            "{}: its end module changed nothing (or equals another cache's)",
+            kind.name
+        );
+        seen.push(text);
+    }
+}
+
 #[test]
 fn shader_errors_name_file_and_line() {
     let dir = std::env::temp_dir().join(format!("gilab-shader-err-{}", std::process::id()));

@@ -52,11 +52,12 @@ fn regir_fill_slot(centre: vec3<f32>, cell_size: f32, all_lights: bool, by_tree:
         } else if by_tree {
             // The area pdf below is the pool's power pmf times the point's: swap the pmf.
             let t = tree_sample_region(centre, half_diag, rand(rng));
-            if t.pmf <= 0.0 {
+            let power_pmf = light_pool.lights[t.light].pmf;
+            if t.pmf <= 0.0 || power_pmf <= 0.0 {
                 continue;
             }
             li = t.light;
-            scale = t.pmf / light_pool.lights[li].pmf;
+            scale = t.pmf / power_pmf;
         } else {
             li = select_light_in_class(rand(rng), 0u, light_pool.local_count);
             scale = class_pdf_scale(li);

@@ -157,11 +157,6 @@ fn tree_sample_region(p: vec3<f32>, radius: f32, u_in: f32) -> TreeSample {
     return tree_descend_grown(0u, p, vec3<f32>(0.0), radius, u_in);
 }
 
-// The probability that tree_sample_region picks local light `light`.
-fn tree_pmf_region(light: u32, p: vec3<f32>, radius: f32) -> f32 {
-    return tree_pmf_grown(light, p, vec3<f32>(0.0), radius);
-}
-
 fn tree_descend_grown(start: u32, p: vec3<f32>, n: vec3<f32>, grow: f32, u_in: f32) -> TreeSample {
     var out = TreeSample(0u, 0.0);
     if light_pool.local_count == 0u {

@@ -1,7 +1,9 @@
 //! The ambient cache (`gi_terminate = "ambient"`): the simplest cache a GI path can end in, and
 //! the worked example of adding one (docs/parts.md). It holds one irradiance for every point,
 //! `E0 = π × the sky's mean radiance`: the classic ambient term, the light an unoccluded point
-//! would get from the scene's sky, with no bounce and no occlusion (zero in a closed room). A
+//! would get from the scene's sky, with no bounce and no occlusion: zero where the sky is black,
+//! and inside a closed room under a sky it lights the room as an ambient term does (a leak, by
+//! design: it is the baseline, not a method to trust). A
 //! path that ends in it takes next-event estimation of the lights at its last hit plus
 //! `albedo × E0 / π`. As a baseline it says what the bounces the other caches carry are worth.
 //! Its end of a path: `shaders/parts/ambient_cache/path_end.wgsl`.

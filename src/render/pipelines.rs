@@ -32,6 +32,15 @@ pub fn recording_entries<T>(f: impl FnOnce() -> T) -> (T, BTreeSet<String>) {
     (out, inner)
 }
 
+/// Records `entry` and the modules `shaders` adds to it (`with_imports`): the files hot reload
+/// watches for this pipeline.
+fn note_pipeline_files(shaders: &ShaderLibrary, entry: &str) {
+    note_entry(entry);
+    for file in shaders.import_files() {
+        note_entry(&file);
+    }
+}
+
 fn note_entry(entry: &str) {
     ENTRIES_RECORDED.with(|r| {
         if let Some(set) = r.borrow_mut().as_mut() {
@@ -51,7 +60,7 @@ pub fn shader_module(
     shaders: &ShaderLibrary,
     entry: &str,
 ) -> Result<wgpu::ShaderModule> {
-    note_entry(entry);
+    note_pipeline_files(shaders, entry);
     let module = shaders.compose(entry).map_err(|e| anyhow!("{e}"))?;
     module_from(gpu, entry, module)
 }
@@ -87,10 +96,7 @@ pub fn compute_pipeline_at(
     layouts: &[&wgpu::BindGroupLayout],
 ) -> Result<wgpu::ComputePipeline> {
     PIPELINES_REQUESTED.with(|c| c.set(c.get() + 1));
-    note_entry(entry);
-    for file in shaders.import_files() {
-        note_entry(&file);
-    }
+    note_pipeline_files(shaders, entry);
     let composed = shaders
         .compose_versioned(entry)
         .map_err(|e| anyhow!("{e}"))?;
