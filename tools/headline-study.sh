@@ -15,8 +15,9 @@
 #
 # Environment: LIMIT (seconds before the study is stopped, default 540: one 10-minute call
 # with time to pack; the report written after each scene survives a stop), STUDY_ARGS (e.g.
-# "--size 1280x720"), CACHE (reference cache folder), REPORT (the full report folder; default a
-# temporary one).
+# "--size 1280x720", or "--scenes metal,mirror" to run only those now), CACHE (reference cache
+# folder), REPORT (the full report folder; default a temporary one), PREVIOUS (an unpacked
+# earlier report of this study, cut short: it is continued with --resume, its scenes kept).
 set -u
 cd "$(dirname "$0")/.."
 G=target/release/gilab
@@ -33,6 +34,11 @@ mkdir -p "$XDG_RUNTIME_DIR" && chmod 700 "$XDG_RUNTIME_DIR"
 OUT=${OUT:-out/study}
 REPORT=${REPORT:-$(mktemp -d)/headline}
 mkdir -p "$OUT" "$REPORT"
+RESUME=""
+if [ -n "${PREVIOUS:-}" ]; then
+  cp -r "$PREVIOUS"/. "$REPORT"/
+  RESUME=--resume
+fi
 {
   nvidia-smi --query-gpu=name,driver_version,clocks.gr,clocks.max.gr --format=csv 2>&1 || true
   date -u
@@ -41,7 +47,7 @@ mkdir -p "$OUT" "$REPORT"
 start=$(date +%s)
 # shellcheck disable=SC2086 # STUDY_ARGS is a list of arguments
 timeout "${LIMIT:-540}" "$G" study presets/studies/headline.toml --out "$REPORT" \
-  --cache "${CACHE:-cache/reference}" ${STUDY_ARGS:-} > "$REPORT/study.log" 2>&1
+  --cache "${CACHE:-cache/reference}" $RESUME ${STUDY_ARGS:-} >> "$REPORT/study.log" 2>&1
 status=$?
 echo "gilab study: exit $status after $(( $(date +%s) - start )) s" | tee -a "$REPORT/study.log"
 tar -C "$REPORT" --exclude='./scenes/*/runs' -czf - . | split -b 15M - "$OUT/headline-report.tar.gz.part-"

@@ -115,6 +115,13 @@ pub enum Command {
         /// No progress bars or per-scene lines (each scene's converge tables still print).
         #[arg(long)]
         quiet: bool,
+        /// Continue the report in the output folder (a study cut short, e.g. by a device
+        /// call's time limit): its finished scenes stay, the others run.
+        #[arg(long)]
+        resume: bool,
+        /// Run only these scenes now (comma-separated names from the study file).
+        #[arg(long, value_delimiter = ',')]
+        scenes: Vec<String>,
     },
     /// Error of image A against reference B (linear HDR): MSE, relMSE, SMAPE, and LDR-FLIP
     /// after the default display transform (ACES, 0 EV).
@@ -274,6 +281,8 @@ pub fn run(cli: Cli) -> Result<()> {
             budget_scale,
             cache,
             quiet,
+            resume,
+            scenes,
         }) => {
             use crate::experiment::study;
             let size = size.as_deref().map(crate::preset::parse_size).transpose()?;
@@ -287,6 +296,8 @@ pub fn run(cli: Cli) -> Result<()> {
                 out: out.clone(),
                 cache,
                 quiet,
+                resume,
+                scenes,
             };
             let report = study::run_study(gpu, &s, &opts)?;
             if !quiet {

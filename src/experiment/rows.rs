@@ -117,6 +117,24 @@ pub struct RunSummary {
     /// frames (1: as stable as the ground truth; above: flickers more).
     #[serde(default)]
     pub flicker_ratio: Option<f64>,
+    /// Where the run's wall-clock time went on the host (seconds): what makes a study long.
+    #[serde(default)]
+    pub wall_s: RunWallTime,
+}
+
+/// A run's host wall time by phase, in seconds.
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
+pub struct RunWallTime {
+    /// Creating the engine: shader composition, pipelines, the technique's buffers.
+    pub setup: f64,
+    /// The timing protocol's warm-ups (clock stabilisation), every chunk's.
+    pub warm_up: f64,
+    /// Submitting and finishing the frames.
+    pub frames: f64,
+    /// Reading the scored frames back and scoring them (errors, FLIP, flicker).
+    pub score: f64,
+    /// Writing the last frame (PNG, EXR, JSON).
+    pub write: f64,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]

@@ -501,6 +501,14 @@ fn run_one(
         seed: spec.seed,
         camera: plan.map_or(states[0].camera, |p| p.cameras[0]),
     };
+    let clock = std::time::Instant::now();
+    let mut wall = super::rows::RunWallTime::default();
+    let lap = |since: &mut std::time::Instant| {
+        let s = since.elapsed().as_secs_f64();
+        *since = std::time::Instant::now();
+        s
+    };
+    let mut since = clock;
     let mut engine = Engine::for_entry(
         gpu.clone(),
         shaders.clone(),
@@ -509,6 +517,7 @@ fn run_one(
         &entry,
         settings,
     )?;
+    wall.setup = lap(&mut since);
     let pixels = (engine.extent[0] * engine.extent[1]) as f64;
     let tonemap = p.preset.tonemap;
     let image_bytes = engine.output_buffers().0.size();
@@ -524,6 +533,7 @@ fn run_one(
     // frames kept on the GPU and evaluated afterwards (or per chunk when they would take too
     // much memory; a new warm-up follows each chunk and each scene edit).
     let (before, warm_up_ms) = calibration.warm_up(gpu)?;
+    wall.warm_up += lap(&mut since);
     let clock_before = calibration.clock();
     let mut rows = Vec::new();
     let mut by_pass: std::collections::BTreeMap<String, f64> = Default::default();
@@ -567,7 +577,9 @@ fn run_one(
             }
         }
         if edited {
+            wall.frames += lap(&mut since);
             calibration.warm_up(gpu)?;
+            wall.warm_up += lap(&mut since);
         }
         states_of_frames.push(state);
         let dst = if scored(f) {
@@ -605,6 +617,7 @@ fn run_one(
             }
         }
         if chunk_full && stop_at.is_none() && f < exp.frames {
+            wall.frames += lap(&mut since);
             evaluate(
                 gpu,
                 tonemap,
@@ -615,7 +628,9 @@ fn run_one(
                 &mut last_image,
                 &mut previous,
             )?;
+            wall.score += lap(&mut since);
             calibration.warm_up(gpu)?;
+            wall.warm_up += lap(&mut since);
         }
     }
     // Queued right behind the last frame: the clock state the run ended in.
@@ -654,6 +669,7 @@ fn run_one(
             }
         }
     }
+    wall.frames += lap(&mut since);
     evaluate(
         gpu,
         tonemap,
@@ -664,6 +680,7 @@ fn run_one(
         &mut last_image,
         &mut previous,
     )?;
+    wall.score += lap(&mut since);
     let mut frame_ms: Vec<f64> = costs.iter().map(|c| c.0.report.gpu_ms).collect();
     frame_ms.sort_by(f64::total_cmp);
     let gpu_ms_median = frame_ms.get(frame_ms.len() / 2).copied().unwrap_or(0.0);
@@ -692,6 +709,19 @@ fn run_one(
     meta_by_pass.values_mut().for_each(|v| *v /= frames as f64);
     let meta = jobs::metadata(&engine, p, &entry, &image, meta_by_pass.clone())?;
     jobs::write_outputs(&dir, &stem, &image, &meta, p)?;
+    wall.write = lap(&mut since);
+    if std::env::var_os("GILAB_RUN_WALL").is_some() {
+        eprintln!(
+            "run {}: {:.2} s (setup {:.2}, warm-up {:.2}, frames {:.2}, score {:.2}, write {:.2})",
+            spec.label,
+            clock.elapsed().as_secs_f64(),
+            wall.setup,
+            wall.warm_up,
+            wall.frames,
+            wall.score,
+            wall.write
+        );
+    }
     let passes = engine.passes();
     let median_error = median(rows.iter().map(|r| r.error(exp.metric)).collect());
     let flicker_ratio = flicker_ratio(&rows);
@@ -725,6 +755,7 @@ fn run_one(
             clock_check,
             median_error,
             flicker_ratio,
+            wall_s: wall,
         },
     ))
 }

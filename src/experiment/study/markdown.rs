@@ -122,9 +122,25 @@ pub fn report(study: &Study, r: &StudyReport) -> String {
     let _ = writeln!(md, "| metric | {} (budgets decided by it) |", h.metric);
     let _ = writeln!(
         md,
-        "| wall time | {:.0} s, references included |\n",
+        "| wall time | {:.0} s, references included |",
         h.wall_seconds
     );
+    if h.parts.len() > 1 {
+        // A study cut short and resumed: which invocation ran which scenes.
+        for (i, p) in h.parts.iter().enumerate() {
+            let _ = writeln!(
+                md,
+                "| part {} | {}: {} in {:.0} s, commit `{}`, `{}` |",
+                i + 1,
+                p.date_utc,
+                p.scenes.join(", "),
+                p.wall_seconds,
+                &p.git_commit[..p.git_commit.len().min(12)],
+                p.command
+            );
+        }
+    }
+    let _ = writeln!(md);
 
     // One-page summary.
     let _ = writeln!(

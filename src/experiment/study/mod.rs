@@ -24,6 +24,22 @@ pub struct StudyOptions {
     pub out: PathBuf,
     pub cache: PathBuf,
     pub quiet: bool,
+    /// Continue the report already in `out` (a study cut short by a time limit): its finished
+    /// scenes are kept, the others run.
+    pub resume: bool,
+    /// Run only these scenes now (empty: all). With `resume`, the report keeps the others it
+    /// already has.
+    pub scenes: Vec<String>,
+}
+
+/// One invocation that added scenes to a report: a study cut short and resumed has several.
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
+pub struct StudyPart {
+    pub command: String,
+    pub git_commit: String,
+    pub date_utc: String,
+    pub wall_seconds: f64,
+    pub scenes: Vec<String>,
 }
 
 /// Where and when the study ran: the report's header.
@@ -53,6 +69,10 @@ pub struct Header {
     /// Scenes in the study file: more than `scenes` holds while the study runs, or when it was
     /// cut short.
     pub scenes_planned: usize,
+    /// The invocations that made the report, in order (one unless it was resumed). The fields
+    /// above are the last one's, `wall_seconds` and the run counts the sum of all.
+    #[serde(default)]
+    pub parts: Vec<StudyPart>,
 }
 
 /// `study.json`: the header and every scene's result.
@@ -109,12 +129,61 @@ pub fn run_study(gpu: Arc<Gpu>, study: &Study, opts: &StudyOptions) -> Result<St
     let s = &study.file.study;
     std::fs::create_dir_all(&opts.out)
         .with_context(|| format!("creating {}", opts.out.display()))?;
+    for name in &opts.scenes {
+        anyhow::ensure!(
+            study.file.scenes.iter().any(|sc| &sc.name == name),
+            "--scenes: the study has no scene '{name}' (it has {})",
+            study
+                .file
+                .scenes
+                .iter()
+                .map(|sc| sc.name.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
+    let file_sha256 = run::sha256_hex(&std::fs::read_to_string(&study.path).unwrap_or_default());
+    let previous = if opts.resume {
+        Some(previous_report(study, s, &file_sha256, &opts.out)?)
+    } else {
+        None
+    };
     let mut scenes: Vec<SceneResult> = Vec::new();
     let mut images = Vec::new();
     let mut report = StudyReport::default();
     let mut clocks = std::collections::BTreeSet::new();
     let (mut runs, mut flagged, mut drift) = (0usize, 0usize, 0f64);
+    let (mut earlier_wall, mut parts) = (0.0, Vec::new());
+    if let Some(prev) = &previous {
+        scenes = prev.scenes.clone();
+        images = prev.images.clone();
+        runs = prev.header.runs;
+        flagged = prev.header.clock_flagged;
+        drift = prev.header.max_clock_drift;
+        clocks.extend(prev.header.clocks.iter().cloned());
+        earlier_wall = prev.header.wall_seconds;
+        parts = prev.header.parts.clone();
+    }
+    let mut part = StudyPart {
+        command: std::env::args().collect::<Vec<_>>().join(" "),
+        git_commit: run::git_commit(),
+        date_utc: date_utc(),
+        ..Default::default()
+    };
     for (i, sc) in study.file.scenes.iter().enumerate() {
+        let done_before = scenes.iter().any(|x| x.name == sc.name);
+        let chosen = opts.scenes.is_empty() || opts.scenes.contains(&sc.name);
+        if done_before || !chosen {
+            if !opts.quiet {
+                let why = if done_before {
+                    "in the report already"
+                } else {
+                    "not in --scenes"
+                };
+                println!("study {}: scene '{}' skipped: {why}", study.name, sc.name);
+            }
+            continue;
+        }
         if !opts.quiet {
             println!(
                 "study {}: scene {}/{} '{}'",
@@ -163,14 +232,22 @@ pub fn run_study(gpu: Arc<Gpu>, study: &Study, opts: &StudyOptions) -> Result<St
                 .push((sc.name.clone(), format!("its figures: {e:#}"))),
         }
         scenes.push(result);
+        // The study file's order, whichever invocation ran a scene.
+        let order = |n: &str| study.file.scenes.iter().position(|x| x.name == n);
+        scenes.sort_by_key(|x| order(&x.name));
+        images.sort_by_key(|x| order(&x.scene));
+        part.scenes.push(sc.name.clone());
+        part.wall_seconds = started.elapsed().as_secs_f64();
+        let mut all_parts = parts.clone();
+        all_parts.push(part.clone());
         // The report so far: a study cut short (a device call's time limit) keeps its scenes.
         let header = Header {
             study: study.name.clone(),
             file: study.path.display().to_string(),
-            file_sha256: run::sha256_hex(&std::fs::read_to_string(&study.path).unwrap_or_default()),
-            command: std::env::args().collect::<Vec<_>>().join(" "),
-            date_utc: date_utc(),
-            git_commit: run::git_commit(),
+            file_sha256: file_sha256.clone(),
+            command: part.command.clone(),
+            date_utc: part.date_utc.clone(),
+            git_commit: part.git_commit.clone(),
             adapter: summary.adapter.clone(),
             clocks: clocks.iter().cloned().collect(),
             clock_flagged: flagged,
@@ -182,8 +259,9 @@ pub fn run_study(gpu: Arc<Gpu>, study: &Study, opts: &StudyOptions) -> Result<St
             reference_spp: s.reference_spp,
             budgets_ms: s.budgets_ms.clone(),
             metric: s.metric.name().to_string(),
-            wall_seconds: started.elapsed().as_secs_f64(),
+            wall_seconds: earlier_wall + started.elapsed().as_secs_f64(),
             scenes_planned: study.file.scenes.len(),
+            parts: all_parts,
         };
         report = StudyReport {
             header,
@@ -214,6 +292,60 @@ pub fn run_study(gpu: Arc<Gpu>, study: &Study, opts: &StudyOptions) -> Result<St
             .join("; ")
     );
     Ok(report)
+}
+
+/// The report a resumed study continues: the same study file (by content) at the same size
+/// and budgets, else the scenes would not belong in one report.
+fn previous_report(
+    study: &Study,
+    s: &spec::StudySettings,
+    file_sha256: &str,
+    out: &Path,
+) -> Result<StudyReport> {
+    let path = out.join("study.json");
+    let text = std::fs::read_to_string(&path).with_context(|| {
+        format!(
+            "--resume: reading {} (run the study without --resume first)",
+            path.display()
+        )
+    })?;
+    let mut prev: StudyReport = serde_json::from_str(&text)
+        .with_context(|| format!("--resume: {} is not a study report", path.display()))?;
+    let h = &prev.header;
+    anyhow::ensure!(
+        h.file_sha256 == file_sha256,
+        "--resume: {} was made from another version of {} (SHA-256 {} against {})",
+        path.display(),
+        study.path.display(),
+        &h.file_sha256[..h.file_sha256.len().min(16)],
+        &file_sha256[..file_sha256.len().min(16)]
+    );
+    anyhow::ensure!(
+        h.size == s.size && h.frames == s.frames && h.budgets_ms == s.budgets_ms,
+        "--resume: {} ran at {}x{}, {} frames, budgets {:?}; this run would be {}x{}, {} frames, budgets {:?}",
+        path.display(),
+        h.size[0],
+        h.size[1],
+        h.frames,
+        h.budgets_ms,
+        s.size[0],
+        s.size[1],
+        s.frames,
+        s.budgets_ms
+    );
+    if prev.header.parts.is_empty() {
+        // A report from before parts were recorded: its header is its one part.
+        prev.header.parts.push(StudyPart {
+            command: h.command.clone(),
+            git_commit: h.git_commit.clone(),
+            date_utc: h.date_utc.clone(),
+            wall_seconds: h.wall_seconds,
+            scenes: prev.scenes.iter().map(|x| x.name.clone()).collect(),
+        });
+    }
+    // Failed scenes run again.
+    prev.failed.clear();
+    Ok(prev)
 }
 
 /// Per scene: the two Pareto plots and, per budget, the equal-time images.
