@@ -501,3 +501,134 @@ preset = "{0}/cornell.toml"
     assert!(md.contains("Scene `bad` failed"), "{md}");
     assert!(!md.contains("Partial"), "every scene was tried: {md}");
 }
+
+/// A study cut short is continued with `--resume`: the scenes already in the report stay (not
+/// rendered again), the others run, each invocation is a part of the header; a scene whose runs
+/// all finished before the cut is read back, not rendered; a changed study file is refused.
+#[test]
+fn a_study_cut_short_is_resumed_without_rendering_its_scenes_again() {
+    let dir = tmp("resume");
+    let presets = std::fs::canonicalize("presets").unwrap();
+    let text = format!(
+        r#"
+[study]
+size = [16, 16]
+frames = 2
+reference_every = 2
+reference_spp = 4
+budgets_ms = [1000]
+denoise = [false]
+
+[[family]]
+label = "reference"
+technique = "reference"
+[[family.variant]]
+name = "default"
+params = {{ samples_per_frame = 1 }}
+
+[[scene]]
+name = "first"
+preset = "{0}/cornell.toml"
+
+[[scene]]
+name = "second"
+preset = "{0}/cornell.toml"
+set = ["scene.params.metal_boxes=0.3"]
+"#,
+        presets.display()
+    );
+    let file = dir.join("resume.toml");
+    std::fs::write(&file, &text).unwrap();
+    let (out, cache) = (dir.join("out"), dir.join("cache"));
+    let study = |extra: &[&str]| {
+        let mut args = vec![
+            "study",
+            file.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--cache",
+            cache.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        gilab(&args)
+    };
+    let read = || -> StudyReport {
+        serde_json::from_str(&std::fs::read_to_string(out.join("study.json")).unwrap()).unwrap()
+    };
+    let (ok, stdout, stderr) = study(&["--scenes", "first"]);
+    assert!(ok, "{stdout}\n{stderr}");
+    assert!(
+        stdout.contains("scene 'second' skipped: not in --scenes"),
+        "{stdout}"
+    );
+    let part1 = read();
+    assert_eq!(part1.scenes.len(), 1);
+    assert!(std::fs::read_to_string(out.join("report.md"))
+        .unwrap()
+        .contains("Partial"));
+    let first = part1.scenes[0].clone();
+
+    let (ok, stdout, stderr) = study(&["--resume"]);
+    assert!(ok, "{stdout}\n{stderr}");
+    assert!(
+        stdout.contains("scene 'first' skipped: in the report already"),
+        "{stdout}"
+    );
+    let both = read();
+    assert_eq!(
+        both.scenes
+            .iter()
+            .map(|s| s.name.as_str())
+            .collect::<Vec<_>>(),
+        ["first", "second"]
+    );
+    assert_eq!(
+        both.scenes[0], first,
+        "the kept scene is the earlier one, unchanged"
+    );
+    assert_eq!(both.header.parts.len(), 2);
+    assert_eq!(both.header.parts[0].scenes, ["first"]);
+    assert_eq!(both.header.parts[1].scenes, ["second"]);
+    assert_eq!(both.header.runs, 2, "runs of both parts counted");
+    assert!(
+        both.header.wall_seconds > both.header.parts[1].wall_seconds,
+        "wall time of both parts"
+    );
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(md.contains("| part 2 |") && !md.contains("Partial"), "{md}");
+
+    // A cut during the second scene's figures: its runs are on disk, not in the report.
+    let mut cut = both.clone();
+    cut.scenes.truncate(1);
+    cut.images.retain(|i| i.scene == "first");
+    cut.header.parts.truncate(1);
+    std::fs::write(
+        out.join("study.json"),
+        serde_json::to_string_pretty(&cut).unwrap(),
+    )
+    .unwrap();
+    let (ok, stdout, stderr) = study(&["--resume"]);
+    assert!(ok, "{stdout}\n{stderr}");
+    assert!(stdout.contains("'second': its runs are in"), "{stdout}");
+    let again = read();
+    assert_eq!(
+        again.scenes[1], both.scenes[1],
+        "read back, the same numbers"
+    );
+    assert_eq!(again.header.parts[1].reused, ["second"]);
+
+    // Another version of the study file is refused, naming the file.
+    std::fs::write(
+        &file,
+        text.replace("reference_spp = 4", "reference_spp = 8"),
+    )
+    .unwrap();
+    let (ok, _, stderr) = study(&["--resume"]);
+    assert!(!ok);
+    assert!(
+        stderr.contains("another version of") && stderr.contains("resume.toml"),
+        "{stderr}"
+    );
+    let (ok, _, stderr) = study(&["--scenes", "third"]);
+    assert!(!ok && stderr.contains("no scene 'third'"), "{stderr}");
+}

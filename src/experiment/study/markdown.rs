@@ -54,14 +54,21 @@ pub fn report(study: &Study, r: &StudyReport) -> String {
     let h = &r.header;
     let mut md = String::new();
     let _ = writeln!(md, "# Study `{}`: what accuracy costs in time\n", h.study);
+    let in_report = |scene: &str| r.scenes.iter().any(|x| x.name == scene);
     for (scene, why) in &r.failed {
-        let _ = writeln!(md, "> **Scene `{scene}` failed:** {why}\n");
+        if in_report(scene) {
+            // Its numbers are in the report; a figure could not be drawn.
+            let _ = writeln!(md, "> **Scene `{scene}`, figures missing:** {why}\n");
+        } else {
+            let _ = writeln!(md, "> **Scene `{scene}` failed:** {why}\n");
+        }
     }
-    if r.scenes.len() + r.failed.len() < h.scenes_planned {
+    let finished = r.scenes.len() + r.failed.iter().filter(|f| !in_report(&f.0)).count();
+    if finished < h.scenes_planned {
         let _ = writeln!(
             md,
-            "> **Partial:** {} of the study's {} scenes are done (the study is running, or was cut short).\n",
-            r.scenes.len() + r.failed.len(),
+            "> **Partial:** {} of the study's {} scenes are in this report (the study is running, or was cut short).\n",
+            r.scenes.len(),
             h.scenes_planned
         );
     }
@@ -130,10 +137,18 @@ pub fn report(study: &Study, r: &StudyReport) -> String {
         for (i, p) in h.parts.iter().enumerate() {
             let _ = writeln!(
                 md,
-                "| part {} | {}: {} in {:.0} s, commit `{}`, `{}` |",
+                "| part {} | {}: {}{} in {:.0} s, commit `{}`, `{}` |",
                 i + 1,
                 p.date_utc,
                 p.scenes.join(", "),
+                if p.reused.is_empty() {
+                    String::new()
+                } else {
+                    format!(
+                        " (read back, rendered by an earlier invocation that was cut short: {})",
+                        p.reused.join(", ")
+                    )
+                },
                 p.wall_seconds,
                 &p.git_commit[..p.git_commit.len().min(12)],
                 p.command

@@ -40,6 +40,10 @@ pub struct StudyPart {
     pub date_utc: String,
     pub wall_seconds: f64,
     pub scenes: Vec<String>,
+    /// Scenes of `scenes` whose runs an earlier invocation finished (cut short while drawing
+    /// their figures): this one read them back and rendered nothing for them.
+    #[serde(default)]
+    pub reused: Vec<String>,
 }
 
 /// Where and when the study ran: the report's header.
@@ -196,17 +200,40 @@ pub fn run_study(gpu: Arc<Gpu>, study: &Study, opts: &StudyOptions) -> Result<St
         let p = study.scene_preset(sc)?;
         let dir = opts.out.join("scenes").join(&sc.name);
         std::fs::create_dir_all(&dir)?;
-        std::fs::write(dir.join("experiment.toml"), &p.text)?;
         let options = ConvergeOptions {
             out: dir.clone(),
             cache: opts.cache.clone(),
             shard: None,
             quiet: opts.quiet,
         };
+        // Resuming: a scene whose runs all finished before the cut (the study stopped while it
+        // drew the scene's figures) is read back, not rendered again.
+        let finished = if opts.resume {
+            finished_scene(&dir, &p)?
+        } else {
+            None
+        };
+        if finished.is_some() {
+            part.reused.push(sc.name.clone());
+            if !opts.quiet {
+                println!(
+                    "study {}: scene '{}': its runs are in {} already (an earlier invocation's): read back",
+                    study.name,
+                    sc.name,
+                    dir.display()
+                );
+            }
+        } else {
+            std::fs::write(dir.join("experiment.toml"), &p.text)?;
+        }
         // A scene that fails (a technique refusing the scene, a GPU fault) is reported and the
         // study goes on: a long device run keeps the other scenes.
-        let done =
-            run::converge(gpu.clone(), &p, &options).and_then(|_| run::read_output_dir(&dir));
+        let done = match finished {
+            Some(x) => Ok(x),
+            None => {
+                run::converge(gpu.clone(), &p, &options).and_then(|_| run::read_output_dir(&dir))
+            }
+        };
         let (summary, rows) = match done {
             Ok(x) => x,
             Err(e) => {
@@ -229,7 +256,14 @@ pub fn run_study(gpu: Arc<Gpu>, study: &Study, opts: &StudyOptions) -> Result<St
             Ok(v) => images.extend(v),
             Err(e) => report
                 .failed
-                .push((sc.name.clone(), format!("its figures: {e:#}"))),
+                .push((
+                    sc.name.clone(),
+                    if part.reused.contains(&sc.name) {
+                        format!("its equal-time images: {e:#} (its runs were read back from an invocation cut short; their images and references stayed where it ran)")
+                    } else {
+                        format!("its figures: {e:#}")
+                    },
+                )),
         }
         scenes.push(result);
         // The study file's order, whichever invocation ran a scene.
@@ -294,6 +328,21 @@ pub fn run_study(gpu: Arc<Gpu>, study: &Study, opts: &StudyOptions) -> Result<St
     Ok(report)
 }
 
+/// A scene's `converge` output that an earlier invocation finished: every planned run is in it
+/// and it was made from this scene's preset (by content). None when it is absent or partial.
+fn finished_scene(
+    dir: &Path,
+    p: &crate::preset::LoadedPreset,
+) -> Result<Option<(run::Summary, Vec<crate::experiment::rows::Row>)>> {
+    if !dir.join("summary.json").exists() {
+        return Ok(None);
+    }
+    let (summary, rows) = run::read_output_dir(dir)?;
+    let same_preset = summary.preset_sha256 == run::sha256_hex(&p.to_toml()?);
+    let complete = summary.total_runs > 0 && summary.runs.len() == summary.total_runs;
+    Ok((same_preset && complete).then_some((summary, rows)))
+}
+
 /// The report a resumed study continues: the same study file (by content) at the same size
 /// and budgets, else the scenes would not belong in one report.
 fn previous_report(
@@ -341,6 +390,7 @@ fn previous_report(
             date_utc: h.date_utc.clone(),
             wall_seconds: h.wall_seconds,
             scenes: prev.scenes.iter().map(|x| x.name.clone()).collect(),
+            reused: Vec::new(),
         });
     }
     // Failed scenes run again.
