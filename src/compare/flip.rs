@@ -74,6 +74,35 @@ fn flip_whole(test: &[u8], reference: &[u8], width: u32, height: u32) -> Vec<f32
     nv_flip::flip(r, t, default_pixels_per_degree()).to_vec()
 }
 
+
+/// Mean LDR-FLIP between two 8-bit sRGB RGB images (row-major, 3 bytes per pixel).
+pub fn ldr_flip_srgb8(test: &[u8], reference: &[u8], width: u32, height: u32) -> Result<f64> {
+    let values = ldr_flip_map_srgb8(test, reference, width, height)?;
+    Ok(values.iter().map(|&v| v as f64).sum::<f64>() / values.len() as f64)
+}
+
+/// Per-pixel LDR-FLIP of `image` against `reference` after the display transform.
+pub fn ldr_flip_map(image: &Image, reference: &Image, tm: &tonemap::Settings) -> Result<Vec<f32>> {
+    ensure!(
+        image.width == reference.width && image.height == reference.height,
+        "image sizes differ"
+    );
+    let rgb = |img: &Image| -> Vec<u8> {
+        // The curve and exposure only: a zone view is for looking, not for scoring.
+        tonemap::to_srgb8(img, &tm.normal())
+            .chunks_exact(4)
+            .flat_map(|p| [p[0], p[1], p[2]])
+            .collect()
+    };
+    ldr_flip_map_srgb8(&rgb(image), &rgb(reference), image.width, image.height)
+}
+
+/// Mean LDR-FLIP of `image` against `reference` after the display transform.
+pub fn ldr_flip(image: &Image, reference: &Image, tm: &tonemap::Settings) -> Result<f64> {
+    let values = ldr_flip_map(image, reference, tm)?;
+    Ok(values.iter().map(|&v| v as f64).sum::<f64>() / values.len().max(1) as f64)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -126,32 +155,4 @@ mod tests {
         }
         assert!(whole.iter().sum::<f32>() > 0.0, "the images differ");
     }
-}
-
-/// Mean LDR-FLIP between two 8-bit sRGB RGB images (row-major, 3 bytes per pixel).
-pub fn ldr_flip_srgb8(test: &[u8], reference: &[u8], width: u32, height: u32) -> Result<f64> {
-    let values = ldr_flip_map_srgb8(test, reference, width, height)?;
-    Ok(values.iter().map(|&v| v as f64).sum::<f64>() / values.len() as f64)
-}
-
-/// Per-pixel LDR-FLIP of `image` against `reference` after the display transform.
-pub fn ldr_flip_map(image: &Image, reference: &Image, tm: &tonemap::Settings) -> Result<Vec<f32>> {
-    ensure!(
-        image.width == reference.width && image.height == reference.height,
-        "image sizes differ"
-    );
-    let rgb = |img: &Image| -> Vec<u8> {
-        // The curve and exposure only: a zone view is for looking, not for scoring.
-        tonemap::to_srgb8(img, &tm.normal())
-            .chunks_exact(4)
-            .flat_map(|p| [p[0], p[1], p[2]])
-            .collect()
-    };
-    ldr_flip_map_srgb8(&rgb(image), &rgb(reference), image.width, image.height)
-}
-
-/// Mean LDR-FLIP of `image` against `reference` after the display transform.
-pub fn ldr_flip(image: &Image, reference: &Image, tm: &tonemap::Settings) -> Result<f64> {
-    let values = ldr_flip_map(image, reference, tm)?;
-    Ok(values.iter().map(|&v| v as f64).sum::<f64>() / values.len().max(1) as f64)
 }
