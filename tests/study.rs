@@ -597,11 +597,21 @@ set = ["scene.params.metal_boxes=0.3"]
     let md = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(md.contains("| part 2 |") && !md.contains("Partial"), "{md}");
 
-    // A cut during the second scene's figures: its runs are on disk, not in the report.
+    // Nothing left to run: the report stays as it is and the command succeeds.
+    let (ok, stdout, stderr) = study(&["--resume"]);
+    assert!(ok, "{stdout}\n{stderr}");
+    assert!(stdout.contains("nothing to run"), "{stdout}");
+    assert_eq!(read(), both, "the report is untouched");
+
+    // A cut during the second scene's figures: its runs are on disk, not in the report. A note
+    // on the first scene (its figures missing) must survive the resume.
     let mut cut = both.clone();
     cut.scenes.truncate(1);
     cut.images.retain(|i| i.scene == "first");
     cut.header.parts.truncate(1);
+    cut.header.runs = 1;
+    cut.header.wall_seconds = cut.header.parts[0].wall_seconds;
+    cut.failed = vec![("first".into(), "its figures: a test note".into())];
     std::fs::write(
         out.join("study.json"),
         serde_json::to_string_pretty(&cut).unwrap(),
@@ -616,6 +626,22 @@ set = ["scene.params.metal_boxes=0.3"]
         "read back, the same numbers"
     );
     assert_eq!(again.header.parts[1].reused, ["second"]);
+    assert_eq!(
+        again.header.parts[1].reused_commits.len(),
+        1,
+        "the commit it was rendered at"
+    );
+    assert_eq!(
+        again.header.runs, 2,
+        "the read-back scene's run counted once"
+    );
+    assert_eq!(again.failed, cut.failed, "the note on the kept scene stays");
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(md.contains("Scene `first`, figures missing"), "{md}");
+
+    // --scenes without --resume would replace the report by a subset: refused.
+    let (ok, _, stderr) = study(&["--scenes", "second"]);
+    assert!(!ok && stderr.contains("without --resume"), "{stderr}");
 
     // Another version of the study file is refused, naming the file.
     std::fs::write(

@@ -40,10 +40,11 @@ if [ -n "${PREVIOUS:-}" ]; then
   RESUME=--resume
 fi
 {
+  # Appended: a resumed report keeps each invocation's machine.
+  echo "== $(date -u)"
   nvidia-smi --query-gpu=name,driver_version,clocks.gr,clocks.max.gr --format=csv 2>&1 || true
-  date -u
   git log -1 --format='%H %s' 2>/dev/null || true
-} > "$REPORT/machine.txt"
+} >> "$REPORT/machine.txt"
 start=$(date +%s)
 # shellcheck disable=SC2086 # STUDY_ARGS is a list of arguments
 timeout "${LIMIT:-540}" "$G" study presets/studies/headline.toml --out "$REPORT" \

@@ -74,7 +74,6 @@ fn flip_whole(test: &[u8], reference: &[u8], width: u32, height: u32) -> Vec<f32
     nv_flip::flip(r, t, default_pixels_per_degree()).to_vec()
 }
 
-
 /// Mean LDR-FLIP between two 8-bit sRGB RGB images (row-major, 3 bytes per pixel).
 pub fn ldr_flip_srgb8(test: &[u8], reference: &[u8], width: u32, height: u32) -> Result<f64> {
     let values = ldr_flip_map_srgb8(test, reference, width, height)?;

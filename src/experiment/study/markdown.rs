@@ -39,6 +39,12 @@ fn run_of<'a>(s: &'a SceneResult, label: &str) -> Option<&'a StudyRun> {
     s.runs.iter().find(|r| r.label == label)
 }
 
+/// A commit's first 12 hex digits, keeping a `-dirty` mark (a tree with uncommitted changes).
+fn short_commit(c: &str) -> String {
+    let dirty = if c.ends_with("-dirty") { "-dirty" } else { "" };
+    format!("{}{dirty}", &c[..c.len().min(12)])
+}
+
 /// The five passes that take the longest, as `name ms`.
 fn top_passes(r: &StudyRun) -> String {
     let mut p: Vec<(&String, &f64)> = r.passes.iter().collect();
@@ -67,7 +73,7 @@ pub fn report(study: &Study, r: &StudyReport) -> String {
     if finished < h.scenes_planned {
         let _ = writeln!(
             md,
-            "> **Partial:** {} of the study's {} scenes are in this report (the study is running, or was cut short).\n",
+            "> **Partial:** {} of the study's {} scenes are in this report (the study is running, was cut short, or ran a subset with --scenes).\n",
             r.scenes.len(),
             h.scenes_planned
         );
@@ -129,7 +135,7 @@ pub fn report(study: &Study, r: &StudyReport) -> String {
     let _ = writeln!(md, "| metric | {} (budgets decided by it) |", h.metric);
     let _ = writeln!(
         md,
-        "| wall time | {:.0} s, references included |",
+        "| wall time | {:.0} s, references included (time an invocation spent on a scene it did not finish is not counted) |",
         h.wall_seconds
     );
     if h.parts.len() > 1 {
@@ -144,13 +150,22 @@ pub fn report(study: &Study, r: &StudyReport) -> String {
                 if p.reused.is_empty() {
                     String::new()
                 } else {
+                    let each: Vec<String> = p
+                        .reused
+                        .iter()
+                        .enumerate()
+                        .map(|(k, n)| match p.reused_commits.get(k) {
+                            Some(c) => format!("{n} at `{}`", short_commit(c)),
+                            None => n.clone(),
+                        })
+                        .collect();
                     format!(
                         " (read back, rendered by an earlier invocation that was cut short: {})",
-                        p.reused.join(", ")
+                        each.join(", ")
                     )
                 },
                 p.wall_seconds,
-                &p.git_commit[..p.git_commit.len().min(12)],
+                short_commit(&p.git_commit),
                 p.command
             );
         }

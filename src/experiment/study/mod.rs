@@ -44,6 +44,9 @@ pub struct StudyPart {
     /// their figures): this one read them back and rendered nothing for them.
     #[serde(default)]
     pub reused: Vec<String>,
+    /// The commit each of `reused` was rendered at (its `converge` summary's).
+    #[serde(default)]
+    pub reused_commits: Vec<String>,
 }
 
 /// Where and when the study ran: the report's header.
@@ -146,38 +149,39 @@ pub fn run_study(gpu: Arc<Gpu>, study: &Study, opts: &StudyOptions) -> Result<St
                 .join(", ")
         );
     }
+    anyhow::ensure!(
+        opts.resume || opts.scenes.is_empty() || !opts.out.join("study.json").exists(),
+        "--scenes without --resume would replace the report in {} by these scenes alone: add --resume to add them to it, or choose another --out",
+        opts.out.display()
+    );
+    let chosen = |name: &str| opts.scenes.is_empty() || opts.scenes.iter().any(|n| n == name);
     let file_sha256 = run::sha256_hex(&std::fs::read_to_string(&study.path).unwrap_or_default());
-    let previous = if opts.resume {
-        Some(previous_report(study, s, &file_sha256, &opts.out)?)
+    // The report so far: an earlier invocation's (--resume) or an empty one.
+    let mut report = if opts.resume {
+        previous_report(study, s, &file_sha256, &opts.out)?
     } else {
-        None
+        StudyReport::default()
     };
-    let mut scenes: Vec<SceneResult> = Vec::new();
-    let mut images = Vec::new();
-    let mut report = StudyReport::default();
-    let mut clocks = std::collections::BTreeSet::new();
-    let (mut runs, mut flagged, mut drift) = (0usize, 0usize, 0f64);
-    let (mut earlier_wall, mut parts) = (0.0, Vec::new());
-    if let Some(prev) = &previous {
-        scenes = prev.scenes.clone();
-        images = prev.images.clone();
-        runs = prev.header.runs;
-        flagged = prev.header.clock_flagged;
-        drift = prev.header.max_clock_drift;
-        clocks.extend(prev.header.clocks.iter().cloned());
-        earlier_wall = prev.header.wall_seconds;
-        parts = prev.header.parts.clone();
-    }
+    // A note on a scene in the report (its figures) stays; a failed scene that runs again
+    // loses its old failure.
+    let kept: Vec<String> = report.scenes.iter().map(|x| x.name.clone()).collect();
+    report
+        .failed
+        .retain(|(n, _)| kept.contains(n) || !chosen(n.as_str()));
+    // Times from two devices do not belong in one report.
+    let timed_on = (!report.scenes.is_empty()).then(|| report.header.adapter.clone());
+    let earlier_wall = report.header.wall_seconds;
+    let parts = report.header.parts.clone();
     let mut part = StudyPart {
         command: std::env::args().collect::<Vec<_>>().join(" "),
         git_commit: run::git_commit(),
         date_utc: date_utc(),
         ..Default::default()
     };
+    let mut changed = false;
     for (i, sc) in study.file.scenes.iter().enumerate() {
-        let done_before = scenes.iter().any(|x| x.name == sc.name);
-        let chosen = opts.scenes.is_empty() || opts.scenes.contains(&sc.name);
-        if done_before || !chosen {
+        let done_before = report.scenes.iter().any(|x| x.name == sc.name);
+        if done_before || !chosen(sc.name.as_str()) {
             if !opts.quiet {
                 let why = if done_before {
                     "in the report already"
@@ -213,8 +217,9 @@ pub fn run_study(gpu: Arc<Gpu>, study: &Study, opts: &StudyOptions) -> Result<St
         } else {
             None
         };
-        if finished.is_some() {
+        if let Some((summary, _)) = &finished {
             part.reused.push(sc.name.clone());
+            part.reused_commits.push(summary.git_commit.clone());
             if !opts.quiet {
                 println!(
                     "study {}: scene '{}': its runs are in {} already (an earlier invocation's): read back",
@@ -224,6 +229,13 @@ pub fn run_study(gpu: Arc<Gpu>, study: &Study, opts: &StudyOptions) -> Result<St
                 );
             }
         } else {
+            if let Some(a) = timed_on.as_ref().filter(|a| a.name != gpu.summary.name) {
+                anyhow::bail!(
+                    "--resume: the report's runs were timed on {} and this adapter is {}: times from two devices do not belong in one report (choose another --out)",
+                    a.name,
+                    gpu.summary.name
+                );
+            }
             std::fs::write(dir.join("experiment.toml"), &p.text)?;
         }
         // A scene that fails (a technique refusing the scene, a GPU fault) is reported and the
@@ -234,6 +246,7 @@ pub fn run_study(gpu: Arc<Gpu>, study: &Study, opts: &StudyOptions) -> Result<St
                 run::converge(gpu.clone(), &p, &options).and_then(|_| run::read_output_dir(&dir))
             }
         };
+        changed = true;
         let (summary, rows) = match done {
             Ok(x) => x,
             Err(e) => {
@@ -243,66 +256,48 @@ pub fn run_study(gpu: Arc<Gpu>, study: &Study, opts: &StudyOptions) -> Result<St
                 continue;
             }
         };
+        let h = &mut report.header;
         for r in &summary.runs {
-            runs += 1;
-            flagged += usize::from(r.clock_check.flagged);
-            drift = drift.max(r.clock_check.drift.abs());
-            clocks.insert(r.clock_check.clock_before.clone());
-            clocks.insert(r.clock_check.clock_after.clone());
+            h.runs += 1;
+            h.clock_flagged += usize::from(r.clock_check.flagged);
+            h.max_clock_drift = h.max_clock_drift.max(r.clock_check.drift.abs());
+            for c in [&r.clock_check.clock_before, &r.clock_check.clock_after] {
+                if !h.clocks.contains(c) {
+                    h.clocks.push(c.clone());
+                }
+            }
         }
+        h.clocks.sort();
+        h.adapter = summary.adapter.clone();
         let names = study.run_names(sc);
         let result = analysis::scene_result(study, sc, &names, &summary, &rows);
         match scene_figures(study, &result, &summary, &opts.out) {
-            Ok(v) => images.extend(v),
-            Err(e) => report
-                .failed
-                .push((
-                    sc.name.clone(),
-                    if part.reused.contains(&sc.name) {
-                        format!("its equal-time images: {e:#} (its runs were read back from an invocation cut short; their images and references stayed where it ran)")
-                    } else {
-                        format!("its figures: {e:#}")
-                    },
-                )),
+            Ok(v) => report.images.extend(v),
+            Err(e) => report.failed.push((
+                sc.name.clone(),
+                if part.reused.contains(&sc.name) {
+                    format!("its equal-time images: {e:#} (its runs were read back from an invocation cut short; their images and references stayed where it ran)")
+                } else {
+                    format!("its figures: {e:#}")
+                },
+            )),
         }
-        scenes.push(result);
+        report.scenes.push(result);
         // The study file's order, whichever invocation ran a scene.
         let order = |n: &str| study.file.scenes.iter().position(|x| x.name == n);
-        scenes.sort_by_key(|x| order(&x.name));
-        images.sort_by_key(|x| order(&x.scene));
+        report.scenes.sort_by_key(|x| order(&x.name));
+        report.images.sort_by_key(|x| order(&x.scene));
         part.scenes.push(sc.name.clone());
-        part.wall_seconds = started.elapsed().as_secs_f64();
-        let mut all_parts = parts.clone();
-        all_parts.push(part.clone());
         // The report so far: a study cut short (a device call's time limit) keeps its scenes.
-        let header = Header {
-            study: study.name.clone(),
-            file: study.path.display().to_string(),
-            file_sha256: file_sha256.clone(),
-            command: part.command.clone(),
-            date_utc: part.date_utc.clone(),
-            git_commit: part.git_commit.clone(),
-            adapter: summary.adapter.clone(),
-            clocks: clocks.iter().cloned().collect(),
-            clock_flagged: flagged,
-            runs,
-            max_clock_drift: drift,
-            size: s.size,
-            frames: s.frames,
-            reference_every: s.reference_every,
-            reference_spp: s.reference_spp,
-            budgets_ms: s.budgets_ms.clone(),
-            metric: s.metric.name().to_string(),
-            wall_seconds: earlier_wall + started.elapsed().as_secs_f64(),
-            scenes_planned: study.file.scenes.len(),
-            parts: all_parts,
-        };
-        report = StudyReport {
-            header,
-            scenes: scenes.clone(),
-            images: images.clone(),
-            failed: std::mem::take(&mut report.failed),
-        };
+        stamp_header(
+            &mut report,
+            study,
+            &file_sha256,
+            &part,
+            &parts,
+            earlier_wall,
+            started,
+        );
         write_report(study, &report, &opts.out)?;
         if !opts.quiet {
             println!(
@@ -310,10 +305,6 @@ pub fn run_study(gpu: Arc<Gpu>, study: &Study, opts: &StudyOptions) -> Result<St
                 study.name, sc.name, report.header.wall_seconds
             );
         }
-    }
-    if !report.failed.is_empty() && !report.scenes.is_empty() {
-        // The last word on failures, when the last scene was one.
-        write_report(study, &report, &opts.out)?;
     }
     anyhow::ensure!(
         !report.scenes.is_empty(),
@@ -325,7 +316,58 @@ pub fn run_study(gpu: Arc<Gpu>, study: &Study, opts: &StudyOptions) -> Result<St
             .collect::<Vec<_>>()
             .join("; ")
     );
+    if changed {
+        // The last word: failures after the last finished scene, and this invocation's time.
+        stamp_header(
+            &mut report,
+            study,
+            &file_sha256,
+            &part,
+            &parts,
+            earlier_wall,
+            started,
+        );
+        write_report(study, &report, &opts.out)?;
+    } else if !opts.quiet {
+        println!(
+            "study {}: nothing to run: every chosen scene is in the report already",
+            study.name
+        );
+    }
     Ok(report)
+}
+
+/// The header's fields of this invocation: the study, the last part's command, commit and date,
+/// and the wall time of every part (this one's up to now).
+fn stamp_header(
+    report: &mut StudyReport,
+    study: &Study,
+    file_sha256: &str,
+    part: &StudyPart,
+    earlier_parts: &[StudyPart],
+    earlier_wall: f64,
+    started: std::time::Instant,
+) {
+    let s = &study.file.study;
+    let mut part = part.clone();
+    part.wall_seconds = started.elapsed().as_secs_f64();
+    let h = &mut report.header;
+    h.study = study.name.clone();
+    h.file = study.path.display().to_string();
+    h.file_sha256 = file_sha256.to_string();
+    h.command = part.command.clone();
+    h.date_utc = part.date_utc.clone();
+    h.git_commit = part.git_commit.clone();
+    h.size = s.size;
+    h.frames = s.frames;
+    h.reference_every = s.reference_every;
+    h.reference_spp = s.reference_spp;
+    h.budgets_ms = s.budgets_ms.clone();
+    h.metric = s.metric.name().to_string();
+    h.wall_seconds = earlier_wall + part.wall_seconds;
+    h.scenes_planned = study.file.scenes.len();
+    h.parts = earlier_parts.to_vec();
+    h.parts.push(part);
 }
 
 /// A scene's `converge` output that an earlier invocation finished: every planned run is in it
@@ -337,7 +379,17 @@ fn finished_scene(
     if !dir.join("summary.json").exists() {
         return Ok(None);
     }
-    let (summary, rows) = run::read_output_dir(dir)?;
+    let (summary, rows) = match run::read_output_dir(dir) {
+        Ok(x) => x,
+        Err(e) => {
+            // Cut while it was written, or from another version of gilab: render it again.
+            log::warn!(
+                "{}: not read back ({e:#}): the scene runs again",
+                dir.display()
+            );
+            return Ok(None);
+        }
+    };
     let same_preset = summary.preset_sha256 == run::sha256_hex(&p.to_toml()?);
     let complete = summary.total_runs > 0 && summary.runs.len() == summary.total_runs;
     Ok((same_preset && complete).then_some((summary, rows)))
@@ -390,11 +442,9 @@ fn previous_report(
             date_utc: h.date_utc.clone(),
             wall_seconds: h.wall_seconds,
             scenes: prev.scenes.iter().map(|x| x.name.clone()).collect(),
-            reused: Vec::new(),
+            ..Default::default()
         });
     }
-    // Failed scenes run again.
-    prev.failed.clear();
     Ok(prev)
 }
 
