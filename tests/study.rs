@@ -431,14 +431,9 @@ fn the_headline_study_file_checks_out() {
     );
 }
 
-/// A scene that fails while it runs (here: camera keys out of order, which only the experiment
-/// checks) is reported in the study's report, and the other scenes still run.
-#[test]
-fn a_failing_scene_is_reported_and_the_study_goes_on() {
-    let dir = tmp("failing");
-    let presets = std::fs::canonicalize("presets").unwrap();
-    let text = format!(
-        r#"
+/// The head of a small study for tests of the study's own behaviour: 16², 2 frames, the
+/// reference alone. Its scenes follow; `{0}` in them is the presets folder.
+const SMALL_STUDY: &str = r#"
 [study]
 size = [16, 16]
 frames = 2
@@ -452,8 +447,17 @@ label = "reference"
 technique = "reference"
 [[family.variant]]
 name = "default"
-params = {{ samples_per_frame = 1 }}
+params = { samples_per_frame = 1 }
+"#;
 
+/// A scene that fails while it runs (here: camera keys out of order, which only the experiment
+/// checks) is reported in the study's report, and the other scenes still run.
+#[test]
+fn a_failing_scene_is_reported_and_the_study_goes_on() {
+    let dir = tmp("failing");
+    let presets = std::fs::canonicalize("presets").unwrap();
+    let text = format!(
+        r#"{SMALL_STUDY}
 [[scene]]
 name = "bad"
 preset = "{0}/cornell.toml"
@@ -510,22 +514,7 @@ fn a_study_cut_short_is_resumed_without_rendering_its_scenes_again() {
     let dir = tmp("resume");
     let presets = std::fs::canonicalize("presets").unwrap();
     let text = format!(
-        r#"
-[study]
-size = [16, 16]
-frames = 2
-reference_every = 2
-reference_spp = 4
-budgets_ms = [1000]
-denoise = [false]
-
-[[family]]
-label = "reference"
-technique = "reference"
-[[family.variant]]
-name = "default"
-params = {{ samples_per_frame = 1 }}
-
+        r#"{SMALL_STUDY}
 [[scene]]
 name = "first"
 preset = "{0}/cornell.toml"

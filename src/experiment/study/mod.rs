@@ -179,6 +179,19 @@ pub fn run_study(gpu: Arc<Gpu>, study: &Study, opts: &StudyOptions) -> Result<St
         ..Default::default()
     };
     let mut changed = false;
+    // Stamps this invocation into the header and writes the report.
+    let save = |report: &mut StudyReport, part: &StudyPart| -> Result<()> {
+        stamp_header(
+            report,
+            study,
+            &file_sha256,
+            part,
+            &parts,
+            earlier_wall,
+            started,
+        );
+        write_report(study, report, &opts.out)
+    };
     for (i, sc) in study.file.scenes.iter().enumerate() {
         let done_before = report.scenes.iter().any(|x| x.name == sc.name);
         if done_before || !chosen(sc.name.as_str()) {
@@ -289,16 +302,7 @@ pub fn run_study(gpu: Arc<Gpu>, study: &Study, opts: &StudyOptions) -> Result<St
         report.images.sort_by_key(|x| order(&x.scene));
         part.scenes.push(sc.name.clone());
         // The report so far: a study cut short (a device call's time limit) keeps its scenes.
-        stamp_header(
-            &mut report,
-            study,
-            &file_sha256,
-            &part,
-            &parts,
-            earlier_wall,
-            started,
-        );
-        write_report(study, &report, &opts.out)?;
+        save(&mut report, &part)?;
         if !opts.quiet {
             println!(
                 "study {}: scene '{}' done, {:.0} s so far",
@@ -318,16 +322,7 @@ pub fn run_study(gpu: Arc<Gpu>, study: &Study, opts: &StudyOptions) -> Result<St
     );
     if changed {
         // The last word: failures after the last finished scene, and this invocation's time.
-        stamp_header(
-            &mut report,
-            study,
-            &file_sha256,
-            &part,
-            &parts,
-            earlier_wall,
-            started,
-        );
-        write_report(study, &report, &opts.out)?;
+        save(&mut report, &part)?;
     } else if !opts.quiet {
         println!(
             "study {}: nothing to run: every chosen scene is in the report already",
