@@ -450,17 +450,35 @@ name = "default"
 params = { samples_per_frame = 1 }
 "#;
 
+/// Writes `SMALL_STUDY` with these scenes (`{presets}` in them is the presets folder) as
+/// `dir/NAME.toml`; returns the file and its text.
+fn small_study(dir: &Path, name: &str, scenes: &str) -> (PathBuf, String) {
+    let presets = std::fs::canonicalize("presets").unwrap();
+    let text = format!(
+        "{SMALL_STUDY}\n{}",
+        scenes.replace("{presets}", &presets.display().to_string())
+    );
+    let file = dir.join(format!("{name}.toml"));
+    std::fs::write(&file, &text).unwrap();
+    (file, text)
+}
+
+/// The study.json a study wrote into `out`.
+fn read_report(out: &Path) -> StudyReport {
+    serde_json::from_str(&std::fs::read_to_string(out.join("study.json")).unwrap()).unwrap()
+}
+
 /// A scene that fails while it runs (here: camera keys out of order, which only the experiment
 /// checks) is reported in the study's report, and the other scenes still run.
 #[test]
 fn a_failing_scene_is_reported_and_the_study_goes_on() {
     let dir = tmp("failing");
-    let presets = std::fs::canonicalize("presets").unwrap();
-    let text = format!(
-        r#"{SMALL_STUDY}
-[[scene]]
+    let (file, _) = small_study(
+        &dir,
+        "failing",
+        r#"[[scene]]
 name = "bad"
-preset = "{0}/cornell.toml"
+preset = "{presets}/cornell.toml"
 [[scene.camera]]
 frame = 1
 position = [2.78, 2.73, -8.0]
@@ -472,12 +490,9 @@ target = [2.78, 2.73, 2.8]
 
 [[scene]]
 name = "good"
-preset = "{0}/cornell.toml"
+preset = "{presets}/cornell.toml"
 "#,
-        presets.display()
     );
-    let file = dir.join("failing.toml");
-    std::fs::write(&file, text).unwrap();
     let out = dir.join("out");
     let (ok, stdout, stderr) = gilab(&[
         "study",
@@ -490,8 +505,7 @@ preset = "{0}/cornell.toml"
     ]);
     assert!(ok, "one scene ran: the study succeeds\n{stdout}\n{stderr}");
     assert!(stderr.contains("scene 'bad' failed"), "{stderr}");
-    let report: StudyReport =
-        serde_json::from_str(&std::fs::read_to_string(out.join("study.json")).unwrap()).unwrap();
+    let report = read_report(&out);
     assert_eq!(report.scenes.len(), 1);
     assert_eq!(report.scenes[0].name, "good");
     assert_eq!(report.failed.len(), 1);
@@ -512,22 +526,19 @@ preset = "{0}/cornell.toml"
 #[test]
 fn a_study_cut_short_is_resumed_without_rendering_its_scenes_again() {
     let dir = tmp("resume");
-    let presets = std::fs::canonicalize("presets").unwrap();
-    let text = format!(
-        r#"{SMALL_STUDY}
-[[scene]]
+    let (file, text) = small_study(
+        &dir,
+        "resume",
+        r#"[[scene]]
 name = "first"
-preset = "{0}/cornell.toml"
+preset = "{presets}/cornell.toml"
 
 [[scene]]
 name = "second"
-preset = "{0}/cornell.toml"
+preset = "{presets}/cornell.toml"
 set = ["scene.params.metal_boxes=0.3"]
 "#,
-        presets.display()
     );
-    let file = dir.join("resume.toml");
-    std::fs::write(&file, &text).unwrap();
     let (out, cache) = (dir.join("out"), dir.join("cache"));
     let study = |extra: &[&str]| {
         let mut args = vec![
@@ -541,9 +552,7 @@ set = ["scene.params.metal_boxes=0.3"]
         args.extend_from_slice(extra);
         gilab(&args)
     };
-    let read = || -> StudyReport {
-        serde_json::from_str(&std::fs::read_to_string(out.join("study.json")).unwrap()).unwrap()
-    };
+    let read = || read_report(&out);
     let (ok, stdout, stderr) = study(&["--scenes", "first"]);
     assert!(ok, "{stdout}\n{stderr}");
     assert!(
