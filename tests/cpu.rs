@@ -3341,3 +3341,88 @@ fn light_tree_lightcut_covers_every_light_once_and_is_unbiased() {
         }
     }
 }
+
+/// Copies of `name` once every call is inlined into `module`'s entry point, as drivers do
+/// (Mesa inlines every function): the number of call paths from the entry to it.
+fn inlined_copies(module: &naga::Module, name: &str) -> u64 {
+    use naga::{Block, Function, Handle, Statement};
+    fn calls(block: &Block, out: &mut Vec<Handle<Function>>) {
+        for statement in block.iter() {
+            match statement {
+                Statement::Call { function, .. } => out.push(*function),
+                Statement::Block(b) => calls(b, out),
+                Statement::If { accept, reject, .. } => {
+                    calls(accept, out);
+                    calls(reject, out);
+                }
+                Statement::Switch { cases, .. } => cases.iter().for_each(|c| calls(&c.body, out)),
+                Statement::Loop {
+                    body, continuing, ..
+                } => {
+                    calls(body, out);
+                    calls(continuing, out);
+                }
+                _ => {}
+            }
+        }
+    }
+    fn copies_in(
+        module: &naga::Module,
+        body: &Block,
+        is_target: &dyn Fn(&str) -> bool,
+        memo: &mut std::collections::HashMap<Handle<Function>, u64>,
+    ) -> u64 {
+        let mut callees = Vec::new();
+        calls(body, &mut callees);
+        let mut n = 0;
+        for f in callees {
+            if let Some(&c) = memo.get(&f) {
+                n += c;
+                continue;
+            }
+            let function = &module.functions[f];
+            let own = u64::from(function.name.as_deref().is_some_and(is_target));
+            let c = own + copies_in(module, &function.body, is_target, memo);
+            memo.insert(f, c);
+            n += c;
+        }
+        n
+    }
+    // naga_oil names an imported function `NAMEX_naga_oil_mod_X…`.
+    let mangled = format!("{name}X_naga_oil_mod_");
+    let is_target = |f: &str| f == name || f.starts_with(&mangled);
+    let entry = &module.entry_points[0].function;
+    copies_in(module, &entry.body, &is_target, &mut Default::default())
+}
+
+/// Lavapipe compiles a pipeline at its first dispatch, after inlining every call, so its
+/// compile time grows with the copies of the largest functions (measured first frame on
+/// cornell at 8², shader cache off, 2026-11-30): ReSTIR DI's initial candidates took 38-48 s
+/// with 19 copies of the contribution and 4 shadow rays, 16 s with 10 and 2; its spatial reuse
+/// 6.8 s with 6, 3.1 s with 3; ReSTIR PT's reuse passes 25-26 s each with two copies of the
+/// shift, 8.3-8.5 s with one; Callisto's shadow pass (interior) 8.3 s with nine copies of the
+/// BVH traversal, 5.7 s with three. The bounds keep a new call site from undoing it.
+#[test]
+fn the_largest_functions_are_inlined_few_times() {
+    let lib = ShaderLibrary::discover();
+    let cases = [
+        ("parts/restir/initial_temporal.wgsl", "contribution", 10),
+        ("parts/restir/initial_temporal.wgsl", "unoccluded", 2),
+        ("parts/restir/spatial.wgsl", "contribution", 3),
+        ("restir_pt/temporal.wgsl", "shift_path", 1),
+        ("restir_pt/spatial.wgsl", "shift_path", 1),
+        ("callisto_shadows/shadows.wgsl", "traverse", 3),
+    ];
+    let mut report = Vec::new();
+    for (entry, function, bound) in cases {
+        let module = lib.compose(entry).unwrap_or_else(|e| panic!("{e}"));
+        let copies = inlined_copies(&module, function);
+        println!("{entry}: {copies} inlined copies of {function} (bound {bound})");
+        if copies > bound || copies == 0 {
+            report.push(format!(
+                "{entry}: {copies} copies of {function}, bound {bound}"
+            ));
+        }
+    }
+    assert!(report.is_empty(), "{}", report.join("\n"));
+}

@@ -8,13 +8,13 @@
 // visibility is the cell's static visibility times that. Lights that moved and receivers on
 // moving instances trace the whole scene. The static-only and moving-only rays are the shared
 // any-hit traversal (gilab::ray::occluded_filtered, gilab::bvh::traverse) with an instance
-// filter; what moves is `record_dynamic` below, which shadows.wgsl plugs into it.
+// instances; what moves is `record_dynamic` below, which shadows.wgsl plugs into it.
 #define_import_path gilab::callisto_cache
 
 #import gilab::frame::frame
 #import gilab::scene::tri_attr
-#import gilab::bvh::{hits_aabb, safe_inv_dir, INSTANCES_STATIC, INSTANCES_DYNAMIC}
-#import gilab::ray::{RaySegment, unoccluded, occluded_filtered}
+#import gilab::bvh::{hits_aabb, safe_inv_dir, INSTANCES_ALL, INSTANCES_STATIC, INSTANCES_DYNAMIC}
+#import gilab::ray::{RaySegment, occluded_filtered}
 #import gilab::callisto::{params, shadow_cache}
 
 const CACHE_NONE: u32 = 0xffffffffu;
@@ -126,35 +126,51 @@ fn cache_slot(light: u32, p: vec3<f32>, n: vec3<f32>, dist: f32) -> u32 {
     return CACHE_NONE;
 }
 
+// No traversal due: after a cache hit or a finished static ray.
+const NO_TRACE: u32 = 0xffffffffu;
+
 // Visibility of a shadow ray from receiver p (geometric normal ng, distance dist from the
 // camera; `receiver_moves`: on a moving instance) towards light `light`, counting traversals in
-// `rays`. Without the split, one ray against the whole scene.
+// `rays`. Without the split, one ray against the whole scene. With it, the cell's static
+// visibility (cached, or traced against the static instances while the cell fills), then a ray
+// against the moving instances where the static part lets light through. The traversals share
+// one call site, in a loop of at most two steps: drivers inline every call, and a call site per
+// case made nine copies of the BVH traversal in the shadow pass.
 fn split_visibility(light: u32, seg: RaySegment, p: vec3<f32>, ng: vec3<f32>, dist: f32, receiver_moves: bool, rays: ptr<function, u32>) -> f32 {
     var slot = CACHE_NONE;
     if params.shadow_cache != 0u && !receiver_moves && !light_dynamic(light) {
         slot = cache_slot(light, p, ng, dist);
     }
-    if slot == CACHE_NONE {
-        *rays += 1u;
-        return select(0.0, 1.0, unoccluded(seg));
-    }
-    let filled = cache_word(slot_word(slot, SLOT_FILLED));
     var vis = 0.0;
-    if filled != 0u {
-        vis = f32(filled & 0xffffu) / f32(filled >> 16u);
-    } else {
-        // Filling: this ray's own static visibility, added to the cell.
+    var instances = INSTANCES_ALL;
+    if slot != CACHE_NONE {
+        let filled = cache_word(slot_word(slot, SLOT_FILLED));
+        if filled != 0u {
+            vis = f32(filled & 0xffffu) / f32(filled >> 16u);
+            instances = NO_TRACE;
+        } else {
+            // Filling: this ray's own static visibility, added to the cell.
+            instances = INSTANCES_STATIC;
+        }
+    }
+    for (var step = 0u; step < 2u; step++) {
+        if instances == NO_TRACE {
+            if vis <= 0.0 || params.dynamic_count == 0u || !enters_dynamic(seg) {
+                break;
+            }
+            instances = INSTANCES_DYNAMIC;
+        }
         *rays += 1u;
-        let open = !occluded_filtered(seg, INSTANCES_STATIC);
+        let open = !occluded_filtered(seg, instances);
+        if instances == INSTANCES_ALL {
+            return select(0.0, 1.0, open);
+        }
+        if instances == INSTANCES_DYNAMIC {
+            return select(0.0, vis, open);
+        }
         atomicAdd(&shadow_cache[slot_word(slot, SLOT_VALUE)], 0x10000u | u32(open));
         vis = f32(open);
+        instances = NO_TRACE;
     }
-    if vis <= 0.0 || params.dynamic_count == 0u {
-        return vis;
-    }
-    if !enters_dynamic(seg) {
-        return vis;
-    }
-    *rays += 1u;
-    return select(vis, 0.0, occluded_filtered(seg, INSTANCES_DYNAMIC));
+    return vis;
 }

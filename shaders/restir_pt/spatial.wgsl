@@ -47,27 +47,36 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             for (var j = 0u; j < n; j++) {
                 let q = reservoirs[reservoir_index(TEMPORAL_SEGMENT, ids[j])];
                 let share = pair_share(c.m, q.m, nf, m_total);
-                // Neighbour j's path, shifted here.
-                if q.big_w > 0.0 {
-                    let sq = shift_path(q, s);
-                    counts[RAY_REUSE] += sq.rays;
-                    shifts += 1u;
-                    failures += u32(sq.failed);
-                    let target_q = luminance(sq.contrib);
-                    if sq.jacobian > 0.0 {
-                        let mis_q = share * pair_balance(q.m, q.contrib.w / sq.jacobian, c.m / nf, target_q);
-                        stream_add(&st, adopt(q, sq), mis_q * target_q * q.big_w * sq.jacobian, sq.jacobian, rand(&rng));
+                // Neighbour j's path shifted here (k = 0), then this pixel's path at neighbour
+                // j for the canonical weight (k = 1): one call site, since drivers inline every
+                // call and shift_path is the largest function in gilab.
+                for (var k = 0u; k < 2u; k++) {
+                    let canonical = k == 1u;
+                    var path = q;
+                    var to = s;
+                    if canonical {
+                        path = c;
+                        to = current_surface(ids[j]);
                     }
-                }
-                // This pixel's path at neighbour j, for the canonical weight.
-                if c.big_w > 0.0 {
-                    let sc = shift_path(c, current_surface(ids[j]));
-                    counts[RAY_REUSE] += sc.rays;
+                    if path.big_w <= 0.0 {
+                        if canonical {
+                            mis_c += share;
+                        }
+                        continue;
+                    }
+                    let sh = shift_path(path, to);
+                    counts[RAY_REUSE] += sh.rays;
                     shifts += 1u;
-                    failures += u32(sc.failed);
-                    mis_c += share * pair_balance(c.m / nf, c.contrib.w, q.m, luminance(sc.contrib) * sc.jacobian);
-                } else {
-                    mis_c += share;
+                    failures += u32(sh.failed);
+                    if canonical {
+                        mis_c += share * pair_balance(c.m / nf, c.contrib.w, q.m, luminance(sh.contrib) * sh.jacobian);
+                    } else {
+                        let target_q = luminance(sh.contrib);
+                        if sh.jacobian > 0.0 {
+                            let mis_q = share * pair_balance(q.m, q.contrib.w / sh.jacobian, c.m / nf, target_q);
+                            stream_add(&st, adopt(q, sh), mis_q * target_q * q.big_w * sh.jacobian, sh.jacobian, rand(&rng));
+                        }
+                    }
                 }
             }
             stream_add(&st, c, mis_c * c.contrib.w * c.big_w, 1.0, rand(&rng));

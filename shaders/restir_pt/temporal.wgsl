@@ -8,7 +8,7 @@
 #import gilab::counters::{flush_counts, no_counts, RAY_REUSE}
 #import gilab::math::luminance
 #import gilab::primary::{current_surface, previous_surface, reproject, at_last_frame, similar}
-#import gilab::restir_pt::{params, reservoirs, reservoir_index, parity, TEMPORAL_SEGMENT, shift_path, adopt, empty_stream, stream_add, stream_result, pair_share, pair_balance}
+#import gilab::restir_pt::{params, reservoirs, reservoir_index, parity, TEMPORAL_SEGMENT, shift_path, failed_shift, adopt, empty_stream, stream_add, stream_result, pair_share, pair_balance}
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
@@ -33,9 +33,25 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 let m_total = c.m + m_q;
                 let share = pair_share(c.m, m_q, 1.0, m_total);
                 var st = empty_stream();
-                // The old path, shifted here.
-                let sq = shift_path(q, s);
-                // (shift_path gives nothing for an empty q.)
+                // The old path shifted here (k = 0; shift_path gives nothing for an empty q),
+                // and the new path to last frame's pixel (k = 1): one call site, since drivers
+                // inline every call and shift_path is the largest function in gilab.
+                var sq = failed_shift(0u);
+                var sc = failed_shift(0u);
+                for (var k = 0u; k < 2u; k++) {
+                    var path = q;
+                    var to = s;
+                    if k == 1u {
+                        path = c;
+                        to = ps;
+                    }
+                    let shifted = shift_path(path, to);
+                    if k == 0u {
+                        sq = shifted;
+                    } else {
+                        sc = shifted;
+                    }
+                }
                 counts[RAY_REUSE] += sq.rays;
                 let target_q = luminance(sq.contrib);
                 if sq.jacobian > 0.0 {
@@ -43,7 +59,6 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     stream_add(&st, adopt(q, sq), mis_q * target_q * q.big_w * sq.jacobian, sq.jacobian, rand(&rng));
                 }
                 // The new path, weighed against last frame's pixel.
-                let sc = shift_path(c, ps);
                 counts[RAY_REUSE] += sc.rays;
                 let mis_c = share * pair_balance(c.m, c.contrib.w, m_q, luminance(sc.contrib) * sc.jacobian);
                 stream_add(&st, c, mis_c * c.contrib.w * c.big_w, 1.0, rand(&rng));

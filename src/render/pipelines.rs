@@ -97,6 +97,7 @@ pub fn compute_pipeline_at(
 ) -> Result<wgpu::ComputePipeline> {
     PIPELINES_REQUESTED.with(|c| c.set(c.get() + 1));
     note_pipeline_files(shaders, entry);
+    let started = std::time::Instant::now();
     let composed = shaders
         .compose_versioned(entry)
         .map_err(|e| anyhow!("{e}"))?;
@@ -109,10 +110,18 @@ pub fn compute_pipeline_at(
     if let Some(pipeline) = gpu.pipelines.compute(&key, composed.version) {
         return Ok(pipeline);
     }
+    let composed_at = started.elapsed();
     let module = module_from(gpu, entry, composed.module)?;
     let pipeline = gpu.scoped(&format!("compute pipeline shaders/{entry}"), || {
         build_pipeline(gpu, &module, entry_point, layouts)
     })?;
+    if std::env::var_os("GILAB_PIPELINE_TIMES").is_some() {
+        eprintln!(
+            "pipeline {entry}:{entry_point} compose {:.3} s, build {:.3} s",
+            composed_at.as_secs_f64(),
+            (started.elapsed() - composed_at).as_secs_f64()
+        );
+    }
     gpu.pipelines
         .insert_compute(key, composed.version, pipeline.clone());
     Ok(pipeline)

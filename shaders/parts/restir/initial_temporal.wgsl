@@ -75,7 +75,7 @@ fn local_candidates(s: GSurface, rng: ptr<function, Rng>, counts: ptr<function, 
             }
             update(&r, Reservoir(slot.light, slot.bary_u, slot.bary_v, 0.0, 0.0, 0.0, 0.0, 0.0), w, 1.0, rand(rng));
         }
-        return finish_ris(s, r);
+        return r;
     }
     let m = surface_material(s);
     let m_light = f32(params.candidates);
@@ -135,7 +135,7 @@ fn local_candidates(s: GSurface, rng: ptr<function, Rng>, counts: ptr<function, 
         }
         update(&r, candidate, w, 1.0, rand(rng));
     }
-    return finish_ris(s, r);
+    return r;
 }
 
 // Directional lights: by power within the class.
@@ -151,7 +151,7 @@ fn directional_candidates(s: GSurface, rng: ptr<function, Rng>) -> Reservoir {
         }
         update(&r, Reservoir(li, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0), w, 1.0, rand(rng));
     }
-    return finish_ris(s, r);
+    return r;
 }
 
 // The sky: directions from a mixture of the BSDF's own sampling and the cosine lobe (the two
@@ -199,7 +199,7 @@ fn sky_candidates(s: GSurface, rng: ptr<function, Rng>) -> Reservoir {
         }
         update(&r, Reservoir(SKY_SAMPLE, e.x, e.y, 0.0, 0.0, 0.0, 0.0, 0.0), w, 1.0, rand(rng));
     }
-    return finish_ris(s, r);
+    return r;
 }
 
 // A conservative visibility test of one reservoir's pick (biased mode): an occluded pick is
@@ -216,23 +216,14 @@ fn drop_if_occluded(s: GSurface, r: ptr<function, Reservoir>, counts: ptr<functi
     }
 }
 
-// Class c's reservoir into the merge (its visibility tested first with per-class testing).
-fn merge_class(s: GSurface, r: ptr<function, Reservoir>, class_reservoir: Reservoir, test_each: bool, rng: ptr<function, Rng>, counts: ptr<function, array<u32, 16>>) {
-    var rc = class_reservoir;
-    if rc.m <= 0.0 {
-        return;
-    }
-    if test_each {
-        drop_if_occluded(s, &rc, counts);
-    }
-    update(r, rc, rc.target_pdf * rc.big_w, rc.m, rand(rng));
-}
-
 // One reservoir from the three class reservoirs. Their samples come from disjoint domains, so
 // each class is its own RIS estimator: the merge picks class c's sample with weight
 // p-hat(y_c) W_c, and W = sum of the weights / p-hat(y). M is the total candidate count.
-// The classes are three variables merged by three calls, not a loop over a private array: an
-// array indexed by a variable lives in local memory on NVIDIA GPUs (slow; see gilab::counters).
+// The classes are three variables, not a private array: an array indexed by a variable lives in
+// local memory on NVIDIA GPUs (slow; see gilab::counters). They are merged in a loop all the
+// same, so that the target, the visibility test and the BSDF they inline are compiled once:
+// drivers inline every call, and one call site per class made this the slowest pipeline to
+// compile (about 40 s on lavapipe).
 fn initial_candidates(s: GSurface, rng: ptr<function, Rng>, counts: ptr<function, array<u32, 16>>) -> Reservoir {
     var local_class = empty_reservoir();
     var directional_class = empty_reservoir();
@@ -248,10 +239,27 @@ fn initial_candidates(s: GSurface, rng: ptr<function, Rng>, counts: ptr<function
     }
     let test_each = params.candidate_visibility == VISIBILITY_PER_CLASS && params.unbiased == 0u;
     var r = empty_reservoir();
-    merge_class(s, &r, local_class, test_each, rng, counts);
-    merge_class(s, &r, directional_class, test_each, rng, counts);
-    merge_class(s, &r, sky_class, test_each, rng, counts);
-    r.target_pdf = target_at(s, r);
+    for (var c = 0u; c < 3u; c++) {
+        var rc = local_class;
+        if c == 1u {
+            rc = directional_class;
+        } else if c == 2u {
+            rc = sky_class;
+        }
+        if rc.m <= 0.0 {
+            continue;
+        }
+        // The class's own RIS weight W, then (per-class testing) its pick's visibility.
+        rc = finish_ris(s, rc);
+        if test_each {
+            drop_if_occluded(s, &rc, counts);
+        }
+        // The target of the pick is known: no second evaluation. A reservoir that picked
+        // nothing keeps target 0 (its W is 0, so no reader weighs it by that target).
+        if update(&r, rc, rc.target_pdf * rc.big_w, rc.m, rand(rng)) {
+            r.target_pdf = rc.target_pdf;
+        }
+    }
     if r.target_pdf > 0.0 {
         r.big_w = r.w_sum / r.target_pdf;
     }
@@ -283,38 +291,50 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                         let pr = reservoirs[reservoir_index(1u - parity(), pidx)];
                         let mc = max(r.m, 1.0);
                         let mp = min(pr.m, params.max_history * mc);
-                        var out = empty_reservoir();
                         let tp = target_at(s, pr);
+                        // Biased: M-weighted (1/M).
+                        var w_r = r.target_pdf * r.big_w * r.m;
+                        var w_p = tp * pr.big_w * mp;
                         if params.unbiased == 1u {
                             // The generalized balance heuristic over the two inputs' own
                             // surfaces (this frame's and last frame's; parts/restir/spatial.wgsl
                             // says why not 1/Z). Targets are unshadowed: reservoirs carry samples
-                            // that reuse brought in, occluded or not.
-                            let r_prev = mp * target_at(ps, r);
+                            // that reuse brought in, occluded or not. Both targets at last
+                            // frame's surface come from one call site (see initial_candidates).
+                            var at_prev = vec2<f32>(0.0);
+                            for (var k = 0u; k < 2u; k++) {
+                                var x = r;
+                                if k == 1u {
+                                    x = pr;
+                                }
+                                at_prev[k] = target_at(ps, x);
+                            }
+                            let r_prev = mp * at_prev.x;
                             let r_here = r.m * r.target_pdf;
-                            let p_prev = mp * target_at(ps, pr);
+                            let p_prev = mp * at_prev.y;
                             let p_here = r.m * tp;
-                            var w_r = 0.0;
+                            w_r = 0.0;
                             if r_here > 0.0 {
                                 w_r = r_here / (r_here + r_prev) * r.target_pdf * r.big_w;
                             }
-                            var w_p = 0.0;
+                            w_p = 0.0;
                             if p_prev > 0.0 {
                                 w_p = p_prev / (p_here + p_prev) * tp * pr.big_w;
                             }
-                            update(&out, r, w_r, r.m, rand(&rng));
-                            update(&out, pr, w_p, mp, rand(&rng));
-                            out.target_pdf = target_at(s, out);
+                        }
+                        var out = empty_reservoir();
+                        if update(&out, r, w_r, r.m, rand(&rng)) {
+                            out.target_pdf = r.target_pdf;
+                        }
+                        if update(&out, pr, w_p, mp, rand(&rng)) {
+                            out.target_pdf = tp;
+                        }
+                        if params.unbiased == 1u {
                             if out.target_pdf > 0.0 {
                                 out.big_w = out.w_sum / out.target_pdf;
                             }
-                        } else {
-                            update(&out, r, r.target_pdf * r.big_w * r.m, r.m, rand(&rng));
-                            update(&out, pr, tp * pr.big_w * mp, mp, rand(&rng));
-                            out.target_pdf = target_at(s, out);
-                            if out.target_pdf > 0.0 && out.m > 0.0 {
-                                out.big_w = out.w_sum / (out.m * out.target_pdf);
-                            }
+                        } else if out.target_pdf > 0.0 && out.m > 0.0 {
+                            out.big_w = out.w_sum / (out.m * out.target_pdf);
                         }
                         r = out;
                     }

@@ -15,12 +15,14 @@ fn input_reservoir(r0: Reservoir, used: Neighbours, k: u32) -> Reservoir {
     return reservoirs[reservoir_index(TEMPORAL_SEGMENT, used.ids[k - 1u])];
 }
 
-// The target of reservoir r's sample at input k's own surface.
+// The target of reservoir r's sample at input k's own surface (one call site: drivers inline
+// every call, and each copy of the target costs seconds of compile time on lavapipe).
 fn input_target(s: GSurface, used: Neighbours, k: u32, r: Reservoir) -> f32 {
-    if k == 0u {
-        return target_at(s, r);
+    var at = s;
+    if k > 0u {
+        at = current_surface(used.ids[k - 1u]);
     }
-    return target_at(current_surface(used.ids[k - 1u]), r);
+    return target_at(at, r);
 }
 
 // The unbiased combination by the generalized balance heuristic (Bitterli et al. 2020, eq. 22;
@@ -56,9 +58,12 @@ fn balance_heuristic_reuse(s: GSurface, r0: Reservoir, used: Neighbours, here: a
                 w = own / all * t * ri.big_w;
             }
         }
-        update(&out, ri, w, ri.m, rand(rng));
+        // The target here of the kept sample is t: no second evaluation. Nothing kept: target 0
+        // (and W = 0).
+        if update(&out, ri, w, ri.m, rand(rng)) {
+            out.target_pdf = t;
+        }
     }
-    out.target_pdf = target_at(s, out);
     if out.target_pdf > 0.0 {
         out.big_w = out.w_sum / out.target_pdf;
     }
@@ -74,6 +79,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let s = current_surface(idx);
         let r0 = reservoirs[reservoir_index(TEMPORAL_SEGMENT, idx)];
         var out = reservoir_from(r0, rand(&rng));
+        // The target here of the sample `out` holds (biased mode; see below).
+        out.target_pdf = select(0.0, r0.target_pdf, out.w_sum > 0.0);
         var used = no_neighbours();
         var here = array<f32, 8>(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
         let k = neighbour_budget();
@@ -93,7 +100,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                         t = 0.0;
                     }
                 }
-                update(&out, nr, t * nr.big_w * nr.m, nr.m, rand(&rng));
+                if update(&out, nr, t * nr.big_w * nr.m, nr.m, rand(&rng)) {
+                    out.target_pdf = t;
+                }
                 here[used.count] = t;
                 used.ids[used.count] = nidx;
                 used.count += 1u;
@@ -104,8 +113,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 out = balance_heuristic_reuse(s, r0, used, here, &rng);
             }
         } else {
-            // Biased: M-weighted (1/M).
-            out.target_pdf = target_at(s, out);
+            // Biased: M-weighted (1/M), with the kept sample's target tracked above.
             if out.target_pdf > 0.0 && out.m > 0.0 {
                 out.big_w = out.w_sum / (out.m * out.target_pdf);
             }
