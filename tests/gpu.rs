@@ -387,6 +387,32 @@ fn parameter_changes_rebuild_no_pipeline() {
     }
 }
 
+/// A rebuild (hot reload) composes the world ReGIR clipmap's build pass again, as every other
+/// pipeline of the engine: the part is prepared with its holder's rebuild, not kept from its
+/// first build (before the part went through `Part::prepare`, an edit to its build shader
+/// never reached a running cache).
+#[test]
+fn a_rebuild_composes_the_world_regir_part_again() {
+    use gilab::parts::world_regir::BUILD_FILE;
+    use gilab::render::pipelines::recording_entries;
+    let mut engine = common::engine(
+        "surfels",
+        toml::toml! { cache_direct = "regir" },
+        builtin::many_lights(128, 1),
+        [16, 16],
+        1,
+    );
+    engine.render_frame().unwrap();
+    let recorded = engine.shader_entries().clone();
+    assert!(recorded.contains(BUILD_FILE), "recorded: {recorded:?}");
+    let ((), rebuilt) = recording_entries(|| engine.rebuild().unwrap());
+    assert_eq!(
+        rebuilt, recorded,
+        "the rebuild compiled other entry files than the engine recorded"
+    );
+    engine.render_frame().unwrap();
+}
+
 /// Hot reload rebuilds an engine when a file it compiled changes, and only then: the entry
 /// files are recorded as pipelines are built, so a part switched on by a parameter (ReSTIR GI
 /// paths ending in the surface cache) and the denoiser join the list when they are built.

@@ -8,7 +8,7 @@
 // visibility is the cell's static visibility times that. Lights that moved and receivers on
 // moving instances trace the whole scene. The static-only and moving-only rays are the shared
 // any-hit traversal (gilab::ray::occluded_filtered, gilab::bvh::traverse) with an instance
-// instances; what moves is `record_dynamic` below, which shadows.wgsl plugs into it.
+// filter; what moves is `record_dynamic` below, which shadows.wgsl plugs into it.
 #define_import_path gilab::callisto_cache
 
 #import gilab::frame::frame

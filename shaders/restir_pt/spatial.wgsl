@@ -58,7 +58,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                         path = c;
                         to = current_surface(ids[j]);
                     }
-                    if path.big_w <= 0.0 {
+                    if !(path.big_w > 0.0) {
                         if canonical {
                             mis_c += share;
                         }

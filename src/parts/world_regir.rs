@@ -22,6 +22,7 @@
 //! group 2 (`WORLD_REGIR_GROUP`'s default).
 
 use crate::gpu::{readback, timing::PassTimer, Gpu};
+use crate::parts::Part;
 use crate::render::params::{ParamChanges, ParamKind, ParamSpec, Params};
 use crate::render::{pipelines, PassInfo, RenderContext};
 use crate::scene::features::SceneFeatures;
@@ -75,7 +76,7 @@ pub const PARAMS: [ParamSpec; 4] = [
     },
 ];
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct WorldRegirSettings {
     /// `cache_direct = "regir"`.
     pub regir: bool,
@@ -187,6 +188,8 @@ impl Coverage {
 pub struct WorldRegir {
     pipeline: Option<wgpu::ComputePipeline>,
     buffers: Option<Buffers>,
+    /// The consumer's settings the buffers are sized for (`prepare`).
+    settings: WorldRegirSettings,
 }
 
 impl WorldRegir {
@@ -203,33 +206,17 @@ impl WorldRegir {
         )
     }
 
-    pub fn is_built(&self) -> bool {
-        self.pipeline.is_some() && self.buffers.is_some()
-    }
-
-    /// The build pipeline (on an error the previous one stays).
-    pub fn build(&mut self, ctx: &RenderContext) -> Result<()> {
-        let layout = Self::layout(ctx.gpu);
-        self.pipeline = Some(pipelines::compute_pipeline(
-            ctx.gpu,
-            ctx.shaders,
-            BUILD_FILE,
-            &[&ctx.scene.layout, ctx.frame_layout, &layout],
-        )?);
-        Ok(())
-    }
-
-    /// What a consumer calls when its parameters change or it builds: builds the part the
-    /// first time `cache_direct = "regir"` asks for it, and sizes it for the scene.
-    pub fn prepare(&mut self, ctx: &RenderContext, s: &WorldRegirSettings) -> Result<()> {
-        if !s.regir {
-            return Ok(());
-        }
-        if !self.is_built() {
-            self.build(ctx)?;
-        }
-        self.build_resources(ctx.gpu, s, &ctx.scene.data.features);
-        Ok(())
+    /// What a consumer calls when it builds (`rebuild`: its shaders changed, so the build
+    /// pipeline is composed again for hot reload) or its settings or scene change: the
+    /// [`Part`] bookkeeping, wanted when `cache_direct = "regir"`, sized for the scene.
+    pub fn prepare_for(
+        &mut self,
+        ctx: &RenderContext,
+        s: &WorldRegirSettings,
+        rebuild: bool,
+    ) -> Result<()> {
+        self.settings = *s;
+        self.prepare(ctx, s.regir, rebuild, ())
     }
 
     /// A consumer's lighting pipeline (`entry` over the scene, the frame and its own group 2):
@@ -295,7 +282,8 @@ impl WorldRegir {
 
     /// Buffers for this scene and these settings (kept while their sizes hold; the marks and
     /// counters start from zero when they are made).
-    pub fn build_resources(&mut self, gpu: &Gpu, s: &WorldRegirSettings, f: &SceneFeatures) {
+    fn size_buffers(&mut self, gpu: &Gpu, f: &SceneFeatures) {
+        let s = self.settings;
         let (cell_size, levels) = Self::geometry(f);
         let cells = levels as u64 * (DIMS as u64).pow(3);
         let gpu_params = WorldRegirParamsGpu {
@@ -438,4 +426,32 @@ impl WorldRegir {
             },
         }
     }
+}
+
+impl Part for WorldRegir {
+    type Input<'a> = ();
+
+    fn is_built(&self) -> bool {
+        self.pipeline.is_some()
+    }
+
+    /// The build pipeline (on an error the previous one stays).
+    fn build(&mut self, ctx: &RenderContext, _: ()) -> Result<()> {
+        let layout = Self::layout(ctx.gpu);
+        self.pipeline = Some(pipelines::compute_pipeline(
+            ctx.gpu,
+            ctx.shaders,
+            BUILD_FILE,
+            &[&ctx.scene.layout, ctx.frame_layout, &layout],
+        )?);
+        Ok(())
+    }
+
+    fn build_resources(&mut self, ctx: &RenderContext) {
+        self.size_buffers(ctx.gpu, &ctx.scene.data.features);
+    }
+
+    /// Nothing: the slots are built again every frame, and the marks and counters say where to
+    /// build (and what `coverage` reports), not what the light is.
+    fn reset(&self, _: &Gpu) {}
 }

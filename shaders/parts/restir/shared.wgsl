@@ -181,11 +181,13 @@ fn shade_reservoir(s: GSurface, ri: u32) -> ShadedReservoir {
 }
 
 // Weighted reservoir sampling: take `candidate` with weight w with probability w / w_sum.
-// A reservoir that starts from `r` (its sample, weighted as a merged reservoir, and its M): the
-// first candidate of spatial reuse.
+// A reservoir that starts from `r` (its sample with its target, weighted as a merged reservoir,
+// and its M): the first candidate of spatial reuse.
 fn reservoir_from(r: Reservoir, u: f32) -> Reservoir {
     var out = empty_reservoir();
-    update(&out, r, r.target_pdf * r.big_w * r.m, r.m, u);
+    if update(&out, r, r.target_pdf * r.big_w * r.m, r.m, u) {
+        out.target_pdf = r.target_pdf;
+    }
     return out;
 }
 

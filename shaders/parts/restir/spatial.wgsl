@@ -78,9 +78,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         var rng = rng_init(gid.xy, frame.sample_offset, STREAM_DI_SPATIAL, frame.seed);
         let s = current_surface(idx);
         let r0 = reservoirs[reservoir_index(TEMPORAL_SEGMENT, idx)];
+        // Its target comes with the sample (biased mode; see below).
         var out = reservoir_from(r0, rand(&rng));
-        // The target here of the sample `out` holds (biased mode; see below).
-        out.target_pdf = select(0.0, r0.target_pdf, out.w_sum > 0.0);
         var used = no_neighbours();
         var here = array<f32, 8>(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
         let k = neighbour_budget();

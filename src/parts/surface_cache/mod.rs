@@ -386,7 +386,8 @@ impl SurfaceCache {
         let probes = ctx.pipeline(PASSES[1].1, group2)?;
         let indirect = ctx.pipeline(PASSES[2].1, group2)?;
         let (capture, capture_clear) = capture::pipelines(ctx, &capture_layout)?;
-        self.world_regir.prepare(ctx, &self.settings.cache_light)?;
+        self.world_regir
+            .prepare_for(ctx, &self.settings.cache_light, true)?;
         self.direct_light = self.settings.cache_light.name();
         self.pipelines = Some(Pipelines {
             capture,
@@ -403,7 +404,8 @@ impl SurfaceCache {
         ctx: &RenderContext,
         group2: &wgpu::BindGroupLayout,
     ) -> Result<()> {
-        self.world_regir.prepare(ctx, &self.settings.cache_light)?;
+        self.world_regir
+            .prepare_for(ctx, &self.settings.cache_light, false)?;
         let light = self.settings.cache_light.name();
         if self.direct_light != light {
             let pipeline = WorldRegir::lighting_pipeline(
@@ -487,7 +489,8 @@ impl SurfaceCache {
         self.cards = Some(card_set);
         self.scene_tris = data.tris.clone();
         self.scene_materials = bytemuck::cast_slice(&data.materials).to_vec();
-        self.world_regir.prepare(ctx, &self.settings.cache_light)?;
+        self.world_regir
+            .prepare_for(ctx, &self.settings.cache_light, false)?;
         Ok(())
     }
 

@@ -791,7 +791,8 @@ impl SurfelCore {
         self.restir_direct
             .prepare(ctx, self.settings.direct_restir, true, ())?;
         self.prepare_reflections(ctx, true)?;
-        self.world_regir.prepare(ctx, &self.settings.cache_light)?;
+        self.world_regir
+            .prepare_for(ctx, &self.settings.cache_light, true)?;
         self.trace_light = self.settings.cache_light.shader_key();
         self.pipelines = Some(Pipelines {
             passes,
@@ -820,7 +821,8 @@ impl SurfelCore {
     pub fn apply_params(&mut self, ctx: &RenderContext) -> Result<()> {
         self.ensure_restir(ctx)?;
         self.prepare_reflections(ctx, false)?;
-        self.world_regir.prepare(ctx, &self.settings.cache_light)?;
+        self.world_regir
+            .prepare_for(ctx, &self.settings.cache_light, false)?;
         if self.trace_light != self.settings.cache_light.shader_key() {
             let layout = self.layouts(ctx.gpu).surfels.clone();
             let pipeline = WorldRegir::lighting_pipeline(
