@@ -188,7 +188,7 @@ impl Coverage {
 pub struct WorldRegir {
     pipeline: Option<wgpu::ComputePipeline>,
     buffers: Option<Buffers>,
-    /// The consumer's settings the buffers are sized for (`prepare`).
+    /// The holder's settings the buffers are sized for (`prepare_for`).
     settings: WorldRegirSettings,
 }
 
