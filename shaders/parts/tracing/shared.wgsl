@@ -18,6 +18,8 @@
 
 const MAX_LEVELS: u32 = 6u;
 const BRICK: u32 = 8u;
+// BRICK = 1 << BRICK_SHIFT: a voxel's brick by an arithmetic shift (floor division for negatives).
+const BRICK_SHIFT: u32 = 3u;
 const BRICK_VOXELS: u32 = 512u;
 // Narrow band: bricks hold distances within +-BAND voxels of their level (the seed's [-4, 4]).
 const BAND: f32 = 4.0;
@@ -152,17 +154,31 @@ fn brick_slot(l: u32, b: vec3<i32>) -> u32 {
     return l * params.bricks_per_axis * params.bricks_per_axis * params.bricks_per_axis + u32(s.x + n * (s.y + n * s.z));
 }
 
-// The stored voxel word of world voxel v of level l, or EMPTY where no brick holds it.
-fn voxel_word(l: u32, v: vec3<i32>) -> u32 {
-    let b = floor_div(v, i32(BRICK));
+// Where brick `b` (world brick coordinates) of level l starts in brick_pool, or EMPTY where no
+// brick is stored for it.
+fn brick_base(l: u32, b: vec3<i32>) -> u32 {
     let slot = brick_slot(l, b);
     let held = brick_coord[slot];
     let entry = brick_table[slot];
     if entry == EMPTY || held.w == 0 || any(held.xyz != b) {
         return EMPTY;
     }
+    return entry * BRICK_VOXELS;
+}
+
+// The word of world voxel v in the brick `b` that holds it, whose pool start is `base`.
+fn brick_word(base: u32, b: vec3<i32>, v: vec3<i32>) -> u32 {
+    if base == EMPTY {
+        return EMPTY;
+    }
     let local = vec3<u32>(v - b * i32(BRICK));
-    return brick_pool[entry * BRICK_VOXELS + local.x + BRICK * (local.y + BRICK * local.z)];
+    return brick_pool[base + local.x + BRICK * (local.y + BRICK * local.z)];
+}
+
+// The stored voxel word of world voxel v of level l, or EMPTY where no brick holds it.
+fn voxel_word(l: u32, v: vec3<i32>) -> u32 {
+    let b = floor_div(v, i32(BRICK));
+    return brick_word(brick_base(l, b), b, v);
 }
 
 fn encode_voxel(dist_in_band: f32, object: u32) -> u32 {
@@ -176,13 +192,6 @@ fn decode_distance(word: u32) -> f32 {
 
 fn decode_object(word: u32) -> u32 {
     return word >> 16u;
-}
-
-// Distance (world units) of world voxel v's centre, `BAND` voxels where no brick is stored.
-fn voxel_distance(l: u32, v: vec3<i32>) -> f32 {
-    let w = voxel_word(l, v);
-    let band = BAND * level_voxel(l);
-    return select(decode_distance(w) * band, band, w == EMPTY);
 }
 
 fn coarse_cells() -> u32 {
@@ -203,16 +212,30 @@ fn coarse_bound(l: u32, p: vec3<f32>) -> f32 {
     return coarse[idx] - length(p - centre);
 }
 
-// Trilinear distance from the bricks of level l.
+// Trilinear distance from the bricks of level l. The eight taps mostly lie in one brick, so a
+// brick's table entry is looked up when a tap enters it, not once per tap: this is the inner
+// loop of every distance-field ray. A tap's distance (world units) is its voxel centre's,
+// `BAND` voxels where no brick is stored.
 fn brick_distance(l: u32, p: vec3<f32>) -> f32 {
     let f = p / level_voxel(l) - 0.5;
     let i0 = vec3<i32>(floor(f));
     let t = f - floor(f);
+    let band = BAND * level_voxel(l);
     var d = 0.0;
+    // No brick is this far out: the first tap looks its brick up.
+    var brick = vec3<i32>(-0x7fffffff);
+    var base = EMPTY;
     for (var k = 0u; k < 8u; k++) {
         let o = vec3<i32>(i32(k & 1u), i32((k >> 1u) & 1u), i32((k >> 2u) & 1u));
         let w = select(1.0 - t, t, vec3<bool>(o == vec3<i32>(1)));
-        d += w.x * w.y * w.z * voxel_distance(l, i0 + o);
+        let v = i0 + o;
+        let b = v >> vec3<u32>(BRICK_SHIFT);
+        if any(b != brick) {
+            brick = b;
+            base = brick_base(l, b);
+        }
+        let word = brick_word(base, b, v);
+        d += w.x * w.y * w.z * select(decode_distance(word) * band, band, word == EMPTY);
     }
     return d;
 }
