@@ -425,7 +425,8 @@ fn every_technique_stays_finite_under_extreme_callisto_parameters() {
         dual_specular_roughness_scale = 16.0
         dual_specular_opacity = 1.0
     "#;
-    for technique in ["reference", "restir", "surfels", "lumen"] {
+    // Two techniques at a time (on a fresh machine this test is mostly shader compiles).
+    common::on_two_threads(&["reference", "restir", "surfels", "lumen"], |&technique| {
         for (name, scene) in [
             ("hard-cases", builtin::hard_cases(1e6)),
             ("material-balls", builtin::material_balls()),
@@ -443,5 +444,5 @@ fn every_technique_stays_finite_under_extreme_callisto_parameters() {
             eprintln!("{technique} on {name}: max pixel {:.3e}", img.max_value());
             assert_eq!(img.non_finite_count(), 0, "{technique} on {name}");
         }
-    }
+    });
 }

@@ -71,6 +71,7 @@ fn run_technique(
 /// 256² atlas is relit every frame, and the surfels trace 16,384 rays a frame, for a 64² image,
 /// so a cache costs more rays per pixel than it would at a real resolution).
 #[test]
+#[ignore = "slow tier, not run by CI (docs/testing.md#slow-tier): ReSTIR GI ending in each cache (not a default), 179 s in CI"]
 fn cache_terminations_keep_multi_bounce_light() {
     let size = [64, 64];
     let truth = common::cornell_truth_64();
@@ -128,6 +129,7 @@ fn cache_terminations_keep_multi_bounce_light() {
 /// cache (restir's default 512² atlas, a quarter relit per frame, so a longer warm-up) or in the
 /// surfels, and the Cornell box keeps its energy.
 #[test]
+#[ignore = "slow tier, not run by CI (docs/testing.md#slow-tier): Callisto's GI ending in a cache (not a default), 119 s in CI"]
 fn callisto_gi_ends_in_a_cache() {
     let size = [64, 64];
     let truth = common::cornell_truth_64();
@@ -307,6 +309,7 @@ fn unknown_terminations_are_refused() {
 /// and shadow rays in both: the ReGIR cache must have the lower error and the same energy
 /// within noise, and the clipmap must serve nearly every lookup.
 #[test]
+#[ignore = "slow tier, not run by CI (docs/testing.md#slow-tier): cache_direct = regir (not a default), 91 s in CI"]
 fn regir_lights_the_cache_with_less_noise() {
     const UPDATES: u32 = 16;
     let size = [64, 64];
@@ -511,6 +514,7 @@ fn restir_gi_caches_lit_by_regir() {
 /// lets about a third of the sample rays escape: they hit nothing and end in no cache). The
 /// engine counts its GI paths' lookups (the surfel cache's own rays are not counted).
 #[test]
+#[ignore = "slow tier, not run by CI (docs/testing.md#slow-tier): ReSTIR GI ending in the surfel cache (not a default), 255 s in CI"]
 fn gi_paths_end_in_the_surfels() {
     let size = [128, 128];
     let mut p = toml::Table::new();

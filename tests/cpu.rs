@@ -27,7 +27,8 @@ fn every_wgsl_entry_file_validates() {
     }
     // NEE by the light tree (a def any pipeline may set: the reference's `light_sampling`).
     libs.push(ShaderLibrary::discover().with_defs(&[("LIGHT_TREE", 1)]));
-    for lib in libs {
+    // Two libraries at a time (naga's composition and validation run on one core each).
+    common::on_two_threads(&libs, |lib| {
         let entries = lib.entry_files().unwrap();
         assert!(entries.len() >= 3, "entry files: {entries:?}");
         for entry in entries {
@@ -41,7 +42,7 @@ fn every_wgsl_entry_file_validates() {
             .validate(&module)
             .unwrap_or_else(|e| panic!("shaders/{entry}: {e:?}"));
         }
-    }
+    });
 }
 
 /// Each registered cache's end of a GI path (`GiCache::path_end`, an `override fn

@@ -1,4 +1,4 @@
-//! Shared helpers for the integration tests: one GPU device per test binary, small renders.
+//! Shared helpers for the integration tests: two GPU devices per test binary, small renders.
 #![allow(dead_code)]
 
 pub mod gltf_writer;
@@ -11,16 +11,51 @@ use gilab::scene::Scene;
 use gilab::techniques::create_technique;
 use std::sync::{Arc, OnceLock};
 
-/// The device every GPU test shares (lavapipe in CI). Tests fail, not skip, without one.
+/// The device a GPU test renders on (lavapipe in CI). Tests fail, not skip, without one.
+///
+/// A binary has two devices (`GILAB_TEST_DEVICES`, 1 or 2, default 2), and each test thread
+/// keeps the one that fewer running tests held when it first asked. Lavapipe compiles a shader
+/// variant at its first dispatch on its queue's thread: with one device, a compile (up to 19 s
+/// for the largest passes on a fresh machine, whose shader cache is empty) held up the other
+/// test thread's work, and one of the two cores stood idle.
 pub fn gpu() -> Arc<Gpu> {
-    static GPU: OnceLock<Arc<Gpu>> = OnceLock::new();
-    GPU.get_or_init(|| {
-        let gpu = Gpu::new(BackendChoice::Auto)
-            .expect("a GPU adapter (install mesa-vulkan-drivers for lavapipe)");
-        eprintln!("test adapter: {}", gpu.summary);
-        Arc::new(gpu)
-    })
-    .clone()
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    static GPUS: [OnceLock<Arc<Gpu>>; 2] = [OnceLock::new(), OnceLock::new()];
+    static HOLDERS: [AtomicUsize; 2] = [AtomicUsize::new(0), AtomicUsize::new(0)];
+    static CHOOSING: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    /// A test thread's hold on device `.0`, given up when the thread ends.
+    struct Held(usize);
+    impl Drop for Held {
+        fn drop(&mut self) {
+            HOLDERS[self.0].fetch_sub(1, Ordering::SeqCst);
+        }
+    }
+    thread_local! {
+        static HELD: std::cell::OnceCell<Held> = const { std::cell::OnceCell::new() };
+    }
+    let devices = match std::env::var("GILAB_TEST_DEVICES").as_deref() {
+        Ok("1") => 1,
+        _ => 2,
+    };
+    let slot = HELD.with(|held| {
+        held.get_or_init(|| {
+            let _choosing = CHOOSING.lock().unwrap_or_else(|e| e.into_inner());
+            let slot = (0..devices)
+                .min_by_key(|&i| HOLDERS[i].load(Ordering::SeqCst))
+                .unwrap();
+            HOLDERS[slot].fetch_add(1, Ordering::SeqCst);
+            Held(slot)
+        })
+        .0
+    });
+    GPUS[slot]
+        .get_or_init(|| {
+            let gpu = Gpu::new(BackendChoice::Auto)
+                .expect("a GPU adapter (install mesa-vulkan-drivers for lavapipe)");
+            eprintln!("test adapter {slot}: {}", gpu.summary);
+            Arc::new(gpu)
+        })
+        .clone()
 }
 
 pub struct Render {
@@ -47,6 +82,34 @@ pub fn engine(
         camera,
     };
     Engine::new(gpu(), ShaderLibrary::discover(), scene, t, settings).unwrap()
+}
+
+/// Runs `f` on every item, two items at a time on two threads, and returns the results in the
+/// items' order (a panic in `f` fails the test). For tests that go through independent cases
+/// one after another: each thread keeps its own device (`gpu()`), so on a fresh machine, whose
+/// shader cache is empty, two cases compile their passes at once (lavapipe compiles a variant
+/// at its first dispatch, on the device's queue thread) instead of one core standing idle.
+pub fn on_two_threads<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    let next = AtomicUsize::new(0);
+    let results: std::sync::Mutex<Vec<Option<R>>> =
+        std::sync::Mutex::new(items.iter().map(|_| None).collect());
+    std::thread::scope(|scope| {
+        for _ in 0..2 {
+            scope.spawn(|| loop {
+                let i = next.fetch_add(1, Ordering::SeqCst);
+                let Some(item) = items.get(i) else { break };
+                let r = f(item);
+                results.lock().unwrap_or_else(|e| e.into_inner())[i] = Some(r);
+            });
+        }
+    });
+    results
+        .into_inner()
+        .unwrap_or_else(|e| e.into_inner())
+        .into_iter()
+        .map(|r| r.expect("every item ran"))
+        .collect()
 }
 
 /// Copies a directory tree (a shader folder a test edits).
@@ -138,7 +201,8 @@ pub fn render_reference(
 /// A converged reference image (the reference path tracer, `spp` samples per pixel in frames of
 /// at most 64, `max_depth` 0 = unbounded, FrameUniforms `flags`), rendered once and shared by
 /// every test and every test binary: kept in memory per binary and as a lossless float EXR under
-/// cargo's `target/tmp/gilab-references/`. The file name hashes everything the image depends
+/// cargo's `target/tmp/gilab-references/`, or read from the repository's shipped ones
+/// (`shipped_references`). The file name hashes everything the image depends
 /// on: the scene's content (`scene_content_hash`), the arguments, every file of `src/` and
 /// `shaders/` and `Cargo.lock`, so a code or dependency change renders it again. On
 /// lavapipe a 128² Cornell box at 1,024 spp costs about 110 s: several binaries share it.
@@ -150,24 +214,24 @@ pub fn shared_reference(
     max_depth: u32,
     flags: u32,
 ) -> Image {
-    use std::hash::{Hash, Hasher};
     static MEMORY: std::sync::Mutex<Vec<(u64, Image)>> = std::sync::Mutex::new(Vec::new());
-    let mut h = fnv::FnvHasher::default();
-    source_hash().hash(&mut h);
-    let frames = spp.div_ceil(spp.min(64));
-    scene_content_hash(&scene, frames).hash(&mut h);
-    (size, spp, seed, max_depth, flags).hash(&mut h);
-    let key = h.finish();
+    let key = shared_reference_key(&scene, size, spp, seed, max_depth, flags);
     // Held while rendering: a second test asking for the same truth waits for it.
     let mut memory = MEMORY.lock().unwrap_or_else(|e| e.into_inner());
     if let Some((_, img)) = memory.iter().find(|(k, _)| *k == key) {
         return img.clone();
     }
     let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("gilab-references");
-    let file = dir.join(format!("{key:016x}.exr"));
-    let img = match gilab::compare::io::read_exr(&file) {
-        Ok(img) if [img.width, img.height] == size => img,
-        _ => {
+    let name = format!("{key:016x}.exr");
+    let file = dir.join(&name);
+    let read = |path: &std::path::Path| {
+        gilab::compare::io::read_exr(path)
+            .ok()
+            .filter(|img| [img.width, img.height] == size)
+    };
+    let img = match read(&file).or_else(|| read(&shipped_references().join(&name))) {
+        Some(img) => img,
+        None => {
             let (img, _) = reference_render(scene, size, spp, seed, max_depth, flags);
             // Written under another name and renamed: a reader never sees half a file.
             std::fs::create_dir_all(&dir).unwrap();
@@ -177,8 +241,61 @@ pub fn shared_reference(
             img
         }
     };
+    if std::env::var_os("GILAB_SHIP_REFERENCES").is_some() {
+        ship_reference(&name, &img);
+    }
     memory.push((key, img.clone()));
     img
+}
+
+/// The name (without `.exr`) of `shared_reference`'s image of these arguments: a hash of the
+/// sources, the scene's content and the arguments.
+pub fn shared_reference_key(
+    scene: &Scene,
+    size: [u32; 2],
+    spp: u32,
+    seed: u32,
+    max_depth: u32,
+    flags: u32,
+) -> u64 {
+    use std::hash::{Hash, Hasher};
+    let mut h = fnv::FnvHasher::default();
+    source_hash().hash(&mut h);
+    let frames = spp.div_ceil(spp.min(64));
+    scene_content_hash(scene, frames).hash(&mut h);
+    (size, spp, seed, max_depth, flags).hash(&mut h);
+    h.finish()
+}
+
+/// The references shipped with the repository (`tests/data/references/`): the EXRs
+/// `shared_reference` renders, under the same names, committed at the sources they were
+/// rendered from, so that a fresh checkout (CI) reads them instead of rendering them again
+/// (most of half an hour of lavapipe). The name hashes the sources, so any change to `src/`,
+/// `shaders/` or `Cargo.lock` misses them and renders as before. `tools/ship-references.sh`
+/// makes them; `shipped_references_are_what_these_sources_render` (gpu) renders one again.
+pub fn shipped_references() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/references")
+}
+
+/// With `GILAB_SHIP_REFERENCES` set, every reference a test reads is also written to the
+/// shipped folder. The folder holds one source state: `SOURCE` names it, and the first
+/// reference of another state empties the folder first.
+fn ship_reference(name: &str, img: &Image) {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _guard = LOCK.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = shipped_references();
+    let stamp = dir.join("SOURCE");
+    let source = format!("{:016x}\n", source_hash());
+    if std::fs::read_to_string(&stamp).ok().as_deref() != Some(source.as_str()) {
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(&stamp, &source).unwrap();
+    }
+    let file = dir.join(name);
+    if !file.exists() {
+        std::fs::create_dir_all(file.parent().unwrap()).unwrap();
+        gilab::compare::io::write_exr(&file, img).unwrap();
+    }
 }
 
 /// The reference path tracer at `spp` samples per pixel (in frames of at most 64), `max_depth`
@@ -362,11 +479,42 @@ pub fn tmp_dir(binary: &str, name: &str) -> std::path::PathBuf {
     d
 }
 
-/// One reference cache per test binary: references are rendered once.
+/// One reference cache per test binary: references are rendered once. It starts with the
+/// experiments' references shipped for these sources (`tests/data/references/experiments/`:
+/// the app's cache keys leave the sources out, so they are read only while the shipped folder's
+/// `SOURCE` is these sources).
 pub fn reference_cache(binary: &str) -> std::path::PathBuf {
     let d = std::env::temp_dir().join(format!("gilab-{binary}-{}-cache", std::process::id()));
     std::fs::create_dir_all(&d).unwrap();
+    if shipped_references_are_current() {
+        let shipped = shipped_references().join("experiments");
+        for e in std::fs::read_dir(shipped).into_iter().flatten().flatten() {
+            let _ = std::fs::copy(e.path(), d.join(e.file_name()));
+        }
+    }
     d
+}
+
+/// Whether the shipped references are of these sources (their `SOURCE` stamp).
+pub fn shipped_references_are_current() -> bool {
+    let stamp = std::fs::read_to_string(shipped_references().join("SOURCE")).unwrap_or_default();
+    stamp.trim() == format!("{:016x}", source_hash())
+}
+
+/// With `GILAB_SHIP_REFERENCES` set, the reference EXRs an experiment left in `cache` are
+/// shipped too (beside `shared_reference`'s, under `experiments/`).
+fn ship_experiment_references(cache: &std::path::Path) {
+    if std::env::var_os("GILAB_SHIP_REFERENCES").is_none() {
+        return;
+    }
+    for e in std::fs::read_dir(cache).into_iter().flatten().flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        if name.ends_with(".exr") {
+            if let Ok(img) = gilab::compare::io::read_exr(&e.path()) {
+                ship_reference(&format!("experiments/{name}"), &img);
+            }
+        }
+    }
 }
 
 /// One GPU experiment at a time in a binary: lavapipe shares the two CPU cores, and timing
@@ -395,6 +543,7 @@ pub fn converge_into(
         quiet: true,
     };
     run::converge(gpu(), p, &opts)?;
+    ship_experiment_references(&opts.cache);
     run::read_output_dir(out)
 }
 
