@@ -3427,3 +3427,103 @@ fn the_largest_functions_are_inlined_few_times() {
     }
     assert!(report.is_empty(), "{}", report.join("\n"));
 }
+
+/// Where a footprint Rust file (`common::in_reference_footprint`) names a module outside the
+/// footprint: `crate::app`, a part other than the light tree, another technique, or (from the
+/// light tree) its parent `super::`. The registry (`techniques/mod.rs`, which makes a technique
+/// by id) and the CLI (`view` and `bench` open the viewer) are the two entries allowed to.
+fn footprint_escapes(rel: &str, source: &str) -> Vec<String> {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut out = Vec::new();
+    for (line, text) in source.lines().enumerate() {
+        let code = text.split("//").next().unwrap_or("");
+        let mut rest = code;
+        while let Some(at) = rest.find("crate::") {
+            rest = &rest[at + "crate::".len()..];
+            let path: Vec<&str> = rest
+                .split(|c: char| !(c.is_alphanumeric() || c == '_' || c == ':'))
+                .next()
+                .unwrap_or("")
+                .split("::")
+                .collect();
+            let escapes = match path.as_slice() {
+                ["app", ..] => !rel.starts_with("src/cli/"),
+                ["parts", part, ..] => *part != "light_tree",
+                ["techniques", t, ..] => {
+                    let module = root.join("src/techniques").join(t);
+                    let is_module = module.is_dir() || module.with_extension("rs").is_file();
+                    is_module && *t != "reference" && rel != "src/techniques/mod.rs"
+                }
+                _ => false,
+            };
+            if escapes {
+                out.push(format!("{rel}:{}: crate::{}", line + 1, path.join("::")));
+            }
+        }
+        if rel == "src/parts/light_tree.rs" && code.contains("super::") {
+            out.push(format!("{rel}:{}: super::", line + 1));
+        }
+    }
+    out
+}
+
+/// The reference's footprint (the files the shared and shipped references are keyed by,
+/// `common::in_reference_footprint`) is closed: no Rust file in it names a module outside it,
+/// so a change outside cannot reach a reference render but through the technique registry,
+/// which makes the reference alone there. (The shaders:
+/// `gpu::shipped_references_are_what_these_sources_render`.)
+#[test]
+fn reference_footprint_is_closed() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let files = common::source_files();
+    let footprint: Vec<&String> = files
+        .iter()
+        .filter(|f| common::in_reference_footprint(f))
+        .collect();
+    // What it holds and leaves out, so that a rule gone wrong shows.
+    for must in [
+        "Cargo.lock",
+        "src/render/engine.rs",
+        "src/techniques/reference/mod.rs",
+        "src/parts/light_tree.rs",
+        "shaders/reference/path_trace.wgsl",
+        "shaders/common/path.wgsl",
+    ] {
+        assert!(footprint.iter().any(|f| *f == must), "{must} is in it");
+    }
+    for never in [
+        "src/techniques/lumen/mod.rs",
+        "src/parts/world_cache.rs",
+        "src/app/mod.rs",
+        "shaders/lumen/apply.wgsl",
+        "shaders/parts/world_cache/update.wgsl",
+    ] {
+        assert!(files.iter().any(|f| f == never), "{never} exists");
+        assert!(!common::in_reference_footprint(never), "{never} is not");
+    }
+    let mut escapes = Vec::new();
+    for rel in footprint.iter().filter(|f| f.ends_with(".rs")) {
+        let source = std::fs::read_to_string(root.join(rel)).unwrap();
+        escapes.extend(footprint_escapes(rel, &source));
+    }
+    assert!(
+        escapes.is_empty(),
+        "footprint files reach outside it (a reference could depend on a file its key leaves out: widen common::in_reference_footprint or cut the dependency):\n{}",
+        escapes.join("\n")
+    );
+    // The check can fail: each kind of escape is found.
+    let planted = "use crate::techniques::lumen::Lumen;\nlet c = crate::parts::SurfaceCache::new(); // crate::app\nuse crate::app::run;\n";
+    assert_eq!(
+        footprint_escapes("src/render/engine.rs", planted),
+        [
+            "src/render/engine.rs:1: crate::techniques::lumen::Lumen",
+            "src/render/engine.rs:2: crate::parts::SurfaceCache::new",
+            "src/render/engine.rs:3: crate::app::run",
+        ]
+    );
+    assert!(footprint_escapes(
+        "src/techniques/reference/mod.rs",
+        "use crate::techniques::create_technique;"
+    )
+    .is_empty());
+}

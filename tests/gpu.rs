@@ -225,22 +225,37 @@ fn same_seed_gives_bit_identical_images() {
 /// pixel by pixel with its shipped file. On the host that shipped it the two are bit-identical;
 /// another CPU may round a few samples differently, so the check is a relMSE below 1e-5, far
 /// under a 1,024-spp image's own noise (another shipped image in its place: 77.6, it fails).
-/// When the folder holds other sources' references (a change since they were shipped), none is
-/// read, and there is nothing to check.
+/// When the folder holds other sources' references (a change in the reference's footprint since
+/// they were shipped), none is read, and there is nothing to compare. Either way, the render's
+/// shader files are checked to lie in the footprint that names the references
+/// (`assert_reference_shaders_in_footprint`; the Rust side: `cpu::reference_footprint_is_closed`).
 #[test]
 fn shipped_references_are_what_these_sources_render() {
+    let (size, spp, seed, max_depth) = ([64, 64], 1024, 7, 1);
+    // `common::reference_render`, with the engine kept: its shader files are checked too.
+    let mut params = toml::Table::new();
+    params.insert("samples_per_frame".into(), 64.into());
+    params.insert("max_depth".into(), (max_depth as i64).into());
+    let mut e = common::engine("reference", params, builtin::cornell(), size, seed);
+    e.flags = 0;
+    e.reset();
+    for _ in 0..spp / 64 {
+        e.render_frame().unwrap();
+    }
+    assert_eq!(e.ray_counts().unwrap().invalid_samples, 0);
+    let fresh = e.read_output().unwrap();
+    e.read_output_and_variance().unwrap();
+    assert_reference_shaders_in_footprint(e.shader_entries());
     let dir = common::shipped_references();
     if !common::shipped_references_are_current() {
         println!("the shipped references are of other sources: none is read");
         return;
     }
-    let (size, spp, seed, max_depth) = ([64, 64], 1024, 7, 1);
     let key = common::shared_reference_key(&builtin::cornell(), size, spp, seed, max_depth, 0);
     let file = dir.join(format!("{key:016x}.exr"));
     let shipped = gilab::compare::io::read_exr(&file).unwrap_or_else(|e| {
         panic!("the shipped folder is of these sources but lacks {file:?} ({e}): run tools/ship-references.sh")
     });
-    let (fresh, _) = common::reference_render(builtin::cornell(), size, spp, seed, max_depth, 0);
     assert_eq!(fresh.rgb.len(), shipped.rgb.len());
     let identical = fresh
         .rgb
@@ -261,6 +276,67 @@ fn shipped_references_are_what_these_sources_render() {
     );
     let ratio = common::luminance(fresh.mean()) / common::luminance(shipped.mean());
     assert!((ratio - 1.0).abs() < 1e-3, "energy ratio {ratio}");
+}
+
+/// Every shader file a reference engine compiled (`entries`) lies in the reference's footprint
+/// (`common::in_reference_footprint`, which keys the shared and shipped references), and so does
+/// every module those files import: a shader outside it cannot change a reference.
+fn assert_reference_shaders_in_footprint(entries: &std::collections::BTreeSet<String>) {
+    assert!(
+        entries.contains("reference/path_trace.wgsl"),
+        "the reference's own shader is recorded: {entries:?}"
+    );
+    use naga_oil::compose::get_preprocessor_data;
+    let files = gilab::gpu::shaders::ShaderLibrary::discover()
+        .files()
+        .unwrap();
+    // Module name -> file, as the shader library resolves imports (longest known prefix).
+    let modules: std::collections::BTreeMap<String, String> = files
+        .iter()
+        .filter_map(|(file, src)| get_preprocessor_data(src).0.map(|m| (m, file.clone())))
+        .collect();
+    let resolve = |import: &str| -> Option<String> {
+        let mut candidate = import.to_string();
+        loop {
+            if let Some(file) = modules.get(&candidate) {
+                return Some(file.clone());
+            }
+            candidate.truncate(candidate.rfind("::")?);
+        }
+    };
+    // Every file the entries read: themselves and their imports, directly or not (every
+    // `#import` line counts, whatever shader defs select).
+    let mut read = std::collections::BTreeSet::new();
+    let mut stack: Vec<String> = entries.iter().cloned().collect();
+    while let Some(file) = stack.pop() {
+        if read.insert(file.clone()) {
+            for import in get_preprocessor_data(&files[&file]).1 {
+                stack.extend(resolve(&import.import));
+            }
+        }
+    }
+    // The walk reaches across folders (into the parts too): a file outside would be found.
+    for must in ["common/path.wgsl", "parts/light_tree.wgsl"] {
+        assert!(read.contains(must), "{must} is read: {read:?}");
+    }
+    let outside: Vec<&String> = read
+        .iter()
+        .filter(|f| !common::in_reference_footprint(&format!("shaders/{f}")))
+        .collect();
+    let checked = files
+        .keys()
+        .filter(|f| !common::in_reference_footprint(&format!("shaders/{f}")))
+        .count();
+    println!(
+        "shader files the reference engine compiled: {entries:?}; they read {} files, {} of them among the {checked} outside the footprint",
+        read.len(),
+        outside.len()
+    );
+    assert!(checked > 50, "most shader files are outside: {checked}");
+    assert!(
+        outside.is_empty(),
+        "reference shaders read files outside the footprint (widen common::in_reference_footprint): {outside:?}"
+    );
 }
 
 fn tempdir() -> std::path::PathBuf {

@@ -163,6 +163,25 @@ fn compare(
 /// `depth_images` (the same paths' contributions up to 1 and 2 bounces: three renders' worth
 /// for the price of the longest; separate renders per depth before 2026-11-26), as (max_depth,
 /// mean, per-pixel variance).
+/// `render_depths`, rendered once for these sources (`common::shared_reference_images`: a
+/// fresh checkout reads the shipped images while the reference's footprint is unchanged).
+fn shared_depths(gltf: &Path, size: [u32; 2]) -> Vec<(u32, Image, Image)> {
+    const DEPTHS: [u32; 3] = [1, 2, 0];
+    let scene = gltf_load::load(gltf).unwrap();
+    let what = format!("mitsuba.rs render_depths {size:?}, {SPP} spp, seed 11");
+    let images = common::shared_reference_images(&what, &scene, || {
+        let depths = render_depths(gltf, size);
+        assert_eq!(depths.iter().map(|d| d.0).collect::<Vec<_>>(), DEPTHS);
+        depths.into_iter().flat_map(|(_, i, v)| [i, v]).collect()
+    });
+    assert_eq!(images.len(), 2 * DEPTHS.len());
+    let mut images = images.into_iter();
+    DEPTHS
+        .iter()
+        .map(|&d| (d, images.next().unwrap(), images.next().unwrap()))
+        .collect()
+}
+
 fn render_depths(gltf: &Path, size: [u32; 2]) -> Vec<(u32, Image, Image)> {
     use gilab::techniques::reference::ReferencePathTracer;
     let params = toml::toml! { samples_per_frame = 64
@@ -242,7 +261,7 @@ fn check_scene(scene: &str) {
         "{scene}: direct, one-bounce and unbounded references"
     );
     let first = read_exr(&renders[0].exr).unwrap();
-    let depths = render_depths(&gltf, [first.width, first.height]);
+    let depths = shared_depths(&gltf, [first.width, first.height]);
     let mut failures = Vec::new();
     for r in &renders {
         let reference = read_exr(&r.exr).unwrap();

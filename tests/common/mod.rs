@@ -203,8 +203,9 @@ pub fn render_reference(
 /// every test and every test binary: kept in memory per binary and as a lossless float EXR under
 /// cargo's `target/tmp/gilab-references/`, or read from the repository's shipped ones
 /// (`shipped_references`). The file name hashes everything the image depends
-/// on: the scene's content (`scene_content_hash`), the arguments, every file of `src/` and
-/// `shaders/` and `Cargo.lock`, so a code or dependency change renders it again. On
+/// on: the scene's content (`scene_content_hash`), the arguments, and every file of the
+/// reference's footprint (`in_reference_footprint`), so a change to what the reference runs
+/// renders it again. On
 /// lavapipe a 128² Cornell box at 1,024 spp costs about 110 s: several binaries share it.
 pub fn shared_reference(
     scene: Scene,
@@ -248,6 +249,63 @@ pub fn shared_reference(
     img
 }
 
+/// Images a test renders with the reference path tracer alone and cannot ask `shared_reference`
+/// for (several depths of one render, a variance): rendered by `render` once, then read back,
+/// kept and shipped like `shared_reference`'s. The names hash the footprint's sources
+/// (`source_hash`), the scene's content and `what`, which must name every other setting of the
+/// render (size, samples, seed, parameters).
+pub fn shared_reference_images(
+    what: &str,
+    scene: &Scene,
+    render: impl FnOnce() -> Vec<Image>,
+) -> Vec<Image> {
+    use std::hash::{Hash, Hasher};
+    let mut h = fnv::FnvHasher::default();
+    source_hash().hash(&mut h);
+    scene_content_hash(scene, 1).hash(&mut h);
+    what.hash(&mut h);
+    let key = h.finish();
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("gilab-references");
+    let names_from = |count: usize| -> Vec<String> {
+        (0..count).map(|i| format!("{key:016x}-{i}.exr")).collect()
+    };
+    // The count is written beside the images: a reader takes all of them or renders again.
+    let count_file = format!("{key:016x}.count");
+    let read_all = |base: &std::path::Path| -> Option<Vec<Image>> {
+        let count: usize = std::fs::read_to_string(base.join(&count_file))
+            .ok()?
+            .trim()
+            .parse()
+            .ok()?;
+        names_from(count)
+            .iter()
+            .map(|n| gilab::compare::io::read_exr(&base.join(n)).ok())
+            .collect()
+    };
+    let images = match read_all(&dir).or_else(|| read_all(&shipped_references())) {
+        Some(images) => images,
+        None => {
+            let images = render();
+            std::fs::create_dir_all(&dir).unwrap();
+            for (name, img) in names_from(images.len()).iter().zip(&images) {
+                let part = dir.join(format!("{name}.{}.part.exr", std::process::id()));
+                gilab::compare::io::write_exr(&part, img).unwrap();
+                std::fs::rename(&part, dir.join(name)).unwrap();
+            }
+            std::fs::write(dir.join(&count_file), images.len().to_string()).unwrap();
+            images
+        }
+    };
+    if std::env::var_os("GILAB_SHIP_REFERENCES").is_some() {
+        for (name, img) in names_from(images.len()).iter().zip(&images) {
+            ship_reference(name, img);
+        }
+        let shipped = shipped_references().join(&count_file);
+        std::fs::write(shipped, images.len().to_string()).unwrap();
+    }
+    images
+}
+
 /// The name (without `.exr`) of `shared_reference`'s image of these arguments: a hash of the
 /// sources, the scene's content and the arguments.
 pub fn shared_reference_key(
@@ -270,8 +328,8 @@ pub fn shared_reference_key(
 /// The references shipped with the repository (`tests/data/references/`): the EXRs
 /// `shared_reference` renders, under the same names, committed at the sources they were
 /// rendered from, so that a fresh checkout (CI) reads them instead of rendering them again
-/// (most of half an hour of lavapipe). The name hashes the sources, so any change to `src/`,
-/// `shaders/` or `Cargo.lock` misses them and renders as before. `tools/ship-references.sh`
+/// (most of half an hour of lavapipe). The name hashes the reference's footprint
+/// (`in_reference_footprint`), so a change there misses them and renders as before. `tools/ship-references.sh`
 /// makes them; `shipped_references_are_what_these_sources_render` (gpu) renders one again.
 pub fn shipped_references() -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/references")
@@ -381,32 +439,85 @@ pub fn scene_content_hash(scene: &Scene, frames: u32) -> u64 {
     h.finish()
 }
 
-/// Hash of every file under `src/` and `shaders/` and of `Cargo.lock` (paths and contents), once
-/// per binary.
+/// Whether a reference render can depend on the file at `rel` (a path from the repository root,
+/// `/`-separated): the reference path tracer's **footprint**. Every file of `src/` and
+/// `shaders/` is in it but the other techniques' folders, the parts other than the light tree
+/// (which the reference's NEE can use), and the viewer (`src/app/`); in `shaders/`, the shared
+/// modules and the reference's, frame and compare folders. `Cargo.lock` and `Cargo.toml` are in
+/// it. So a change to another technique or part keeps the references (shipped ones included),
+/// and a change to anything a reference runs renders them again. Two tests hold the footprint
+/// to the code: `cpu::reference_footprint_is_closed` (no footprint Rust file names an excluded
+/// module but the technique registry and the viewer's entry) and
+/// `gpu::shipped_references_are_what_these_sources_render` (every shader file a reference engine
+/// compiles, and every module those import, lies in it).
+pub fn in_reference_footprint(rel: &str) -> bool {
+    if rel == "Cargo.lock" || rel == "Cargo.toml" {
+        return true;
+    }
+    if let Some(src) = rel.strip_prefix("src/") {
+        if let Some(technique) = src.strip_prefix("techniques/") {
+            return technique == "mod.rs" || technique.starts_with("reference/");
+        }
+        if let Some(part) = src.strip_prefix("parts/") {
+            return part == "light_tree.rs";
+        }
+        return !src.starts_with("app/");
+    }
+    if let Some(shader) = rel.strip_prefix("shaders/") {
+        return ["common/", "reference/", "frame/", "compare/"]
+            .iter()
+            .any(|d| shader.starts_with(d))
+            || shader == "parts/light_tree.wgsl";
+    }
+    false
+}
+
+/// Every file of `src/`, `shaders/`, `Cargo.lock` and `Cargo.toml`, as sorted paths from the
+/// repository root.
+pub fn source_files() -> Vec<String> {
+    fn walk(dir: &std::path::Path, files: &mut Vec<std::path::PathBuf>) {
+        for entry in std::fs::read_dir(dir).unwrap().flatten() {
+            let path = entry.path();
+            if path.is_dir() {
+                walk(&path, files);
+            } else {
+                files.push(path);
+            }
+        }
+    }
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut files = Vec::new();
+    walk(&root.join("src"), &mut files);
+    walk(&root.join("shaders"), &mut files);
+    files.push(root.join("Cargo.lock"));
+    files.push(root.join("Cargo.toml"));
+    let mut rel: Vec<String> = files
+        .iter()
+        .map(|f| {
+            f.strip_prefix(root)
+                .unwrap()
+                .to_string_lossy()
+                .replace('\\', "/")
+        })
+        .collect();
+    rel.sort();
+    rel
+}
+
+/// Hash of the reference's footprint (`in_reference_footprint`: paths and contents), once per
+/// binary: what the shared and shipped references are rendered from.
 fn source_hash() -> u64 {
     static HASH: OnceLock<u64> = OnceLock::new();
     *HASH.get_or_init(|| {
         use std::hash::Hasher;
-        fn walk(dir: &std::path::Path, files: &mut Vec<std::path::PathBuf>) {
-            for entry in std::fs::read_dir(dir).unwrap().flatten() {
-                let path = entry.path();
-                if path.is_dir() {
-                    walk(&path, files);
-                } else {
-                    files.push(path);
-                }
-            }
-        }
         let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-        let mut files = Vec::new();
-        walk(&root.join("src"), &mut files);
-        walk(&root.join("shaders"), &mut files);
-        files.push(root.join("Cargo.lock"));
-        files.sort();
         let mut h = fnv::FnvHasher::default();
-        for f in files {
-            h.write(f.strip_prefix(root).unwrap().to_string_lossy().as_bytes());
-            h.write(&std::fs::read(&f).unwrap());
+        for rel in source_files()
+            .into_iter()
+            .filter(|f| in_reference_footprint(f))
+        {
+            h.write(rel.as_bytes());
+            h.write(&std::fs::read(root.join(&rel)).unwrap());
         }
         h.finish()
     })
