@@ -606,6 +606,21 @@ pub fn reference_cache(binary: &str) -> std::path::PathBuf {
     d
 }
 
+/// A line for CI's report (`.ci/run` sets `GILAB_CI_NOTES` and prints the file after the tests;
+/// libtest keeps a passing test's output to itself).
+pub fn ci_note(line: &str) {
+    use std::io::Write;
+    if let Some(path) = std::env::var_os("GILAB_CI_NOTES") {
+        if let Ok(mut f) = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(path)
+        {
+            let _ = writeln!(f, "{line}");
+        }
+    }
+}
+
 /// Whether the shipped references are of these sources (their `SOURCE` stamp).
 pub fn shipped_references_are_current() -> bool {
     let stamp = std::fs::read_to_string(shipped_references().join("SOURCE")).unwrap_or_default();
