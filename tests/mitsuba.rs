@@ -159,10 +159,6 @@ fn compare(
     }
 }
 
-/// gilab's reference at every depth the manifest compares, from one unbounded render with
-/// `depth_images` (the same paths' contributions up to 1 and 2 bounces: three renders' worth
-/// for the price of the longest; separate renders per depth before 2026-11-26), as (max_depth,
-/// mean, per-pixel variance).
 /// `render_depths`, rendered once for these sources (`common::shared_reference_images`: a
 /// fresh checkout reads the shipped images while the reference's footprint is unchanged).
 fn shared_depths(gltf: &Path, size: [u32; 2]) -> Vec<(u32, Image, Image)> {
@@ -182,6 +178,12 @@ fn shared_depths(gltf: &Path, size: [u32; 2]) -> Vec<(u32, Image, Image)> {
         .collect()
 }
 
+/// gilab's reference at every depth the manifest compares, from one unbounded render with
+/// `depth_images` (the same paths' contributions up to 1 and 2 bounces: three renders' worth
+/// for the price of the longest; separate renders per depth before 2026-11-26), as (max_depth,
+/// mean, per-pixel variance): `SPP` samples in frames of 64, seed 11. A change to these
+/// settings must change `what` in `shared_depths` too, or the images kept for the old ones are
+/// read.
 fn render_depths(gltf: &Path, size: [u32; 2]) -> Vec<(u32, Image, Image)> {
     use gilab::techniques::reference::ReferencePathTracer;
     let params = toml::toml! { samples_per_frame = 64
