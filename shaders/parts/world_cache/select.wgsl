@@ -48,6 +48,25 @@ fn scan_counts(li: u32) {
     }
 }
 
+// Appends this chunk's flagged slots (bit k of `flags`: slot first + li * PER_THREAD + k) to the
+// list at `offset` after the `base` already listed, in slot order; returns how many it added.
+fn append_chunk(li: u32, first: u32, flags: u32, base: u32, offset: u32) -> u32 {
+    let count = countOneBits(flags);
+    scan[li] = count;
+    workgroupBarrier();
+    scan_counts(li);
+    var at = base + scan[li] - count;
+    for (var k = 0u; k < PER_THREAD; k++) {
+        if (flags & (1u << k)) != 0u {
+            world_lists[offset + at] = first + li * PER_THREAD + k;
+            at += 1u;
+        }
+    }
+    let added = scan[255];
+    workgroupBarrier();
+    return added;
+}
+
 @compute @workgroup_size(256, 1, 1)
 fn main(@builtin(local_invocation_index) li: u32) {
     let total = world_slots();
@@ -59,32 +78,19 @@ fn main(@builtin(local_invocation_index) li: u32) {
     var base_new = 0u;
     for (var first = 0u; first < total; first += CHUNK) {
         var flags = 0u;
-        var count = 0u;
         for (var k = 0u; k < PER_THREAD; k++) {
             let slot = first + li * PER_THREAD + k;
             if slot < total {
                 let c = classify(slot);
                 if c == 1u {
                     flags |= 1u << k;
-                    count += 1u;
                 }
                 if c >= 2u {
                     atomicAdd(&histogram[c - 2u], 1u);
                 }
             }
         }
-        scan[li] = count;
-        workgroupBarrier();
-        scan_counts(li);
-        var at = base_new + scan[li] - count;
-        for (var k = 0u; k < PER_THREAD; k++) {
-            if (flags & (1u << k)) != 0u {
-                world_lists[world_list_offset() + at] = first + li * PER_THREAD + k;
-                at += 1u;
-            }
-        }
-        base_new += scan[255];
-        workgroupBarrier();
+        base_new += append_chunk(li, first, flags, base_new, world_list_offset());
     }
     // The oldest bucket that the old probes' share of the budget reaches: buckets above it are
     // listed first, the cutoff bucket after them (world_update takes what its budget allows).
@@ -107,33 +113,18 @@ fn main(@builtin(local_invocation_index) li: u32) {
     for (var pass_index = 0u; pass_index < 2u; pass_index++) {
         for (var first = 0u; first < total; first += CHUNK) {
             var flags = 0u;
-            var count = 0u;
             for (var k = 0u; k < PER_THREAD; k++) {
                 let slot = first + li * PER_THREAD + k;
                 if slot < total {
                     let c = classify(slot);
-                    if c >= 2u {
-                        let bucket = c - 2u;
-                        let wanted = select(bucket == limit, bucket > limit, pass_index == 0u);
-                        if wanted {
-                            flags |= 1u << k;
-                            count += 1u;
-                        }
+                    let bucket = c - 2u;
+                    let wanted = select(bucket == limit, bucket > limit, pass_index == 0u);
+                    if c >= 2u && wanted {
+                        flags |= 1u << k;
                     }
                 }
             }
-            scan[li] = count;
-            workgroupBarrier();
-            scan_counts(li);
-            var at = base_old + scan[li] - count;
-            for (var k = 0u; k < PER_THREAD; k++) {
-                if (flags & (1u << k)) != 0u {
-                    world_lists[world_list_offset() + total + at] = first + li * PER_THREAD + k;
-                    at += 1u;
-                }
-            }
-            base_old += scan[255];
-            workgroupBarrier();
+            base_old += append_chunk(li, first, flags, base_old, world_list_offset() + total);
         }
     }
     if li == 0u {
