@@ -791,6 +791,77 @@ fn list_pass_visits_each_element_once() {
     }
 }
 
+/// `gilab::toroidal::wrap_grid` (the slots of the distance field's bricks, the world cache's and
+/// world ReGIR's cells, DDGI's probes) equals the Euclidean remainder for either sign, at and
+/// around every multiple of the grid size, where its float quotient can round the wrong way.
+#[test]
+fn toroidal_wrap_equals_the_euclidean_remainder() {
+    use gilab::gpu::readback::read_buffer;
+    use gilab::render::pipelines;
+    use wgpu::util::DeviceExt;
+    let gpu = gpu();
+    let lib = gilab::gpu::shaders::ShaderLibrary::discover();
+    let module = pipelines::shader_module(&gpu, &lib, "tests/toroidal.wgsl").unwrap();
+    let layout = pipelines::layout(
+        &gpu,
+        "toroidal",
+        &[
+            pipelines::storage_entry(0, true),
+            pipelines::storage_entry(1, false),
+        ],
+    );
+    let pipeline = pipelines::entry_point_pipeline(&gpu, &module, "main", &[&layout]);
+    // Grid sizes of every user: bricks per axis (4-32), world cache probes (4-32), ReGIR cells,
+    // DDGI probe counts; and odd ones. Coordinates around k n for k in -300..300, and large ones.
+    let mut cases: Vec<[i32; 4]> = Vec::new();
+    for n in [
+        1, 2, 3, 4, 5, 7, 8, 12, 16, 24, 31, 32, 33, 64, 100, 127, 255,
+    ] {
+        for k in -300..300 {
+            for d in -2..=2 {
+                let v = k * n + d;
+                cases.push([v, -v, v + 1, n]);
+            }
+        }
+        for v in [
+            1 << 20,
+            -(1 << 20),
+            4_000_000,
+            -4_000_000,
+            8_388_607,
+            -8_388_607,
+        ] {
+            cases.push([v, v - 1, v + 1, n]);
+        }
+    }
+    let input = gpu
+        .device
+        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("cases"),
+            contents: bytemuck::cast_slice(&cases),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+    let output = pipelines::storage_buffer(&gpu, "wrapped", (cases.len() * 16) as u64);
+    let bind = pipelines::buffers_bind_group(&gpu, "toroidal", &layout, &[&input, &output]);
+    let mut enc = gpu.device.create_command_encoder(&Default::default());
+    {
+        let mut pass = enc.begin_compute_pass(&Default::default());
+        pass.set_pipeline(&pipeline);
+        pass.set_bind_group(0, &bind, &[]);
+        pass.dispatch_workgroups((cases.len() as u32).div_ceil(64), 1, 1);
+    }
+    gpu.queue.submit([enc.finish()]);
+    gpu.check_errors().unwrap();
+    let got: Vec<[i32; 4]> = read_buffer(&gpu, &output, cases.len()).unwrap();
+    let wrong: Vec<_> = cases
+        .iter()
+        .zip(&got)
+        .filter(|(c, g)| (0..3).any(|i| g[i] != c[i].rem_euclid(c[3])))
+        .take(5)
+        .collect();
+    assert!(wrong.is_empty(), "(v.xyz, n) -> wrapped: {wrong:?}");
+}
+
 /// The large generated scene at a small setting (CI): the reference renders it finite and lit,
 /// its textures change the image, and its cloth's alpha-masked holes and fringe are seen through.
 #[test]

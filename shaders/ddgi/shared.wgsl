@@ -10,6 +10,7 @@
 #define_import_path gilab::ddgi
 
 #import gilab::math::{PI, TWO_PI, oct_encode, oct_decode}
+#import gilab::toroidal::wrap_grid
 
 struct Cascade {
     // World position of grid index (0, 0, 0) (xyz), the probe spacing (w).
@@ -93,14 +94,10 @@ fn rays_per_probe() -> u32 {
     return FIXED_RAYS + params.rays;
 }
 
-fn posmod(a: vec3<i32>, n: vec3<i32>) -> vec3<i32> {
-    return ((a % n) + n) % n;
-}
-
 // The slot of the probe `local` steps above cascade c's lowest probe.
 fn probe_slot(c: u32, local: vec3<i32>) -> u32 {
     let n = vec3<i32>(params.counts.xyz);
-    let m = posmod(params.cascades[c].base.xyz + local, n);
+    let m = wrap_grid(params.cascades[c].base.xyz + local, n);
     return c * probes_per_cascade() + u32(m.x + n.x * (m.y + n.y * m.z));
 }
 
@@ -111,7 +108,7 @@ fn slot_grid(slot: u32) -> vec4<i32> {
     let n = vec3<i32>(params.counts.xyz);
     let m = vec3<i32>(i32(r % params.counts.x), i32((r / params.counts.x) % params.counts.y), i32(r / (params.counts.x * params.counts.y)));
     let base = params.cascades[c].base.xyz;
-    return vec4<i32>(base + posmod(m - base, n), i32(c));
+    return vec4<i32>(base + wrap_grid(m - base, n), i32(c));
 }
 
 fn spacing(c: u32) -> f32 {

@@ -15,6 +15,7 @@
 #import gilab::ray::{offset_point, unoccluded, INFINITE_DISTANCE}
 #import gilab::lights::{LightSample, light_shadow_ray}
 #import gilab::surface_cache::{cards, object_cards, tri_object, atlas_direct, atlas_indirect, atlas_albedo, atlas_normal, atlas_emissive, atlas_depth, CacheSample, sample_cache, cache_radiance, cache_reflected}
+#import gilab::toroidal::wrap_grid
 
 const MAX_LEVELS: u32 = 6u;
 const BRICK: u32 = 8u;
@@ -139,10 +140,6 @@ fn finest_level(p: vec3<f32>) -> u32 {
     return params.levels_built;
 }
 
-fn wrap(v: vec3<i32>, n: i32) -> vec3<i32> {
-    return ((v % n) + n) % n;
-}
-
 fn floor_div(v: vec3<i32>, d: i32) -> vec3<i32> {
     return vec3<i32>(floor(vec3<f32>(v) / f32(d)));
 }
@@ -150,7 +147,7 @@ fn floor_div(v: vec3<i32>, d: i32) -> vec3<i32> {
 // Index into brick_table / brick_coord of brick `b` (world brick coordinates) of level l.
 fn brick_slot(l: u32, b: vec3<i32>) -> u32 {
     let n = i32(params.bricks_per_axis);
-    let s = wrap(b, n);
+    let s = wrap_grid(b, vec3<i32>(n));
     return l * params.bricks_per_axis * params.bricks_per_axis * params.bricks_per_axis + u32(s.x + n * (s.y + n * s.z));
 }
 
@@ -762,7 +759,7 @@ fn wanted_brick(l: u32, slot: u32) -> vec3<i32> {
     let local = slot - l * n * n * n;
     let s = vec3<i32>(vec3<u32>(local % n, (local / n) % n, local / (n * n)));
     let bo = params.levels[l].brick_origin.xyz;
-    return bo + wrap(s - bo, i32(n));
+    return bo + wrap_grid(s - bo, vec3<i32>(i32(n)));
 }
 
 // Does a scene edit touch brick b of level l (its box grown by the band)?

@@ -16,6 +16,7 @@
 
 #import gilab::frame::frame
 #import gilab::equal_area::octa_cell
+#import gilab::toroidal::wrap_grid
 
 const WORLD_RES: u32 = 16u;
 const WORLD_CELLS: u32 = 256u;
@@ -87,7 +88,7 @@ fn world_spacing(l: u32) -> f32 {
 // Slot of grid coordinate g of level l (toroidal: a scroll reuses the slots it leaves).
 fn world_slot(l: u32, g: vec3<i32>) -> u32 {
     let n = i32(world_res());
-    let w = ((g % n) + n) % n;
+    let w = wrap_grid(g, vec3<i32>(n));
     return l * u32(n * n * n) + u32((w.z * n + w.y) * n + w.x);
 }
 
@@ -119,7 +120,7 @@ fn world_slot_coord(slot: u32) -> vec3<i32> {
     let w = vec3<i32>(r % n, (r / n) % n, r / (n * n));
     let base = wc.base[l].xyz;
     // The coordinate in [base, base + n) with this remainder.
-    return base + (((w - base) % n) + n) % n;
+    return base + wrap_grid(w - base, vec3<i32>(n));
 }
 
 fn world_probe_pos(l: u32, g: vec3<i32>) -> vec3<f32> {

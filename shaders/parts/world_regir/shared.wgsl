@@ -17,6 +17,7 @@
 #import gilab::math::luminance
 #import gilab::lights::{LightSample, eval_light_point}
 #import gilab::regir::RegirSlot
+#import gilab::toroidal::wrap_grid
 
 struct WorldRegirParams {
     // Edge of a finest-level cell (world units); level l's cells are 2^l times larger.
@@ -58,10 +59,6 @@ fn world_regir_window(level: u32) -> vec3<i32> {
     return vec3<i32>(floor(frame.camera_pos.xyz / c)) - vec3<i32>(i32(world_regir.dims / 2u));
 }
 
-fn wrap(a: vec3<i32>, d: i32) -> vec3<i32> {
-    return ((a % d) + d) % d;
-}
-
 // Cell index of a world point (finest level holding it), or -1 outside every level.
 fn world_regir_cell(p: vec3<f32>) -> i32 {
     let d = i32(world_regir.dims);
@@ -69,7 +66,7 @@ fn world_regir_cell(p: vec3<f32>) -> i32 {
         let g = vec3<i32>(floor(p / world_regir_level_size(l)));
         let rel = g - world_regir_window(l);
         if all(rel >= vec3<i32>(0)) && all(rel < vec3<i32>(d)) {
-            let t = wrap(g, d);
+            let t = wrap_grid(g, vec3<i32>(d));
             return i32(l * u32(d * d * d)) + (t.z * d + t.y) * d + t.x;
         }
     }
@@ -84,7 +81,7 @@ fn world_regir_cell_centre(cell: u32) -> vec4<f32> {
     let i = i32(cell % per_level);
     let t = vec3<i32>(i % d, (i / d) % d, i / (d * d));
     let lo = world_regir_window(level);
-    let g = lo + wrap(t - lo, d);
+    let g = lo + wrap_grid(t - lo, vec3<i32>(d));
     let c = world_regir_level_size(level);
     return vec4<f32>((vec3<f32>(g) + 0.5) * c, c);
 }
