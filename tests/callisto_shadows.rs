@@ -623,3 +623,66 @@ fn interior_defaults_trace_a_seventh_of_the_full_rate_shadow_rays() {
     );
     assert!((ratio - 1.0).abs() < 0.03, "energy ratio {ratio}");
 }
+
+/// Issue 58's "stability first". On `many-lights` with 16 lights at 64² (seed 1, the shipped
+/// defaults: variable rate, the static shadow cache, the mask's temporal accumulation) the
+/// accumulated direct light read 0.938, 1.051 and 0.993 of a converged reference after 64, 128
+/// and 256 frames, as if the variable rate's feedback oscillated. It does not: the reference's
+/// own direct light at the same seed moves the same way (frames 65-128 at 1.29 of its converged
+/// image, 2026-11-30), with `rate = "full"`, without the cache and without the mask's
+/// accumulation alike ([callisto.md](../docs/callisto.md)). Every technique reads its camera
+/// jitter from the shared primary surfaces, the reference's sequence at the same seed, and the
+/// 16 small bright emitters seen directly cover a pixel only where a jittered ray hits them. So
+/// each 128-frame window is compared with the same window of the reference at the same seed
+/// (the issue's bound: within 2%); the reference's windows against its own 384-frame mean are
+/// printed, the size of the jitter's noise; and the defaults' shadow rays per window.
+#[test]
+fn direct_light_is_stable_in_every_128_frame_window() {
+    let size = [64, 64];
+    let (window, windows) = (128u32, 3u32);
+    let mut scene_params = toml::Table::new();
+    scene_params.insert("lights".into(), 16.into());
+    let scene = builtin::build("many-lights", &scene_params).unwrap();
+    // Each window's mean image energy, from the accumulated image at the windows' ends, and the
+    // shadow rays traced in it.
+    let run = |technique: &str, params: toml::Table| {
+        let mut e = common::engine(technique, params, scene.clone(), size, 1);
+        let (mut means, mut rays) = (Vec::new(), Vec::new());
+        let (mut before, mut shadow_before) = (0.0, 0u64);
+        for k in 1..=windows {
+            for _ in 0..window {
+                e.render_frame().unwrap();
+            }
+            let total = energy(&e.read_output().unwrap()) * (k * window) as f64;
+            means.push((total - before) / window as f64);
+            before = total;
+            let counts = e.ray_counts().unwrap();
+            assert_eq!(counts.invalid_samples, 0, "{technique}: NaN/Inf samples");
+            let shadow = counts.kind("shadow");
+            rays.push((shadow - shadow_before) as f64 / (size[0] * size[1] * window) as f64);
+            shadow_before = shadow;
+        }
+        (means, rays)
+    };
+    let (callisto, rays) = run("callisto-shadows", toml::Table::new());
+    let (reference, _) = run(
+        "reference",
+        toml::toml! { max_depth = 1
+        samples_per_frame = 1 },
+    );
+    let converged = reference.iter().sum::<f64>() / windows as f64;
+    for k in 0..windows as usize {
+        let (first, last) = (k as u32 * window + 1, (k as u32 + 1) * window);
+        let ratio = callisto[k] / reference[k];
+        eprintln!(
+            "many-lights (16) 64², frames {first}-{last}: defaults / reference at the same seed {ratio:.4}; \
+             the reference's window / its 384-frame mean {:.4}; defaults' shadow rays/px/frame {:.3}",
+            reference[k] / converged,
+            rays[k]
+        );
+        assert!(
+            (ratio - 1.0).abs() < 0.02,
+            "frames {first}-{last}: the defaults' direct light is {ratio:.4} of the reference's at the same seed"
+        );
+    }
+}
