@@ -948,6 +948,7 @@ fn every_gpu_struct_matches_its_wgsl_layout() {
         mirrored!("gilab::surfels", surfels::FLAG_SHARING),
         mirrored!("gilab::surfels", surfels::FLAG_QUARTER_APPLY),
         mirrored!("gilab::surfels", surfels::FLAG_BINNING),
+        mirrored!("gilab::surfels", surfels::FLAG_HARD_DEPTH),
         mirrored!("gilab::tracing", tracing::FLAG_BVH),
         mirrored!("gilab::tracing", tracing::FLAG_SKY),
         mirrored!("gilab::tracing", tracing::FLAG_LIGHTS),

@@ -51,21 +51,6 @@ pub const UNMET: &[Unmet] = &[
         issue: 55,
     },
     Unmet {
-        id: "surfels-default-leak",
-        test: "`tests/surfels.rs` `radial_depth_stops_light_leaking_through_thin_walls`",
-        quantity:
-            "thin-wall room's interior luminance after the sunlit outside view (reference: 0), \
-               8 frames accumulated inside, surfels' default quarter-area apply, 48², \
-               `ray_budget = 8192`, `surfel_size = 0.06` (mostly the transient after moving inside: \
-               frames 9-40, each alone, read 0.0217, printed by the same test)",
-        better: Better::Lower,
-        target: 0.02,
-        ratchet: 0.048,
-        measured: 0.04681,
-        date: "2026-11-28",
-        issue: 55,
-    },
-    Unmet {
         id: "surfels-glossy-metal-energy",
         test: "`tests/reflections.rs` `surfels_reflect_the_room_in_glossy_metal`",
         quantity:

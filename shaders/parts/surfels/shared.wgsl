@@ -38,6 +38,8 @@ const FLAG_SHARING: u32 = 128u;
 const FLAG_QUARTER_APPLY: u32 = 256u;
 // The trace pass runs its rays in bin order (`ray_binning`).
 const FLAG_BINNING: u32 = 512u;
+// With FLAG_RADIAL_DEPTH: a point past its depth texel's mean is hidden (`depth_test = "hard"`).
+const FLAG_HARD_DEPTH: u32 = 1024u;
 
 // One surfel's geometry. radius 0 marks a free slot.
 struct Surfel {
@@ -306,12 +308,18 @@ struct Gather {
     cell: u32,
 }
 
-// Chebyshev upper bound of the probability that nothing in the surfel's hemisphere lies closer
-// than t in direction dir (1 when no closer depth was seen).
+// How visible a point at distance t in direction dir is from the surfel (1 when no closer depth
+// was seen): past the texel's mean hit distance, hidden (`depth_test = "hard"`, the default) or
+// the Chebyshev upper bound of the probability that nothing lies closer (the seed's, as DDGI).
+// The bound leaks where a texel mixes a near wall with open directions: a point just behind the
+// wall sits within a standard deviation of the mean, so it passes (docs/surfels.md, thin walls).
 fn depth_visibility(slot: u32, n: vec3<f32>, dir: vec3<f32>, t: f32) -> f32 {
     let m = depth[slot * DEPTH_TEXELS + radial_texel(n, dir, DEPTH_RES)];
     if t <= m.x {
         return 1.0;
+    }
+    if has_flag(FLAG_HARD_DEPTH) {
+        return 0.0;
     }
     let variance = max(m.y - m.x * m.x, 1e-6 * m.x * m.x + 1e-12);
     let d = t - m.x;

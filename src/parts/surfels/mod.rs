@@ -292,6 +292,7 @@ impl SurfelCore {
             (s.sharing, FLAG_SHARING),
             (s.quarter_apply && !self.cache_only, FLAG_QUARTER_APPLY),
             (s.ray_binning, FLAG_BINNING),
+            (s.hard_depth_test, FLAG_HARD_DEPTH),
         ] {
             if on {
                 flags |= flag;
@@ -707,7 +708,7 @@ impl SurfelCore {
                     if !lights { " skipped: no lights" } else if s.cache_light.regir && f.many_lights { if s.cache_light.rays > 1 { " (light from the world ReGIR clipmap, picks averaged)" } else { " (light from the world ReGIR clipmap)" } } else { &hit_light }
                 ),
             ),
-            pass("estimate", true, format!("each surfel's frame estimate (mean of its rays){}; radial depth {}", if s.sharing { " for irradiance sharing" } else { "" }, if s.radial_depth { "on" } else { "off" })),
+            pass("estimate", true, format!("each surfel's frame estimate (mean of its rays){}; radial depth {}", if s.sharing { " for irradiance sharing" } else { "" }, if !s.radial_depth { "off" } else if s.hard_depth_test { "on, hard test" } else { "on, Chebyshev test" })),
             pass("integrate", true, format!("{}{}; guiding map", if s.sharing { "irradiance sharing with the cell's surfels (gather weights, by uncertainty), then " } else { "" }, if s.msme { "multiscale mean estimator" } else { "plain running mean (msme off)" })),
         ];
         v.push(pass(

@@ -47,6 +47,14 @@ const OWN_PARAMS: &[ParamSpec] = &[
         default: 1.0,
     },
     ParamSpec {
+        name: "depth_test",
+        what: "with radial_depth, how a surfel's depth texel weighs a point beyond the texel's mean hit distance: hidden (the mean as a shadow map's depth), or by the seed's Chebyshev bound (as DDGI), which lets a point just behind a thin wall through when the texel also holds open directions",
+        higher: "chebyshev: the seed's soft test, light reaches a little past occluders (thin-wall leak 0.047 over 8 frames at the test's set-up)",
+        lower: "hard: a point past the mean is hidden (leak 0.016 there); points past a partial occluder in the same texel lose that surfel",
+        kind: ParamKind::Choice(&["hard", "chebyshev"]),
+        default: 0.0,
+    },
+    ParamSpec {
         name: "msme",
         what: "multiscale mean estimator: short-term mean and variance steer the long-term mean's blend",
         higher: "on: reacts within a few frames to a light change, still converges when nothing changes",
@@ -138,6 +146,8 @@ pub struct SurfelSettings {
     pub ray_budget: u32,
     pub guiding: bool,
     pub radial_depth: bool,
+    /// `depth_test = "hard"`: a point beyond its depth texel's mean distance is hidden.
+    pub hard_depth_test: bool,
     pub msme: bool,
     pub sharing: bool,
     /// `apply_resolution = "quarter"`.
@@ -182,6 +192,7 @@ impl SurfelSettings {
             ray_budget: p.u32("ray_budget"),
             guiding: p.bool("guiding"),
             radial_depth: p.bool("radial_depth"),
+            hard_depth_test: p.u32("depth_test") == 0,
             msme: p.bool("msme"),
             sharing: p.bool("irradiance_sharing"),
             quarter_apply: p.u32("apply_resolution") == 0,
@@ -233,3 +244,5 @@ pub const FLAG_SHARING: u32 = 128;
 pub const FLAG_QUARTER_APPLY: u32 = 256;
 /// The trace pass runs its rays in bin order (`ray_binning`).
 pub const FLAG_BINNING: u32 = 512;
+/// With radial depth: a point past its depth texel's mean is hidden (`depth_test = "hard"`).
+pub const FLAG_HARD_DEPTH: u32 = 1024;
