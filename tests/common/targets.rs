@@ -82,7 +82,9 @@ pub const UNMET: &[Unmet] = &[
         test: "`tests/lumen.rs` `probe_ray_reassignment_keeps_the_energy`",
         quantity:
             "Lumen's probe ray reassignment: its one-frame 8×8 block relMSE over the CDF draw's \
-               on courtyard (64², BVH, probe filters off; issue 38 wants it below 1)",
+               on courtyard (64², BVH, probe filters off; issue 38 wants it below 1). With the \
+               engine seed set to 2 and 3 in a scratch copy it read 0.898 and 0.925 (mean over \
+               seeds 1-3 0.945, 2026-11-30): this seed is at the test's noise",
         better: Better::Lower,
         target: 1.0,
         ratchet: 1.02,
