@@ -982,6 +982,10 @@ fn every_gpu_struct_matches_its_wgsl_layout() {
             "gilab::ddgi",
             gilab::techniques::ddgi::volume::FLAG_DIRECT_RESTIR
         ),
+        mirrored!(
+            "gilab::ddgi",
+            gilab::techniques::ddgi::volume::FLAG_DEBUG_CORNERS
+        ),
         mirrored!("gilab::ddgi", gilab::techniques::ddgi::volume::FIXED_RAYS),
         mirrored!("gilab::lumen_probes", probes::PROBES_PRODUCT),
         mirrored!("gilab::lumen_probes", probes::PROBES_SCREEN_TRACES),

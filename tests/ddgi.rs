@@ -114,7 +114,10 @@ fn cornell_against_the_reference() {
     let mut ratios = Vec::new();
     for multi_bounce in [true, false] {
         let p = table(&[("multi_bounce", multi_bounce.into())]);
-        let (img, rays, _) = render_warm(p, builtin::cornell(), [64, 64], 32, 32);
+        let (img, rays, e) = render_warm(p, builtin::cornell(), [64, 64], 32, 32);
+        if multi_bounce {
+            check_corner_views(&e, 64 * 64);
+        }
         let ratio = energy(&img) / e_truth;
         let m = metrics::compare(&img, &truth).unwrap();
         eprintln!(
@@ -128,6 +131,68 @@ fn cornell_against_the_reference() {
     assert!(
         ratios[1] < ratios[0],
         "one bounce must lose light: {ratios:?}"
+    );
+}
+
+/// The debug views of the 8 probes each pixel reads (channels 4-23, `shade.wgsl`) agree with
+/// the gather that lit the image: a corner weighs in where its probe is named, the shares sum
+/// to 1, the strongest corner is the probe of channel 3 ("the probe the pixel reads most"),
+/// and every surface pixel of the box reads probes (channel 7, the cascade, marks a surface).
+fn check_corner_views(e: &Engine, pixels: usize) {
+    let views = e.technique.debug_views();
+    assert_eq!(views.len(), 24, "the corner views are offered at 64²");
+    let data = e.read_debug().unwrap().expect("ddgi has a debug buffer");
+    assert_eq!(data.len(), 6 * pixels, "six planes");
+    let ch = |c: usize| gilab::render::debug_channel(&data, pixels, c);
+    let (strongest, count, total, cascade) = (ch(3), ch(4), ch(5), ch(7));
+    let slots: Vec<Vec<f32>> = (8..16).map(ch).collect();
+    let shares: Vec<Vec<f32>> = (16..24).map(ch).collect();
+    let mut reading = 0usize;
+    let mut weighing = 0.0;
+    // Pixels on a surface (the camera ray hit): they name the cascade they read.
+    let surfaces = cascade.iter().filter(|&&c| c > 0.0).count();
+    for px in 0..pixels {
+        let named = (0..8).filter(|&k| slots[k][px] > 0.0).count();
+        assert_eq!(
+            count[px] as usize, named,
+            "pixel {px}: count against named corners"
+        );
+        if named == 0 {
+            assert_eq!(total[px], 0.0, "pixel {px}: weight without a probe");
+            assert_eq!(
+                strongest[px], 0.0,
+                "pixel {px}: a strongest probe without a corner"
+            );
+            continue;
+        }
+        reading += 1;
+        weighing += named as f64;
+        let sum: f32 = (0..8).map(|k| shares[k][px]).sum();
+        assert!((sum - 1.0).abs() < 1e-4, "pixel {px}: shares sum to {sum}");
+        for k in 0..8 {
+            assert_eq!(
+                slots[k][px] > 0.0,
+                shares[k][px] > 0.0,
+                "pixel {px}, corner {k}: named without a share, or the other way"
+            );
+        }
+        let best = (0..8)
+            .max_by(|&a, &b| shares[a][px].total_cmp(&shares[b][px]))
+            .unwrap();
+        let best_share = shares[best][px];
+        assert!(
+            (0..8).any(|k| shares[k][px] == best_share && slots[k][px] == strongest[px]),
+            "pixel {px}: the strongest probe {} is not the corner of the largest share",
+            strongest[px]
+        );
+    }
+    eprintln!(
+        "ddgi corner views, cornell 64²: {reading} of the {surfaces} surface pixels ({pixels} in all) read probes, {:.2} of the 8 weigh in on average",
+        weighing / reading.max(1) as f64
+    );
+    assert!(
+        reading == surfaces && surfaces as f64 > 0.9 * pixels as f64,
+        "{reading} of {surfaces} surface pixels read probes"
     );
 }
 

@@ -36,6 +36,17 @@ label = "two-bounce"
 params = { samples_per_frame = 1, max_depth = 2 }
 "#;
 
+const DDGI: &str = r#"
+[scene]
+source = "cornell"
+[render]
+size = [32, 32]
+seed = 3
+reference_spp = 4
+[[techniques]]
+name = "ddgi"
+"#;
+
 const FURNACE: &str = r#"
 [scene]
 source = "furnace"
@@ -58,6 +69,7 @@ fn fixture(name: &str) -> Fixture {
     std::fs::create_dir_all(&presets).unwrap();
     std::fs::write(presets.join("cornell.toml"), CORNELL).unwrap();
     std::fs::write(presets.join("furnace.toml"), FURNACE).unwrap();
+    std::fs::write(presets.join("ddgi.toml"), DDGI).unwrap();
     let shaders = dir.join("shaders");
     common::copy_dir(
         Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -73,7 +85,12 @@ fn fixture(name: &str) -> Fixture {
 }
 
 fn viewer(f: &Fixture, watch: bool) -> Harness<'static, ViewerApp> {
-    let preset = LoadedPreset::load(&f.presets.join("cornell.toml")).unwrap();
+    viewer_on(f, "cornell.toml", watch)
+}
+
+/// The viewer on one of the fixture's presets.
+fn viewer_on(f: &Fixture, preset: &str, watch: bool) -> Harness<'static, ViewerApp> {
+    let preset = LoadedPreset::load(&f.presets.join(preset)).unwrap();
     let mut options = ViewerOptions::new(preset);
     options.shaders = ShaderLibrary::at(f.shaders.clone());
     options.presets_dir = f.presets.clone();
@@ -672,6 +689,72 @@ fn brdf_slice_window_shows_the_material_under_the_cursor() {
         let image = h.render().expect("wgpu render of the window");
         image
             .save(Path::new(&dir).join("brdf-slice-window.png"))
+            .unwrap();
+    }
+}
+
+/// The pixel inspector lists, for a pane showing a debug view, every debug view of its
+/// technique at the hovered pixel: DDGI's 8 probes a pixel reads and their shares (issue 61).
+/// The values come from the debug buffer's planes, read back without waiting.
+#[test]
+fn inspector_lists_the_debug_views_under_the_pointer() {
+    let f = fixture("inspector-debug");
+    let mut h = viewer_on(&f, "ddgi.toml", false);
+    let run = {
+        let s = h.state_mut().session.as_mut().expect("session");
+        let run = s.panes[0].run;
+        let views = s.runs[run].engine.technique.debug_views();
+        let corner = views
+            .iter()
+            .position(|v| v.name.starts_with("probe read at corner 0"))
+            .expect("DDGI offers the corner views at 32²");
+        s.panes[0].display = DisplayMode::Debug;
+        s.panes[0].debug = corner;
+        run
+    };
+    h.run_steps(4);
+    // Sweep the pointer until a hovered surface pixel's debug channels have arrived.
+    let mut found = None;
+    'sweep: for y in [300.0f32, 400.0, 500.0, 600.0] {
+        for x in [500.0f32, 700.0, 900.0, 1100.0] {
+            h.event(egui::Event::PointerMoved(egui::pos2(x, y)));
+            for _ in 0..6 {
+                h.run_steps(1);
+                let Some((px, py)) = h.state().panels.inspected else {
+                    continue;
+                };
+                if let Some(v) = session(&h).inspect_debug(run, px, py) {
+                    if v[7] > 0.0 {
+                        found = Some((px, py, v));
+                        break 'sweep;
+                    }
+                }
+            }
+        }
+    }
+    let (px, py, v) = found.expect("no surface pixel's debug channels arrived under the pointer");
+    assert_eq!(v.len(), 24, "six planes of four channels");
+    let named = (8..16).filter(|&c| v[c] > 0.0).count();
+    let shares: f32 = (16..24).map(|c| v[c]).sum();
+    eprintln!(
+        "pixel ({px}, {py}): {} probes weigh in, corners {:?}, shares {:?}",
+        v[4],
+        &v[8..16],
+        &v[16..24]
+    );
+    assert_eq!(v[4] as usize, named, "count against the named corners");
+    assert!(
+        named > 0 && (shares - 1.0).abs() < 1e-4,
+        "shares sum to {shares}"
+    );
+    // The hover shows them, by name.
+    h.run_steps(2);
+    h.get_by_label_contains("debug views here");
+    h.get_by_label_contains("share of corner 7 (+x+y+z)");
+    if let Some(dir) = std::env::var_os("GILAB_TEST_SCREENSHOTS") {
+        let image = h.render().expect("wgpu render of the window");
+        image
+            .save(Path::new(&dir).join("inspector-debug-views.png"))
             .unwrap();
     }
 }

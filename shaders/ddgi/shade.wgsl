@@ -8,6 +8,11 @@
 // cascade in front of the surface (its state: 1 on, 2 off; 0 none); on a sphere, that probe's
 // irradiance and mean distance (in spacings) towards the sphere's normal, elsewhere the
 // gathered irradiance and 0; the probe the pixel's gather weights most (slot + 1).
+// With FLAG_DEBUG_CORNERS, five more planes say which probes the pixel reads (the viewer's
+// inspector lists them under the cursor): channel 4 the probes that weigh in (of the 8), 5 the
+// gather's total weight, 6 the probe sphere the camera ray meets (slot + 1), 7 the cascade read
+// (+ 1); 8-15 corner k's probe (slot + 1; 0 where it does not weigh in; k's bits are x, y, z);
+// 16-23 corner k's share of the gather.
 #import gilab::frame::frame
 #import gilab::math::{INV_PI, luminance}
 #import gilab::counters::{flush_counts, no_counts, RAY_SHADOW, COUNT_INVALID_SAMPLES}
@@ -16,7 +21,7 @@
 #import gilab::primary::{current_surface, surface_material, primary_emission}
 #import gilab::brdf::{diffuse_color, specular_albedo_average}
 #import gilab::nee::direct_light
-#import gilab::ddgi::{params, debug_out, pixel_direct, ddgi_gather, probes_per_cascade, probe_position, probe_active, probe_irradiance, probe_distance, spacing, has_flag, FLAG_ACCUMULATE, FLAG_DEBUG, FLAG_DIRECT_RESTIR}
+#import gilab::ddgi::{params, debug_out, pixel_direct, ddgi_gather, gather_cell, gather_corner, probes_per_cascade, probe_position, probe_active, probe_irradiance, probe_distance, spacing, has_flag, FLAG_ACCUMULATE, FLAG_DEBUG, FLAG_DEBUG_CORNERS, FLAG_DIRECT_RESTIR}
 
 // Radius of a probe's sphere in the debug view, in spacings.
 const PROBE_SPHERE: f32 = 0.1;
@@ -50,7 +55,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             l += albedo * g.irradiance * INV_PI;
         }
         if has_flag(FLAG_DEBUG) {
-            debug_out[idx] = debug_planes(s.pos.w > 0.5, s.wo_dist, gathered, strongest);
+            let sphere = probe_sphere(s.pos.w > 0.5, s.wo_dist);
+            debug_out[idx] = debug_planes(sphere, s.wo_dist, gathered, strongest);
+            if has_flag(FLAG_DEBUG_CORNERS) {
+                debug_corners(idx, s.pos.w > 0.5, s.pos.xyz, s.normal_alpha.xyz, s.wo_dist.xyz, sphere.x);
+            }
         }
         if !accumulate_sample(idx, l, has_flag(FLAG_ACCUMULATE)) {
             counts[COUNT_INVALID_SAMPLES] = 1u;
@@ -59,7 +68,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     flush_counts(local_index, counts);
 }
 
-fn debug_planes(hit: bool, wo_dist: vec4<f32>, gathered: vec3<f32>, strongest: u32) -> vec4<f32> {
+// The nearest probe sphere of the finest cascade the camera ray meets in front of the surface:
+// (slot, t), slot -1 where none.
+fn probe_sphere(hit: bool, wo_dist: vec4<f32>) -> vec2<f32> {
     let origin = frame.camera_pos.xyz;
     let dir = -wo_dist.xyz;
     let r = PROBE_SPHERE * spacing(0u);
@@ -77,9 +88,14 @@ fn debug_planes(hit: bool, wo_dist: vec4<f32>, gathered: vec3<f32>, strongest: u
             }
         }
     }
-    if sphere >= 0 {
-        let slot = u32(sphere);
-        let normal = normalize(origin + dir * t_best - probe_position(slot));
+    return vec2<f32>(f32(sphere), t_best);
+}
+
+fn debug_planes(sphere: vec2<f32>, wo_dist: vec4<f32>, gathered: vec3<f32>, strongest: u32) -> vec4<f32> {
+    if sphere.x >= 0.0 {
+        let slot = u32(sphere.x);
+        let origin = frame.camera_pos.xyz;
+        let normal = normalize(origin - wo_dist.xyz * sphere.y - probe_position(slot));
         return vec4<f32>(
             select(2.0, 1.0, probe_active(slot)),
             luminance(probe_irradiance(slot, normal)),
@@ -88,4 +104,34 @@ fn debug_planes(hit: bool, wo_dist: vec4<f32>, gathered: vec3<f32>, strongest: u
         );
     }
     return vec4<f32>(0.0, luminance(gathered), 0.0, f32(strongest));
+}
+
+// Planes 1-5 of the debug buffer (FLAG_DEBUG_CORNERS): the 8 probes the pixel's gather reads.
+fn debug_corners(idx: u32, hit: bool, p: vec3<f32>, n: vec3<f32>, wo: vec3<f32>, sphere: f32) {
+    let pixels = frame.size.x * frame.size.y;
+    var slots = array<f32, 8>();
+    var weights = array<f32, 8>();
+    var total = 0.0;
+    var count = 0.0;
+    var cascade = 0.0;
+    if hit {
+        let cell = gather_cell(p, n, wo);
+        cascade = f32(cell.cascade + 1u);
+        for (var i = 0u; i < 8u; i++) {
+            let k = gather_corner(cell, p, n, i);
+            if k.weight > 0.0 {
+                slots[i] = f32(k.slot + 1u);
+                weights[i] = k.weight;
+                total += k.weight;
+                count += 1.0;
+            }
+        }
+    }
+    debug_out[idx + pixels] = vec4<f32>(count, total, sphere + 1.0, cascade);
+    let share = 1.0 / max(total, 1e-30);
+    for (var plane = 0u; plane < 2u; plane++) {
+        let k = 4u * plane;
+        debug_out[idx + (2u + plane) * pixels] = vec4<f32>(slots[k], slots[k + 1u], slots[k + 2u], slots[k + 3u]);
+        debug_out[idx + (4u + plane) * pixels] = vec4<f32>(weights[k], weights[k + 1u], weights[k + 2u], weights[k + 3u]) * share;
+    }
 }

@@ -81,6 +81,8 @@ const FLAG_MULTI_BOUNCE: u32 = 8u;
 const FLAG_ACCUMULATE: u32 = 16u;
 const FLAG_DEBUG: u32 = 32u;
 const FLAG_DIRECT_RESTIR: u32 = 64u;
+// The debug buffer holds the gather's corner planes too (channels 4-23; shade.wgsl).
+const FLAG_DEBUG_CORNERS: u32 = 128u;
 
 fn has_flag(f: u32) -> bool {
     return (params.flags & f) != 0u;
@@ -235,13 +237,18 @@ struct ProbeGather {
     probes: u32,
 }
 
-// The paper's gather (JCGT 2019, section 5): the 8 probes of the cell around p, each weighted
-// by its trilinear weight, a smooth backface term, and (FLAG_VISIBILITY) the Chebyshev bound
-// that the surface is visible from it given the probe's distance moments; the point is first
-// moved off the surface by the self-shadow bias along the normal and the view direction wo.
-// Probes that are off or hold no data of their own yet (new after the volume moved, or just
-// switched on) are skipped; a point no other probe reaches gets no indirect light.
-fn ddgi_gather(p: vec3<f32>, n: vec3<f32>, wo: vec3<f32>) -> ProbeGather {
+// The cell of 8 probes a gather at p (normal n, towards the eye wo) reads.
+struct GatherCell {
+    cascade: u32,
+    // The cell's lowest corner, in grid coordinates of the cascade.
+    lo: vec3<i32>,
+    // Trilinear position within the cell.
+    alpha: vec3<f32>,
+    // The biased point the visibility test uses.
+    q: vec3<f32>,
+}
+
+fn gather_cell(p: vec3<f32>, n: vec3<f32>, wo: vec3<f32>) -> GatherCell {
     let c = cascade_at(p);
     let sp = spacing(c);
     let q = p + (0.2 * n + 0.8 * wo) * (0.75 * sp * params.bias);
@@ -249,48 +256,70 @@ fn ddgi_gather(p: vec3<f32>, n: vec3<f32>, wo: vec3<f32>) -> ProbeGather {
     let base_pos = grid_position(c, params.cascades[c].base.xyz);
     let local = clamp((q - base_pos) / sp, vec3<f32>(0.0), top);
     let lo = min(floor(local), top - 1.0);
-    let alpha = local - lo;
+    return GatherCell(c, vec3<i32>(lo), local - lo, q);
+}
+
+// Corner i (bits x, y, z) of a gather's cell: its probe's slot and weight (0 where the probe
+// cannot be read: off, or without data of its own).
+struct GatherCorner {
+    slot: u32,
+    weight: f32,
+}
+
+fn gather_corner(cell: GatherCell, p: vec3<f32>, n: vec3<f32>, i: u32) -> GatherCorner {
+    let o = vec3<u32>(i & 1u, (i >> 1u) & 1u, (i >> 2u) & 1u);
+    let slot = probe_slot(cell.cascade, cell.lo + vec3<i32>(o));
+    let tri = select(1.0 - cell.alpha, cell.alpha, o == vec3<u32>(1u));
+    let trilinear = tri.x * tri.y * tri.z;
+    let pp = probe_position(slot);
+    let to_probe = normalize(pp - p);
+    let facing = (dot(to_probe, n) + 1.0) * 0.5;
+    var w = facing * facing + 0.2;
+    if has_flag(FLAG_VISIBILITY) {
+        let d = cell.q - pp;
+        let r = length(d);
+        let m = probe_distance(slot, d / max(r, 1e-8));
+        if r > m.x {
+            let variance = abs(m.x * m.x - m.y);
+            let v = variance / (variance + (r - m.x) * (r - m.x));
+            w *= max(v * v * v, 0.05);
+        }
+    }
+    w = max(w, 1e-6);
+    // Crush weights below 0.2 (the paper's light-leak tweak).
+    if w < 0.2 {
+        w *= w * w / (0.2 * 0.2);
+    }
+    w *= trilinear;
+    return GatherCorner(slot, select(0.0, w, probe_readable(slot)));
+}
+
+// The paper's gather (JCGT 2019, section 5): the 8 probes of the cell around p, each weighted
+// by its trilinear weight, a smooth backface term, and (FLAG_VISIBILITY) the Chebyshev bound
+// that the surface is visible from it given the probe's distance moments; the point is first
+// moved off the surface by the self-shadow bias along the normal and the view direction wo.
+// Probes that are off or hold no data of their own yet (new after the volume moved, or just
+// switched on) are skipped; a point no other probe reaches gets no indirect light.
+fn ddgi_gather(p: vec3<f32>, n: vec3<f32>, wo: vec3<f32>) -> ProbeGather {
+    let cell = gather_cell(p, n, wo);
     var sum = vec3<f32>(0.0);
     var weight = 0.0;
     var best = 0.0;
     var strongest = 0u;
     var count = 0u;
     for (var i = 0u; i < 8u; i++) {
-        let o = vec3<u32>(i & 1u, (i >> 1u) & 1u, (i >> 2u) & 1u);
-        let slot = probe_slot(c, vec3<i32>(lo) + vec3<i32>(o));
-        let tri = select(1.0 - alpha, alpha, o == vec3<u32>(1u));
-        let trilinear = tri.x * tri.y * tri.z;
-        let pp = probe_position(slot);
-        let to_probe = normalize(pp - p);
-        let facing = (dot(to_probe, n) + 1.0) * 0.5;
-        var w = facing * facing + 0.2;
-        if has_flag(FLAG_VISIBILITY) {
-            let d = q - pp;
-            let r = length(d);
-            let m = probe_distance(slot, d / max(r, 1e-8));
-            if r > m.x {
-                let variance = abs(m.x * m.x - m.y);
-                let v = variance / (variance + (r - m.x) * (r - m.x));
-                w *= max(v * v * v, 0.05);
-            }
-        }
-        w = max(w, 1e-6);
-        // Crush weights below 0.2 (the paper's light-leak tweak).
-        if w < 0.2 {
-            w *= w * w / (0.2 * 0.2);
-        }
-        w *= trilinear;
-        if probe_readable(slot) {
-            let e = probe_irradiance(slot, n);
+        let k = gather_corner(cell, p, n, i);
+        let w = k.weight;
+        // A readable probe whose trilinear weight is 0 adds nothing: skipped with the rest.
+        if w > 0.0 {
+            let e = probe_irradiance(k.slot, n);
             sum += w * e;
             weight += w;
             if w > best {
                 best = w;
-                strongest = slot + 1u;
+                strongest = k.slot + 1u;
             }
-            if w > 0.0 {
-                count += 1u;
-            }
+            count += 1u;
         }
     }
     if weight > 0.0 {

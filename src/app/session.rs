@@ -54,6 +54,9 @@ pub struct Run {
     /// motion gave it (the accumulation restarts there, and so does the curve).
     curve_from: u32,
     pub probe: PixelProbe,
+    /// The inspected pixel's debug channels: one probe per plane of the technique's debug
+    /// buffer (made when first asked for; the buffer's planes are one vec4 per pixel each).
+    debug_probes: Vec<PixelProbe>,
 }
 
 /// A run's images read back to the CPU (screenshots, tests): what the CLI's files use.
@@ -88,6 +91,7 @@ impl Run {
             entry,
             metrics: MetricsReduction::new(gpu, engine.extent),
             probe: PixelProbe::new(gpu, 3),
+            debug_probes: Vec::new(),
             engine,
             rays: RayCounts::default(),
             last_frame: None,
@@ -181,6 +185,9 @@ impl Run {
             self.last_frame = Some(f.report);
         }
         self.probe.poll(&self.engine.gpu)?;
+        for p in &mut self.debug_probes {
+            p.poll(&self.engine.gpu)?;
+        }
         for (frame, m) in self.metrics.poll(&self.engine.gpu)? {
             if frame < self.curve_from {
                 continue;
@@ -1089,6 +1096,7 @@ impl Session {
     pub fn request_pixel(&mut self, x: u32, y: u32) {
         let mut enc = self.gpu.device.create_command_encoder(&Default::default());
         let mut asked = Vec::new();
+        let mut debug_asked = false;
         let reference = &self.reference.gpu_image;
         for i in self.visible_runs() {
             let r = &mut self.runs[i];
@@ -1104,8 +1112,19 @@ impl Session {
             {
                 asked.push(i);
             }
+            // The debug planes too: plane k holds pixel `index` at k × pixels.
+            if let Some(debug) = r.engine.technique.debug_buffer() {
+                let pixels = w as u64 * h as u64;
+                let planes = (debug.size() / (16 * pixels)).max(1) as usize;
+                if r.debug_probes.len() != planes {
+                    r.debug_probes = (0..planes).map(|_| PixelProbe::new(&self.gpu, 1)).collect();
+                }
+                for (k, p) in r.debug_probes.iter_mut().enumerate() {
+                    debug_asked |= p.record(&mut enc, (x, y), k as u64 * pixels + index, &[debug]);
+                }
+            }
         }
-        if asked.is_empty() {
+        if asked.is_empty() && !debug_asked {
             return;
         }
         let submission = self
@@ -1114,6 +1133,29 @@ impl Session {
         for i in asked {
             self.runs[i].probe.start(submission.clone());
         }
+        for r in &mut self.runs {
+            for p in &mut r.debug_probes {
+                p.start(submission.clone());
+            }
+        }
+    }
+
+    /// The debug channels of a pixel of a run (channel c is plane c / 4, component c % 4), from
+    /// its last probe; None until every plane has arrived for this pixel.
+    pub fn inspect_debug(&self, run: usize, x: u32, y: u32) -> Option<Vec<f32>> {
+        let r = self.runs.get(run)?;
+        if r.debug_probes.is_empty() {
+            return None;
+        }
+        let mut channels = Vec::with_capacity(4 * r.debug_probes.len());
+        for p in &r.debug_probes {
+            let ((px, py), v) = p.last.as_ref()?;
+            if (*px, *py) != (x, y) {
+                return None;
+            }
+            channels.extend_from_slice(v.first()?);
+        }
+        Some(channels)
     }
 
     /// HDR value, variance and error of a pixel of a run, from its last probe (the pixel

@@ -500,6 +500,34 @@ pub fn inspector(ui: &mut egui::Ui, s: &Session, x: u32, y: u32) {
             ui.end_row();
         }
     });
+    // A pane showing a debug view: every debug view of its technique at this pixel (DDGI's
+    // list the 8 probes the pixel reads and their shares, for example).
+    for (i, p) in s.panes[..s.layout.pane_count()].iter().enumerate() {
+        if p.display != DisplayMode::Debug {
+            continue;
+        }
+        let Some(values) = s.inspect_debug(p.run, x, y) else {
+            continue;
+        };
+        let run = &s.runs[p.run];
+        ui.label(format!("{} {}: debug views here", i + 1, run.label()));
+        egui::Grid::new(("inspector-debug", i))
+            .striped(true)
+            .show(ui, |ui| {
+                for view in run.engine.technique.debug_views() {
+                    let Some(v) = values.get(view.channel) else {
+                        continue;
+                    };
+                    ui.label(view.name);
+                    ui.label(if view.is_id {
+                        format!("{v}")
+                    } else {
+                        format!("{v:.4e}")
+                    });
+                    ui.end_row();
+                }
+            });
+    }
 }
 
 fn wipe_view(

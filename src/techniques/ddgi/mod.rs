@@ -129,7 +129,7 @@ pub const PARAMS: &[ParamSpec] = &[
     ),
     ParamSpec {
         name: crate::techniques::DEBUG_VIEWS,
-        what: "write the debug views (probe spheres and states, their irradiance and distance, the probe a pixel reads most)",
+        what: "write the debug views (probe spheres and states, their irradiance and distance, the probe a pixel reads most; the 8 probes each pixel reads and their shares where the five extra planes fit in one storage binding)",
         higher: "on: the viewer's debug views work",
         lower: "off: no debug writes (timed runs switch it off)",
         kind: ParamKind::Bool,
@@ -151,9 +151,28 @@ struct Resources {
     distance: wgpu::Buffer,
     bind_group: wgpu::BindGroup,
     direct_bind_group: wgpu::BindGroup,
-    /// (probes, rays per probe, pixels) they were sized for.
-    sized: (u32, u32, u64),
+    /// (probes, rays per probe, pixels, debug planes) they were sized for.
+    sized: (u32, u32, u64, u64),
 }
+
+/// The debug views of the 8 probes a pixel's gather reads: corner k of its cell (k's bits are
+/// the +x, +y, +z steps from its lowest corner), its probe and its share of the weight.
+const CORNER_NAMES: [[&str; 2]; 8] = [
+    [
+        "probe read at corner 0 (slot + 1; 0: weighs nothing)",
+        "share of corner 0 in the gather",
+    ],
+    ["probe read at corner 1 (+x)", "share of corner 1 (+x)"],
+    ["probe read at corner 2 (+y)", "share of corner 2 (+y)"],
+    ["probe read at corner 3 (+x+y)", "share of corner 3 (+x+y)"],
+    ["probe read at corner 4 (+z)", "share of corner 4 (+z)"],
+    ["probe read at corner 5 (+x+z)", "share of corner 5 (+x+z)"],
+    ["probe read at corner 6 (+y+z)", "share of corner 6 (+y+z)"],
+    [
+        "probe read at corner 7 (+x+y+z)",
+        "share of corner 7 (+x+y+z)",
+    ],
+];
 
 pub struct Ddgi {
     params: Params,
@@ -246,14 +265,21 @@ impl Ddgi {
         let rays = self.volume.rays_per_probe();
         let pixels = ctx.extent[0] as u64 * ctx.extent[1] as u64;
         self.pixels = pixels.max(1);
+        let largest = gpu.device.limits().max_storage_buffer_binding_size;
+        // The corner views' planes where the debug views are on and they fit in one binding
+        // (at 1920x1080 they take 190 MiB); otherwise the first plane alone.
+        let planes = if self.debug && pixels * 16 * volume::DEBUG_PLANES <= largest {
+            volume::DEBUG_PLANES
+        } else {
+            1
+        };
         if self
             .res
             .as_ref()
-            .is_some_and(|r| r.sized == (probes, rays, pixels))
+            .is_some_and(|r| r.sized == (probes, rays, pixels, planes))
         {
             return Ok(());
         }
-        let largest = gpu.device.limits().max_storage_buffer_binding_size;
         let ray_bytes = volume::buffer_bytes(probes, rays).rays;
         if ray_bytes > largest {
             anyhow::bail!(
@@ -274,7 +300,7 @@ impl Ddgi {
         let ray_buf = pipelines::storage_buffer(gpu, "ddgi rays", bytes.rays);
         let irradiance = pipelines::storage_buffer(gpu, "ddgi irradiance", bytes.irradiance);
         let distance = pipelines::storage_buffer(gpu, "ddgi distance", bytes.distance);
-        let debug = pipelines::storage_buffer(gpu, "ddgi debug", pixels * 16);
+        let debug = pipelines::storage_buffer(gpu, "ddgi debug", pixels * 16 * planes);
         let direct = pipelines::storage_buffer(gpu, "ddgi pixel direct", pixels * 16);
         let bind_group = pipelines::buffers_bind_group(
             gpu,
@@ -301,11 +327,16 @@ impl Ddgi {
             distance,
             bind_group,
             direct_bind_group,
-            sized: (probes, rays, pixels),
+            sized: (probes, rays, pixels, planes),
         });
         self.debug_buffer = Some(debug);
         self.reset_history(gpu);
         Ok(())
+    }
+
+    /// Planes of the debug buffer as built (`DEBUG_PLANES` with the corner views, else 1).
+    fn debug_planes(&self) -> u64 {
+        self.res.as_ref().map_or(1, |r| r.sized.3)
     }
 
     fn flags(&self) -> u32 {
@@ -319,6 +350,7 @@ impl Ddgi {
             (self.accumulate, volume::FLAG_ACCUMULATE),
             (self.debug, volume::FLAG_DEBUG),
             (self.direct_restir, volume::FLAG_DIRECT_RESTIR),
+            (self.debug_planes() > 1, volume::FLAG_DEBUG_CORNERS),
         ] {
             if on {
                 f |= bit;
@@ -560,7 +592,7 @@ impl Technique for Ddgi {
             channel,
             is_id,
         };
-        vec![
+        let mut views = vec![
             view("probes (spheres: 1 on, 2 switched off)", 0, true),
             view(
                 "probe irradiance (on a sphere), else the gathered irradiance",
@@ -569,7 +601,32 @@ impl Technique for Ddgi {
             ),
             view("probe mean distance on a sphere (spacings)", 2, false),
             view("probe the pixel reads most (slot + 1)", 3, true),
-        ]
+        ];
+        if self.debug_planes() > 1 {
+            views.extend([
+                view(
+                    "probes the pixel reads: how many of the 8 weigh in",
+                    4,
+                    false,
+                ),
+                view("gather weight (sum over the 8 probes)", 5, false),
+                view("probe sphere under the pixel (slot + 1)", 6, true),
+                view("cascade the pixel reads (+ 1)", 7, true),
+            ]);
+            views.extend(
+                CORNER_NAMES
+                    .iter()
+                    .enumerate()
+                    .map(|(k, n)| view(n[0], 8 + k, true)),
+            );
+            views.extend(
+                CORNER_NAMES
+                    .iter()
+                    .enumerate()
+                    .map(|(k, n)| view(n[1], 16 + k, false)),
+            );
+        }
+        views
     }
 
     fn debug_buffer(&self) -> Option<&wgpu::Buffer> {

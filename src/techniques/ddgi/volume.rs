@@ -20,6 +20,10 @@ pub const FLAG_MULTI_BOUNCE: u32 = 8;
 pub const FLAG_ACCUMULATE: u32 = 16;
 pub const FLAG_DEBUG: u32 = 32;
 pub const FLAG_DIRECT_RESTIR: u32 = 64;
+/// The debug buffer holds the gather's corner planes too (`DEBUG_PLANES`).
+pub const FLAG_DEBUG_CORNERS: u32 = 128;
+/// Planes of one vec4 per pixel in the debug buffer with the corner views (channels 0-23).
+pub const DEBUG_PLANES: u64 = 6;
 
 /// Rays per probe with fixed directions (`FIXED_RAYS` in shared.wgsl).
 pub const FIXED_RAYS: u32 = 32;
