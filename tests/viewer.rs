@@ -43,8 +43,10 @@ source = "cornell"
 size = [32, 32]
 seed = 3
 reference_spp = 4
+# Few probes and rays: the test reads the inspector, not DDGI's light (a frame in 0.1 s).
 [[techniques]]
 name = "ddgi"
+params = { probes_per_axis = 4, rays_per_probe = 32 }
 "#;
 
 const FURNACE: &str = r#"

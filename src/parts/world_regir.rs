@@ -28,6 +28,13 @@ use crate::render::{pipelines, PassInfo, RenderContext};
 use crate::scene::features::SceneFeatures;
 use anyhow::Result;
 
+/// One more bind group for `WorldRegir::lighting_pipeline_with`: its layout, and its shader
+/// defs given the group index it is bound at.
+pub type ExtraGroup<'a> = (
+    &'a wgpu::BindGroupLayout,
+    &'a dyn Fn(u32) -> Vec<(&'static str, u32)>,
+);
+
 /// Cells along each axis of a level.
 pub const DIMS: u32 = 16;
 /// A cell is rebuilt while a lookup read it within this many frames.
@@ -230,6 +237,18 @@ impl WorldRegir {
         own: &wgpu::BindGroupLayout,
         light: &WorldRegirSettings,
     ) -> Result<wgpu::ComputePipeline> {
+        Self::lighting_pipeline_with(ctx, entry, own, light, None)
+    }
+
+    /// `lighting_pipeline` with one more bind group after the clipmap's (group 3, or 4 with
+    /// `regir`): its layout and its defs for the group index it lands at.
+    pub fn lighting_pipeline_with(
+        ctx: &RenderContext,
+        entry: &str,
+        own: &wgpu::BindGroupLayout,
+        light: &WorldRegirSettings,
+        extra: Option<ExtraGroup>,
+    ) -> Result<wgpu::ComputePipeline> {
         let mut defs: Vec<(&str, u32)> = Vec::new();
         if light.rays > 1 && !light.lightcut {
             defs.push(("CACHE_LIGHT_RAYS", light.rays));
@@ -241,29 +260,22 @@ impl WorldRegir {
         } else if light.lightcut {
             defs.extend([("LIGHT_TREE", 1), ("CACHE_LIGHTCUT", light.rays)]);
         }
-        if !light.regir {
-            if defs.is_empty() {
-                return ctx.pipeline(entry, own);
-            }
-            return pipelines::compute_pipeline(
-                ctx.gpu,
-                &ctx.shaders.with_defs(&defs),
-                entry,
-                &[&ctx.scene.layout, ctx.frame_layout, own],
-            );
+        let regir_layout;
+        let mut layouts: Vec<&wgpu::BindGroupLayout> =
+            vec![&ctx.scene.layout, ctx.frame_layout, own];
+        if light.regir {
+            defs.extend(lookup_defs(3));
+            regir_layout = Self::layout(ctx.gpu);
+            layouts.push(&regir_layout);
         }
-        defs.extend(lookup_defs(3));
-        pipelines::compute_pipeline(
-            ctx.gpu,
-            &ctx.shaders.with_defs(&defs),
-            entry,
-            &[
-                &ctx.scene.layout,
-                ctx.frame_layout,
-                own,
-                &Self::layout(ctx.gpu),
-            ],
-        )
+        if let Some((layout, group_defs)) = extra {
+            defs.extend(group_defs(layouts.len() as u32));
+            layouts.push(layout);
+        }
+        if defs.is_empty() {
+            return ctx.pipeline(entry, own);
+        }
+        pipelines::compute_pipeline(ctx.gpu, &ctx.shaders.with_defs(&defs), entry, &layouts)
     }
 
     /// The clipmap's geometry for this scene: finest cell edge and level count.

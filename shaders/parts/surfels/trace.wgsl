@@ -6,6 +6,10 @@
 // the surfels there hold (multi-bounce through the cache); where no surfel covers the hit (off
 // screen) the path continues instead (NEE + BSDF sampling + Russian roulette). Sky on a miss.
 // Emission of the first hit is left out: the pixel's own direct light counts it.
+// With `uncovered_hits = "hash-cache"` (SURFELS_HASH_CACHE) an uncovered hit whose segment is
+// longer than its hash cell and whose cell holds samples reads the hash radiance cache instead
+// (the light the surface reflects, direct and indirect: no shadow ray, no path), as DDGI's
+// probe rays can; elsewhere as above.
 #import gilab::frame::frame
 #import gilab::math::{INV_PI, luminance, to_world}
 #import gilab::counters::{flush_counts, no_counts, count_cache_lookup, RAY_SURFEL, RAY_SHADOW, RAY_INDIRECT}
@@ -19,6 +23,9 @@
 #import gilab::surfels::{params, surfels, ray_offsets, ray_owner, ray_results, counters, has_flag, gather, gather_covers, gathered_irradiance, grid_center_for, gather_outcome, hemi_oct_encode, texel_of, FLAG_SKY, FLAG_CACHE_ONLY, FLAG_BINNING, ray_bin_order, DEPTH_RES}
 #import gilab::surfel_rays::surfel_ray_direction
 #import gilab::sky::sky_radiance
+#ifdef SURFELS_HASH_CACHE
+#import gilab::hash_cache::{hash_lookup, cell_size_at, cache_albedo, cacheable}
+#endif
 
 
 @compute @workgroup_size(64, 1, 1)
@@ -57,10 +64,30 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 t_hit = hit.t;
                 let h = hit_surface(origin, dir, hit);
                 let wo = -dir;
+#ifdef SURFELS_HASH_CACHE
+                // Where no surfel covers the hit, the hash cache first: a cached hit needs no
+                // shadow ray and no path.
+                let g = gather(h.position, h.normal, grid_center_for(frame.camera_pos.xyz), false);
+                var cached = false;
+                if !gather_covers(g) && hit.t > cell_size_at(h.position) && cacheable(h.material) {
+                    let c = hash_lookup(h.position, h.geo_normal);
+                    if c.w > 0.0 {
+                        l = cache_albedo(h.material, max(dot(h.normal, wo), 0.0)) * c.xyz;
+                        cached = true;
+                    }
+                }
+                if !cached {
+                    let d = cache_direct_light(h.position, h.geo_normal, h.normal, h.material, wo, &rng);
+                    counts[RAY_SHADOW] += d.shadow_rays;
+                    l = d.radiance;
+                }
+#else
                 let d = cache_direct_light(h.position, h.geo_normal, h.normal, h.material, wo, &rng);
                 counts[RAY_SHADOW] += d.shadow_rays;
                 l = d.radiance;
                 let g = gather(h.position, h.normal, grid_center_for(frame.camera_pos.xyz), false);
+                let cached = false;
+#endif
                 // Counted for the surfels technique; as a cache (ReSTIR GI's paths end in it) the
                 // engine counts its reader's lookups instead.
                 if !has_flag(FLAG_CACHE_ONLY) {
@@ -70,7 +97,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     // The specular layer's energy reflected diffusely, as Lumen's cache albedo.
                     let albedo = diffuse_color(h.material, max(dot(h.normal, wo), 0.0)) + specular_albedo_average(h.material);
                     l += albedo * gathered_irradiance(g) * INV_PI;
-                } else {
+                } else if !cached {
                     let b = bsdf_sample(h.material, h.normal, wo, rand(&rng), rand_pair(&rng));
                     if b.valid && dot(b.wi, h.geo_normal) > 0.0 {
                         let path = trace_path(spawn_ray_origin(h.position, h.geo_normal, b.wi), b.wi, &rng, 0u, true, plain_path());

@@ -36,6 +36,7 @@ mod scan;
 pub use params::{SurfelParamsGpu, SurfelSettings, MAX_RAYS_PER_SURFEL, PARAMS};
 
 use crate::gpu::{readback, timing::PassTimer, Gpu};
+use crate::parts::hash_cache::{self, HashCache, HashCacheSettings};
 use crate::parts::reflections::HitCache;
 use crate::parts::Part;
 use crate::parts::{Reflections, RestirDirect, WorldRegir};
@@ -43,7 +44,7 @@ use crate::render::params::{ParamChanges, Params};
 use crate::render::primary::FrameInputs;
 use crate::render::{pipelines, DebugView, PassInfo, RenderContext};
 use crate::scene::features::SceneFeatures;
-use anyhow::Result;
+use anyhow::{Context, Result};
 use params::*;
 use scan::{ScanJob, ScanPipelines};
 
@@ -206,8 +207,12 @@ pub struct SurfelCore {
     /// The world ReGIR clipmap ray hits take their lights from (`cache_direct = "regir"`;
     /// built the first time it is asked for).
     world_regir: WorldRegir,
-    /// The `cache_direct` the trace pipeline was composed for.
-    trace_light: (&'static str, u32),
+    /// The `cache_direct` the trace pipeline was composed for, and whether it reads the hash
+    /// radiance cache (`uncovered_hits`).
+    trace_key: ((&'static str, u32), bool),
+    /// The hash radiance cache uncovered ray hits read (`uncovered_hits = "hash-cache"`; built
+    /// the first time it is asked for).
+    hash_cache: HashCache,
 }
 
 impl Default for SurfelCore {
@@ -226,7 +231,8 @@ impl Default for SurfelCore {
             extent: [0, 0],
             cache_only: false,
             world_regir: WorldRegir::default(),
-            trace_light: ("power", 1),
+            trace_key: (("power", 1), false),
+            hash_cache: HashCache::new(HashCacheSettings::default()),
         }
     }
 }
@@ -697,20 +703,26 @@ impl SurfelCore {
             pass("grid", true, "radius update, ray requests, non-linear grid rebuilt: count, prefix sum, scatter, per-cell sort".into()),
             WorldRegir::pass_info(&s.cache_light, f),
             pass("allocate", true, format!("{} rays per frame split by request (at most {MAX_RAYS_PER_SURFEL} per surfel)", s.ray_budget)),
+        ];
+        if s.uncovered_in_hash_cache {
+            v.extend(self.hash_cache.passes(f));
+        }
+        v.extend([
             pass("bin", s.ray_binning, if s.ray_binning { "ray binning: each ray's bin (grid cell, direction quadrant) counted, prefix sum over 65,536 bins".into() } else { "ray_binning off".into() }),
             pass("bin order", s.ray_binning, if s.ray_binning { "rays placed in bin order for the trace pass".into() } else { "ray_binning off".into() }),
             pass(
                 "trace",
                 true,
                 format!(
-                    "{} directions; NEE at hits{}; surfel irradiance at hits (multi-bounce), a path where none covers the hit",
+                    "{} directions; NEE at hits{}; surfel irradiance at hits (multi-bounce), {} where none covers the hit",
                     if s.guiding { "guided (6x6 map, mixed with cosine)" } else { "cosine" },
-                    if !lights { " skipped: no lights" } else if s.cache_light.regir && f.many_lights { if s.cache_light.rays > 1 { " (light from the world ReGIR clipmap, picks averaged)" } else { " (light from the world ReGIR clipmap)" } } else { &hit_light }
+                    if !lights { " skipped: no lights" } else if s.cache_light.regir && f.many_lights { if s.cache_light.rays > 1 { " (light from the world ReGIR clipmap, picks averaged)" } else { " (light from the world ReGIR clipmap)" } } else { &hit_light },
+                    if s.uncovered_in_hash_cache { "the hash radiance cache (no shadow ray) or else a path" } else { "a path" }
                 ),
             ),
             pass("estimate", true, format!("each surfel's frame estimate (mean of its rays){}; radial depth {}", if s.sharing { " for irradiance sharing" } else { "" }, if !s.radial_depth { "off" } else if s.hard_depth_test { "on, hard test" } else { "on, Chebyshev test" })),
             pass("integrate", true, format!("{}{}; guiding map", if s.sharing { "irradiance sharing with the cell's surfels (gather weights, by uncertainty), then " } else { "" }, if s.msme { "multiscale mean estimator" } else { "plain running mean (msme off)" })),
-        ];
+        ]);
         v.push(pass(
             "sky",
             self.sky_term(),
@@ -765,12 +777,7 @@ impl SurfelCore {
         let mut passes = Vec::new();
         for &pass in Pass::ALL {
             if pass == Pass::Trace {
-                passes.push(WorldRegir::lighting_pipeline(
-                    ctx,
-                    pass.file(),
-                    &surfel_layout,
-                    &self.settings.cache_light,
-                )?);
+                passes.push(self.trace_pipeline(ctx, &surfel_layout)?);
                 continue;
             }
             passes.push(ctx.pipeline(pass.file(), &surfel_layout)?);
@@ -794,7 +801,10 @@ impl SurfelCore {
         self.prepare_reflections(ctx, true)?;
         self.world_regir
             .prepare_for(ctx, &self.settings.cache_light, true)?;
-        self.trace_light = self.settings.cache_light.shader_key();
+        if self.settings.uncovered_in_hash_cache {
+            self.hash_cache.build(ctx)?;
+        }
+        self.trace_key = self.trace_key();
         self.pipelines = Some(Pipelines {
             passes,
             ray_owner,
@@ -824,25 +834,67 @@ impl SurfelCore {
         self.prepare_reflections(ctx, false)?;
         self.world_regir
             .prepare_for(ctx, &self.settings.cache_light, false)?;
-        if self.trace_light != self.settings.cache_light.shader_key() {
+        if self.settings.uncovered_in_hash_cache && !self.hash_cache.is_built() {
+            self.hash_cache.build(ctx)?;
+        }
+        if self.trace_key != self.trace_key() {
             let layout = self.layouts(ctx.gpu).surfels.clone();
-            let pipeline = WorldRegir::lighting_pipeline(
-                ctx,
-                Pass::Trace.file(),
-                &layout,
-                &self.settings.cache_light,
-            )?;
+            let pipeline = self.trace_pipeline(ctx, &layout)?;
             if let Some(p) = self.pipelines.as_mut() {
                 p.passes[Pass::Trace as usize] = pipeline;
             }
-            self.trace_light = self.settings.cache_light.shader_key();
+            self.trace_key = self.trace_key();
         }
         self.build_resources(ctx)?;
         self.reset_history(ctx.gpu);
         Ok(())
     }
 
+    /// What the trace pipeline is composed for: the hits' light sampling, the hash cache.
+    fn trace_key(&self) -> ((&'static str, u32), bool) {
+        (
+            self.settings.cache_light.shader_key(),
+            self.settings.uncovered_in_hash_cache,
+        )
+    }
+
+    /// The trace pass: the hits' light sampling (`cache_direct`, with the world ReGIR
+    /// clipmap's group) and, with `uncovered_hits = "hash-cache"`, the hash cache's lookup
+    /// group after it.
+    fn trace_pipeline(
+        &self,
+        ctx: &RenderContext,
+        layout: &wgpu::BindGroupLayout,
+    ) -> Result<wgpu::ComputePipeline> {
+        let light = &self.settings.cache_light;
+        if !self.settings.uncovered_in_hash_cache {
+            return WorldRegir::lighting_pipeline(ctx, Pass::Trace.file(), layout, light);
+        }
+        let cache_layout = hash_cache::lookup_layout(ctx.gpu);
+        let defs = |group: u32| {
+            let mut d = hash_cache::lookup_defs(group).to_vec();
+            d.push(("SURFELS_HASH_CACHE", 1));
+            d
+        };
+        let pipeline = WorldRegir::lighting_pipeline_with(
+            ctx,
+            Pass::Trace.file(),
+            layout,
+            light,
+            Some((&cache_layout, &defs)),
+        );
+        if light.regir {
+            // With the clipmap's group too, the trace pass binds 34 storage buffers: over the
+            // 32 that lavapipe (and many GPUs) allow in one stage.
+            return pipeline.context(
+                "uncovered_hits = \"hash-cache\" with cache_direct = \"regir\": the trace pass binds both the hash cache and the world ReGIR clipmap, more storage buffers than this GPU allows in one stage; choose one",
+            );
+        }
+        pipeline
+    }
+
     pub fn reset_history(&mut self, gpu: &Gpu) {
+        self.hash_cache.reset(gpu);
         let Some(r) = &self.res else {
             return;
         };
@@ -914,14 +966,22 @@ impl SurfelCore {
             ctx,
             enc,
             timer,
-            self.trace_light.0 == "regir",
+            self.trace_key.0 .0 == "regir",
             self.features.many_lights,
         );
+        // The hash cache's update paths and resolve, before the trace pass reads it.
+        let cache = if self.trace_key.1 {
+            self.hash_cache.record(ctx, enc, timer);
+            self.hash_cache.lookup()
+        } else {
+            None
+        };
         let groups: Vec<&wgpu::BindGroup> = [
             Some(&ctx.scene.bind_group),
             Some(ctx.frame_bind_group),
             Some(bg),
             regir,
+            cache,
         ]
         .into_iter()
         .flatten()

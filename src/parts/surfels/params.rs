@@ -123,6 +123,14 @@ const OWN_PARAMS: &[ParamSpec] = &[
         default: 0.0,
     },
     ParamSpec {
+        name: "uncovered_hits",
+        what: "what a surfel ray's hit that no surfel covers (off screen, or not yet spawned) reads: `path` traces on (NEE, BSDF sampling, Russian roulette; unbiased there), `hash-cache` reads the hash radiance cache where the segment is longer than the hit's cell and the cell has samples (parts::hash_cache at its defaults, updated by its own paths each frame), else the path",
+        higher: "hash-cache: no shadow ray or path at most uncovered hits; the cache's update paths are traced instead, and its cells' blur and lag are added",
+        lower: "path: every uncovered hit traces a path (most of the surfels' indirect rays)",
+        kind: ParamKind::Choice(&["path", "hash-cache"]),
+        default: 0.0,
+    },
+    ParamSpec {
         name: "accumulate",
         what: "average frames into the output (off: each frame alone, the real-time view)",
         higher: "on: a static view converges (the per-pixel direct light averages out)",
@@ -159,6 +167,8 @@ pub struct SurfelSettings {
     pub ray_binning: bool,
     /// `spawn_tiles = "scaled"`: spawn tiles in proportion to the surfels' size on screen.
     pub scaled_spawn_tiles: bool,
+    /// `uncovered_hits = "hash-cache"`: uncovered ray hits read the hash radiance cache.
+    pub uncovered_in_hash_cache: bool,
     pub accumulate: bool,
     /// `reflections = "traced"`.
     pub reflections: bool,
@@ -201,6 +211,7 @@ impl SurfelSettings {
             surfel_size: p.f32("surfel_size"),
             ray_binning: p.bool("ray_binning"),
             scaled_spawn_tiles: p.u32("spawn_tiles") == 1,
+            uncovered_in_hash_cache: p.u32("uncovered_hits") == 1,
             accumulate: p.bool("accumulate"),
             reflections: crate::parts::reflections::ReflectionSettings::from_params(p).0,
             reflection: crate::parts::reflections::ReflectionSettings::from_params(p).1,
