@@ -1,6 +1,6 @@
-// DDGI probe update (src/techniques/ddgi): one workgroup per probe, one thread per texel
-// of its irradiance (6 x 6) and distance (14 x 14) maps; the probe's blended rays are loaded
-// into workgroup memory 232 at a time and every texel sums them:
+// DDGI probe update (src/techniques/ddgi): one workgroup per probe, one thread per four texels
+// of its irradiance map (6 x 6) and one per seven texels of its distance map (14 x 14); the
+// probe's blended rays are loaded into workgroup memory 232 at a time and every texel sums them:
 // irradiance weighted by max(0, cos) (back-face rays left out), distance and distance² by
 // max(0, cos)^50 (the paper's sharpness). The results replace a share 1 - h of the old maps,
 // h = min(hysteresis, frames / (frames + 1)) (an average of every frame until the history
@@ -15,6 +15,9 @@
 #import gilab::ddgi::{params, probes, ray_results, irradiance_texels, distance_texels, Probe, probes_per_cascade, rays_per_probe, slot_grid, spacing, ray_direction, texel_direction, irradiance_index, distance_index, has_flag, FIXED_RAYS, IRR_TEXELS, DIST_TEXELS, MISS_DISTANCE, STATE_ACTIVE, STATE_OFF, FLAG_RELOCATION, FLAG_CLASSIFICATION}
 
 const CHUNK: u32 = 232u;
+// Texels per thread: irradiance 6 x 6 = 9 threads x 4, distance 14 x 14 = 28 threads x 7.
+const IRR_PER_THREAD: u32 = 4u;
+const DIST_PER_THREAD: u32 = 7u;
 const DISTANCE_SHARPNESS: f32 = 50.0;
 const DISTANCE_MIN_COS: f32 = 0.86;
 // More back faces than this share of the fixed rays: the probe is inside geometry.
@@ -42,15 +45,26 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
     let max_distance = params.max_distance * sp;
     let first = slot * rays_per_probe() + FIXED_RAYS;
 
-    // Threads 0-35 own an irradiance texel, the others a distance texel.
-    let irr_thread = lid < IRR_TEXELS * IRR_TEXELS;
-    let dist_lid = select(lid - IRR_TEXELS * IRR_TEXELS, 0u, irr_thread);
-    let irr_texel = vec2<u32>(lid % IRR_TEXELS, (lid / IRR_TEXELS) % IRR_TEXELS);
-    let dist_texel = vec2<u32>(dist_lid % DIST_TEXELS, dist_lid / DIST_TEXELS);
-    let texel_dir = select(texel_direction(dist_texel, DIST_TEXELS), texel_direction(irr_texel, IRR_TEXELS), irr_thread);
-    var irr_sum = vec3<f32>(0.0);
-    var dist_sum = vec2<f32>(0.0);
-    var weight = 0.0;
+    // Threads 0-8 own four irradiance texels each, threads 9-36 seven distance texels each
+    // (one read of a ray from workgroup memory serves several texels: on lavapipe those reads,
+    // not the dot products, were most of this pass); the others only stage rays.
+    let irr_threads = IRR_TEXELS * IRR_TEXELS / IRR_PER_THREAD;
+    let irr_thread = lid < irr_threads;
+    let irr_first = IRR_PER_THREAD * lid;
+    let dist_first = select(DIST_PER_THREAD * (lid - irr_threads), 0u, irr_thread);
+    let dist_thread = !irr_thread && dist_first < DIST_TEXELS * DIST_TEXELS;
+    var irr_dirs: array<vec3<f32>, 4>;
+    var irr_sums: array<vec3<f32>, 4>;
+    var irr_weights: array<f32, 4>;
+    for (var q = 0u; q < IRR_PER_THREAD; q++) {
+        irr_dirs[q] = texel_direction(irr_texel(irr_first + q), IRR_TEXELS);
+    }
+    var dist_dirs: array<vec3<f32>, 7>;
+    var dist_sums: array<vec2<f32>, 7>;
+    var dist_weights: array<f32, 7>;
+    for (var q = 0u; q < DIST_PER_THREAD; q++) {
+        dist_dirs[q] = texel_direction(dist_texel(dist_first + q), DIST_TEXELS);
+    }
     // Uniform control flow for the barriers: every probe runs the loop; an off probe's rays
     // are not read and its maps not written.
     for (var base = 0u; base < params.rays; base += CHUNK) {
@@ -65,20 +79,26 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
             for (var j = 0u; j < count; j++) {
                 let r = chunk_ray[j];
                 if r.w >= 0.0 {
-                    let w = max(dot(texel_dir, chunk_dir[j]), 0.0);
-                    irr_sum += w * r.xyz;
-                    weight += w;
+                    let d = chunk_dir[j];
+                    for (var q = 0u; q < IRR_PER_THREAD; q++) {
+                        let w = max(dot(irr_dirs[q], d), 0.0);
+                        irr_sums[q] += w * r.xyz;
+                        irr_weights[q] += w;
+                    }
                 }
             }
-        } else if blending {
+        } else if blending && dist_thread {
             for (var j = 0u; j < count; j++) {
-                // cos^50 < 5e-4 below cos 0.86: those rays are skipped (no pow).
-                let cd = dot(texel_dir, chunk_dir[j]);
-                if cd > DISTANCE_MIN_COS {
-                    let w = pow(cd, DISTANCE_SHARPNESS);
-                    let t = min(abs(chunk_ray[j].w), max_distance);
-                    dist_sum += w * vec2<f32>(t, t * t);
-                    weight += w;
+                let d = chunk_dir[j];
+                let t = min(abs(chunk_ray[j].w), max_distance);
+                for (var q = 0u; q < DIST_PER_THREAD; q++) {
+                    // cos^50 < 5e-4 below cos 0.86: those rays are skipped (no pow).
+                    let cd = dot(dist_dirs[q], d);
+                    if cd > DISTANCE_MIN_COS {
+                        let w = pow(cd, DISTANCE_SHARPNESS);
+                        dist_sums[q] += w * vec2<f32>(t, t * t);
+                        dist_weights[q] += w;
+                    }
                 }
             }
         }
@@ -86,18 +106,24 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
     }
     // A probe without history (new, or switched on again) takes this frame whole; a texel no
     // ray reached is cleared rather than left with what the slot held before.
-    let reached = weight > 1e-6;
-    if blending && (reached || frames == 0) {
-        let w = max(weight, 1e-6);
-        if irr_thread {
-            // Sum(L cos) / Sum(cos) over directions spread evenly on the sphere is E / pi.
-            let at = irradiance_index(slot, irr_texel + vec2<u32>(1u));
-            let e = select(vec3<f32>(0.0), PI * irr_sum / w, reached);
-            irradiance_texels[at] = vec4<f32>(mix(e, irradiance_texels[at].xyz, h), 1.0);
-        } else if dist_lid < DIST_TEXELS * DIST_TEXELS {
-            let at = distance_index(slot, dist_texel + vec2<u32>(1u));
-            let m = select(vec2<f32>(0.0), dist_sum / w, reached);
-            distance_texels[at] = mix(m, distance_texels[at], h);
+    if blending && irr_thread {
+        for (var q = 0u; q < IRR_PER_THREAD; q++) {
+            let reached = irr_weights[q] > 1e-6;
+            if reached || frames == 0 {
+                // Sum(L cos) / Sum(cos) over directions spread evenly on the sphere is E / pi.
+                let at = irradiance_index(slot, irr_texel(irr_first + q) + vec2<u32>(1u));
+                let e = select(vec3<f32>(0.0), PI * irr_sums[q] / max(irr_weights[q], 1e-6), reached);
+                irradiance_texels[at] = vec4<f32>(mix(e, irradiance_texels[at].xyz, h), 1.0);
+            }
+        }
+    } else if blending && dist_thread {
+        for (var q = 0u; q < DIST_PER_THREAD; q++) {
+            let reached = dist_weights[q] > 1e-6;
+            if reached || frames == 0 {
+                let at = distance_index(slot, dist_texel(dist_first + q) + vec2<u32>(1u));
+                let m = select(vec2<f32>(0.0), dist_sums[q] / max(dist_weights[q], 1e-6), reached);
+                distance_texels[at] = mix(m, distance_texels[at], h);
+            }
         }
     }
     storageBarrier();
@@ -115,6 +141,16 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
     if lid == 0u {
         probes[slot] = relocate_and_classify(slot, g.xyz, sp, record, fresh, blending, frames);
     }
+}
+
+// Interior texel k of the irradiance map, row by row.
+fn irr_texel(k: u32) -> vec2<u32> {
+    return vec2<u32>(k % IRR_TEXELS, k / IRR_TEXELS);
+}
+
+// Interior texel k of the distance map, row by row.
+fn dist_texel(k: u32) -> vec2<u32> {
+    return vec2<u32>(k % DIST_TEXELS, k / DIST_TEXELS);
 }
 
 // Border texel k of a map of n interior texels: where it is (xy) and the interior texel it
