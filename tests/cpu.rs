@@ -560,8 +560,10 @@ fn wgsl_layouts(
 }
 
 /// `InstanceRecord` as `instance_at` reads it: each `Instance` member at the `BvhNode` member
-/// its constructor takes (`let a = bvh_nodes[at]; let b = bvh_nodes[at + 1u]; return
-/// Instance(a.bounds_min, ..., bitcast<f32>(b.tris));`), parsed from the source.
+/// its constructor takes (`let a = bvh_node(at); let b = bvh_node(at + 1u); return
+/// Instance(a.bounds_min, ..., bitcast<f32>(b.tris));`), parsed from the source. `bvh_node`
+/// reads the node's texel copy, which `gpu::scene_texels_hold_the_storage_buffers_words` holds
+/// to `bvh_nodes[i]` word for word; the buffer's own index form is read too.
 fn instance_nodes_layout(
     composed: &[Composed],
     files: &std::collections::BTreeMap<String, String>,
@@ -584,16 +586,16 @@ fn instance_nodes_layout(
     let body = &body[..body.find("\n}").unwrap_or(body.len())];
     let mut nodes = std::collections::HashMap::new();
     for line in body.lines() {
-        let Some((var, index)) = line
-            .trim()
-            .strip_prefix("let ")
-            .and_then(|l| l.split_once(" = bvh_nodes[at"))
-        else {
+        let Some((var, index)) = line.trim().strip_prefix("let ").and_then(|l| {
+            l.split_once(" = bvh_nodes[at")
+                .or_else(|| l.split_once(" = bvh_node(at"))
+        }) else {
             continue;
         };
         let k = index
             .trim_start_matches(" + ")
             .trim_end_matches("];")
+            .trim_end_matches(");")
             .trim_end_matches('u');
         let k: u32 = if k.is_empty() {
             0

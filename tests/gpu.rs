@@ -1183,32 +1183,11 @@ fn reposing_the_atrium_costs_less_than_an_upload() {
     for _ in 0..2 {
         upload_ms = upload_ms.min(timed(&mut || drop(GpuScene::upload(&gpu, &scene))));
     }
-    // Every instance moved by dx along x (positions and transforms, as playback does).
-    let shift_all = |scene: &mut gilab::scene::Scene, dx: f32| {
-        let shift = glam::Mat4::from_translation(glam::Vec3::new(dx, 0.0, 0.0));
-        let mut moved = Vec::new();
-        let mut done = vec![false; scene.positions.len()];
-        for (j, i) in scene.instances.iter_mut().enumerate() {
-            i.transform = shift * i.transform;
-            let range = i.first_triangle as usize..(i.first_triangle + i.triangle_count) as usize;
-            for t in &scene.triangles[range] {
-                for &v in t {
-                    if !done[v as usize] {
-                        done[v as usize] = true;
-                        scene.positions[v as usize] =
-                            shift.transform_point3(scene.positions[v as usize]);
-                    }
-                }
-            }
-            moved.push(j);
-        }
-        moved
-    };
     // 1 cm along x, back, and along x again: the scene ends moved.
     let mut repose_ms = f64::MAX;
     let mut moved = Vec::new();
     for dx in [0.01, -0.01, 0.01] {
-        moved = shift_all(&mut scene, dx);
+        moved = shift_every_instance(&mut scene, dx);
         repose_ms = repose_ms.min(timed(&mut || {
             assert!(
                 g.repose(&gpu, &scene, &moved),
@@ -1247,6 +1226,113 @@ fn reposing_the_atrium_costs_less_than_an_upload() {
             assert!((x - y).abs() <= 1e-4 * y.max(1.0), "{x} vs {y}");
         }
     }
+}
+
+/// Every instance of `scene` moved by `dx` along x (positions and transforms, as playback
+/// does); the moved instances' indices.
+fn shift_every_instance(scene: &mut gilab::scene::Scene, dx: f32) -> Vec<usize> {
+    let shift = glam::Mat4::from_translation(glam::Vec3::new(dx, 0.0, 0.0));
+    let mut moved = Vec::new();
+    let mut done = vec![false; scene.positions.len()];
+    for (j, i) in scene.instances.iter_mut().enumerate() {
+        i.transform = shift * i.transform;
+        let range = i.first_triangle as usize..(i.first_triangle + i.triangle_count) as usize;
+        for t in &scene.triangles[range] {
+            for &v in t {
+                if !done[v as usize] {
+                    done[v as usize] = true;
+                    scene.positions[v as usize] =
+                        shift.transform_point3(scene.positions[v as usize]);
+                }
+            }
+        }
+        moved.push(j);
+    }
+    moved
+}
+
+/// The scene's texel copies (`SceneTexels`, bindings 6-10: what the BVH walk and the shading
+/// read on every backend) hold the words of their storage buffers, record for record, after an
+/// upload, after a repose (the BVH's top level, motion records, triangle records and light
+/// pool rewritten) and after `hold_still` (motion records back to identity). A copy left stale
+/// would trace the old pose while the buffers hold the new one.
+#[test]
+fn scene_texels_hold_the_storage_buffers_words() {
+    use gilab::gpu::readback::read_buffer;
+    use gilab::render::pipelines;
+    use gilab::scene::gpu_scene::GpuScene;
+    let gpu = gpu();
+    let lib = gilab::gpu::shaders::ShaderLibrary::discover();
+    let module = pipelines::shader_module(&gpu, &lib, "tests/scene_texels.wgsl").unwrap();
+    let out_layout = pipelines::layout(&gpu, "mismatches", &[pipelines::storage_entry(0, false)]);
+    let mut scene = gilab::scene::builtin::build("moving", &toml::Table::new()).unwrap();
+    let mut g = GpuScene::upload(&gpu, &scene);
+    let layouts = [&g.layout, &out_layout];
+    let same = pipelines::entry_point_pipeline(&gpu, &module, "main", &layouts);
+    let shifted = pipelines::entry_point_pipeline(&gpu, &module, "shifted", &layouts);
+    // BVH nodes and their motion records (two a top-level entry).
+    let node_records = |g: &GpuScene| {
+        g.data.bvh.nodes.len() + 2 * g.data.bvh.top.as_ref().map_or(0, |t| t.entries.len())
+    };
+    // Mismatches per copy (nodes, geometry, attributes, materials, lights) and records compared.
+    let mismatches = |g: &GpuScene, pipeline: &wgpu::ComputePipeline| -> Vec<u32> {
+        let out = pipelines::init_buffer(
+            &gpu,
+            "mismatches",
+            bytemuck::cast_slice(&[0u32; 6]),
+            wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+        );
+        let bind = pipelines::buffers_bind_group(&gpu, "mismatches", &out_layout, &[&out]);
+        let longest = node_records(g)
+            .max(g.data.tri_attr.len())
+            .max(g.data.materials.len())
+            .max(g.data.lights.len() + g.data.light_tree.nodes.len());
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_pipeline(pipeline);
+            pass.set_bind_group(0, &g.bind_group, &[]);
+            pass.set_bind_group(1, &bind, &[]);
+            pass.dispatch_workgroups((longest as u32).div_ceil(64), 1, 1);
+        }
+        gpu.queue.submit([enc.finish()]);
+        gpu.check_errors().unwrap();
+        read_buffer(&gpu, &out, 6).unwrap()
+    };
+    let check = |g: &GpuScene, when: &str| {
+        let m = mismatches(g, &same);
+        eprintln!("scene texels {when}: {} records compared, mismatches (nodes, geometry, attributes, materials, lights) {:?}", m[5], &m[..5]);
+        assert!(
+            m[5] as usize >= node_records(g) + 2 * g.data.tri_attr.len(),
+            "{when}: too few records compared"
+        );
+        assert_eq!(
+            &m[..5],
+            &[0; 5],
+            "{when}: texel copies differ from their buffers"
+        );
+    };
+    // The negative control: each buffer record against the next one's texels differs in every
+    // copy (the scene has several distinct records of each).
+    let control = mismatches(&g, &shifted);
+    eprintln!(
+        "scene texels, each record against the next: mismatches {:?}",
+        &control[..5]
+    );
+    assert!(
+        control[..5].iter().all(|&n| n > 0),
+        "the comparison sees no difference: {control:?}"
+    );
+    check(&g, "after the upload");
+    let moved = shift_every_instance(&mut scene, 0.25);
+    assert!(
+        g.repose(&gpu, &scene, &moved),
+        "the moving scene re-poses in place"
+    );
+    assert!(g.motion_live(), "the repose wrote motion records");
+    check(&g, "after a repose");
+    g.hold_still(&gpu);
+    check(&g, "after hold_still");
 }
 
 /// The mean of each `k`×`k` block: an image whose per-pixel noise is `k`² times smaller, for

@@ -8,7 +8,7 @@
 // triangles). Directional lights have no range: only the cone test applies.
 #import gilab::frame::frame
 #import gilab::primary::current_surface
-#import gilab::scene::light_pool
+#import gilab::scene::{light_pool, light_at}
 #import gilab::callisto::{params, tile_lists, list_base, parity, light_bounds, LightBounds, float_key, key_float, TILE}
 
 // 0..2: point box min/max xyz; 3: view depth.
@@ -76,7 +76,7 @@ fn importance_bin(t: TileBounds, l: LightBounds) -> u32 {
 
 // Whether light i can light the tile.
 fn light_reaches(t: TileBounds, i: u32, l: LightBounds) -> bool {
-    if light_pool.lights[i].pmf <= 0.0 {
+    if light_at(i).pmf <= 0.0 {
         return false;
     }
     let centre = 0.5 * (t.box_min + t.box_max);

@@ -28,7 +28,7 @@
 #import gilab::brdf::bsdf_eval
 #import gilab::lights::{eval_light_point, light_shadow_ray, select_light}
 #import gilab::callisto_cache::{split_visibility, receiver_dynamic, record_dynamic}
-#import gilab::scene::light_pool
+#import gilab::scene::{light_pool, light_at}
 #import gilab::callisto::{params, tile_lists, rates, stats, current, debug_out, list_base, list_count, rate_base, get_rate, find_slot, parity, TILE, RATE_NONE, RATE_QUARTER, RATE_HALF, RATE_FULL, NO_SLOT}
 
 // The shared traversal's instance filters (the static cache's static-only and moving-only rays)
@@ -191,7 +191,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
         let ls = eval_light_point(light, sample_triangle(rand_pair(&rng)), p);
         if valid && ls.valid && dot(ls.wi, ng) > 0.0 && (ls.is_delta || ls.area_pdf > 0.0) {
             let e = bsdf_eval(material, n, wo, ls.wi);
-            let scale = select(light_pool.lights[light].pmf / ls.area_pdf, 1.0, ls.is_delta);
+            let scale = select(light_at(light).pmf / ls.area_pdf, 1.0, ls.is_delta);
             c = e.f * max(dot(n, ls.wi), 0.0) * ls.radiance * ls.geom * scale;
         }
         let lit = any(c > vec3<f32>(0.0));

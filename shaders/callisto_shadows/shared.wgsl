@@ -7,7 +7,7 @@
 
 #import gilab::frame::frame
 #import gilab::math::luminance
-#import gilab::scene::{light_pool, Light, tri_geom, materials, tri_material, LIGHT_TRIANGLE, LIGHT_POINT, LIGHT_SPOT, LIGHT_DIRECTIONAL}
+#import gilab::scene::{light_pool, Light, tri_geom, materials, tri_material, LIGHT_TRIANGLE, LIGHT_POINT, LIGHT_SPOT, LIGHT_DIRECTIONAL, light_at, material_at}
 
 struct CallistoParams {
     tiles_x: u32,
@@ -168,7 +168,7 @@ struct LightBounds {
 // triangle radiance x area (its on-axis intensity). Its range is where the irradiance it can
 // give falls to `range_cutoff`.
 fn light_bounds(i: u32) -> LightBounds {
-    let l = light_pool.lights[i];
+    let l = light_at(i);
     var b = LightBounds(vec3<f32>(0.0), 0.0, -1.0, 0.0, false, vec3<f32>(0.0), false, vec3<f32>(0.0));
     var intensity = 0.0;
     switch l.kind {
@@ -181,7 +181,7 @@ fn light_bounds(i: u32) -> LightBounds {
             b.extent = sqrt(max(max(dot(a - b.centre, a - b.centre), dot(pb - b.centre, pb - b.centre)), dot(pc - b.centre, pc - b.centre)));
             let c = cross(g.edge_b.xyz, g.edge_c.xyz);
             let len = length(c);
-            let m = materials[tri_material(l.tri)];
+            let m = material_at(tri_material(l.tri));
             intensity = luminance(m.emissive.xyz) * 0.5 * len;
             if len > 0.0 {
                 b.normal = c / len;

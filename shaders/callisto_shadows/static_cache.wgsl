@@ -12,7 +12,7 @@
 #define_import_path gilab::callisto_cache
 
 #import gilab::frame::frame
-#import gilab::scene::tri_attr
+#import gilab::scene::{tri_attr, tri_attr_at}
 #import gilab::bvh::{hits_aabb, safe_inv_dir, INSTANCES_ALL, INSTANCES_STATIC, INSTANCES_DYNAMIC}
 #import gilab::ray::{RaySegment, occluded_filtered}
 #import gilab::callisto::{params, shadow_cache}
@@ -36,7 +36,7 @@ fn receiver_dynamic(tri_plus_one: u32) -> bool {
     if tri_plus_one == 0u {
         return false;
     }
-    let record = tri_attr[tri_plus_one - 1u].pad.x;
+    let record = tri_attr_at(tri_plus_one - 1u).pad.x;
     if record == 0u || record - 1u < params.motion_base {
         return false;
     }

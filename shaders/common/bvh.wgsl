@@ -5,7 +5,7 @@
 // CPU rasterisers such as lavapipe private-array stacks are gather/scatter and far slower.
 #define_import_path gilab::bvh
 
-#import gilab::scene::{bvh_nodes, tri_geom, alpha_hole}
+#import gilab::scene::{bvh_nodes, bvh_node, tri_geom_at, alpha_hole}
 
 const NO_HIT: u32 = 0xffffffffu;
 
@@ -28,7 +28,7 @@ fn hits_aabb(origin: vec3<f32>, inv_dir: vec3<f32>, bmin: vec3<f32>, bmax: vec3<
 
 // Returns (t, bary_b, bary_c); t < 0 when missed. Zero-area triangles never hit (det == 0).
 fn intersect_tri(origin: vec3<f32>, dir: vec3<f32>, tri: u32) -> vec3<f32> {
-    let g = tri_geom[tri];
+    let g = tri_geom_at(tri);
     let edge_b = g.edge_b.xyz;
     let edge_c = g.edge_c.xyz;
     let p = cross(dir, edge_c);
@@ -73,8 +73,8 @@ struct Instance {
 }
 
 fn instance_at(at: u32) -> Instance {
-    let a = bvh_nodes[at];
-    let b = bvh_nodes[at + 1u];
+    let a = bvh_node(at);
+    let b = bvh_node(at + 1u);
     return Instance(a.bounds_min, a.bounds_max, b.bounds_min, b.bounds_max, a.skip, a.tris, b.skip, bitcast<f32>(b.tris));
 }
 
@@ -118,7 +118,7 @@ fn traverse(origin: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32, any_hit: 
 #ifdef INSTANCES
     var top_end = 0u;
     if node_count > 0u {
-        top_end = bvh_nodes[0].skip;
+        top_end = bvh_node(0u).skip;
     }
     var o = origin;
     var inv = inv_dir;
@@ -149,7 +149,7 @@ fn traverse(origin: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32, any_hit: 
 #endif
             break;
         }
-        let node = bvh_nodes[i];
+        let node = bvh_node(i);
         if !hits_aabb(o, inv, node.bounds_min, node.bounds_max, hit.t) {
             i = node.skip;
             continue;

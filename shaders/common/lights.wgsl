@@ -4,7 +4,7 @@
 // point on it (area) or its position (delta).
 #define_import_path gilab::lights
 
-#import gilab::scene::{light_pool, Light, tri_attr, tri_geom, tri_light_pmf, tri_uvs, material_emission, materials, tri_material, LIGHT_TRIANGLE, LIGHT_POINT, LIGHT_SPOT, LIGHT_DIRECTIONAL}
+#import gilab::scene::{light_pool, Light, tri_attr, tri_geom, tri_light_pmf, tri_uvs, material_emission, materials, tri_material, LIGHT_TRIANGLE, LIGHT_POINT, LIGHT_SPOT, LIGHT_DIRECTIONAL, light_at, material_at, tri_attr_at}
 #import gilab::sampling::sample_triangle
 #import gilab::ray::{RaySegment, spawn_ray_to, spawn_ray_to_infinity, INFINITE_DISTANCE}
 #import gilab::light_tree::{tree_sample, tree_pmf, tree_node, TREE_ONE_MINUS_EPSILON, TREE_MAX_DEPTH}
@@ -45,7 +45,7 @@ fn light_shadow_ray(p: vec3<f32>, n: vec3<f32>, l: LightSample) -> RaySegment {
 
 // Inclusive CDF of light i: over the whole pool, or within its class (see LightPool).
 fn light_cdf(i: u32, in_class: bool) -> f32 {
-    let l = light_pool.lights[i];
+    let l = light_at(i);
     return select(l.cdf, l.class_cdf, in_class);
 }
 
@@ -77,7 +77,7 @@ fn select_light_in_class(u: f32, first: u32, end: u32) -> u32 {
 
 // Factor that turns a sample's pool pdf (LightSample.pdf / area_pdf) into its pdf within its class.
 fn class_pdf_scale(light_index: u32) -> f32 {
-    let l = light_pool.lights[light_index];
+    let l = light_at(light_index);
     return l.class_pmf / l.pmf;
 }
 
@@ -85,7 +85,7 @@ fn class_pdf_scale(light_index: u32) -> f32 {
 // (single-sided unless the material says so): the emissive factor x its texture, read at the
 // finest level so that light sampling and hits see the same emission.
 fn triangle_emission(tri: u32, bary: vec2<f32>, to_viewer: vec3<f32>) -> vec3<f32> {
-    let m = materials[tri_material(tri)];
+    let m = material_at(tri_material(tri));
     let g = tri_geom[tri];
     let ng = cross(g.edge_b.xyz, g.edge_c.xyz);
     if m.emissive.w < 0.5 && dot(ng, to_viewer) <= 0.0 {
@@ -104,7 +104,7 @@ fn directional_share() -> f32 {
     if local == 0u {
         return 1.0;
     }
-    return 1.0 - light_pool.lights[local - 1u].cdf;
+    return 1.0 - light_at(local - 1u).cdf;
 }
 
 struct LightChoice {
@@ -124,7 +124,7 @@ fn choose_light(p: vec3<f32>, n: vec3<f32>, u: f32) -> LightChoice {
     let p_dir = directional_share();
     if u < p_dir {
         let i = select_light_in_class(min(u / p_dir, TREE_ONE_MINUS_EPSILON), light_pool.local_count, light_pool.count);
-        return LightChoice(i, p_dir * light_pool.lights[i].class_pmf);
+        return LightChoice(i, p_dir * light_at(i).class_pmf);
     }
     let t = tree_sample(p, n, min((u - p_dir) / (1.0 - p_dir), TREE_ONE_MINUS_EPSILON));
     if t.pmf <= 0.0 {
@@ -133,7 +133,7 @@ fn choose_light(p: vec3<f32>, n: vec3<f32>, u: f32) -> LightChoice {
     return LightChoice(t.light, (1.0 - p_dir) * t.pmf);
 #else
     let i = select_light(u);
-    return LightChoice(i, light_pool.lights[i].pmf);
+    return LightChoice(i, light_at(i).pmf);
 #endif
 }
 
@@ -144,11 +144,11 @@ fn light_choice_pmf(i: u32, p: vec3<f32>, n: vec3<f32>) -> f32 {
     }
 #ifdef LIGHT_TREE
     if i >= light_pool.local_count {
-        return directional_share() * light_pool.lights[i].class_pmf;
+        return directional_share() * light_at(i).class_pmf;
     }
     return (1.0 - directional_share()) * tree_pmf(i, p, n);
 #else
-    return light_pool.lights[i].pmf;
+    return light_at(i).pmf;
 #endif
 }
 
@@ -157,7 +157,7 @@ fn light_choice_pmf(i: u32, p: vec3<f32>, n: vec3<f32>) -> f32 {
 // BSDF-sampled ray hits a light.
 fn triangle_light_pdf(tri: u32, wi: vec3<f32>, dist: f32, from_p: vec3<f32>, from_n: vec3<f32>) -> f32 {
 #ifdef LIGHT_TREE
-    let light = tri_attr[tri].pad.y;
+    let light = tri_attr_at(tri).pad.y;
     if light == 0u {
         return 0.0;
     }
@@ -197,7 +197,7 @@ fn eval_light_point(light_index: u32, b: vec2<f32>, p: vec3<f32>) -> LightSample
     if light_index >= light_pool.count {
         return no_light_sample();
     }
-    return eval_light_chosen(light_index, b, p, light_pool.lights[light_index].pmf);
+    return eval_light_chosen(light_index, b, p, light_at(light_index).pmf);
 }
 
 // eval_light_point for a light chosen with probability `pmf`.
@@ -206,7 +206,7 @@ fn eval_light_chosen(light_index: u32, b: vec2<f32>, p: vec3<f32>, pmf: f32) -> 
     if light_index >= light_pool.count || pmf <= 0.0 {
         return s;
     }
-    let light = light_pool.lights[light_index];
+    let light = light_at(light_index);
     switch light.kind {
         case LIGHT_TRIANGLE: {
             let g = tri_geom[light.tri];
@@ -283,13 +283,13 @@ fn light_emitter(light_index: u32, b: vec2<f32>) -> LightEmitter {
     if light_index >= light_pool.count {
         return e;
     }
-    let light = light_pool.lights[light_index];
+    let light = light_at(light_index);
     switch light.kind {
         case LIGHT_TRIANGLE: {
             let g = tri_geom[light.tri];
             e.position = g.vertex_a.xyz + b.x * g.edge_b.xyz + b.y * g.edge_c.xyz;
             let area = 0.5 * length(cross(g.edge_b.xyz, g.edge_c.xyz));
-            e.strength = materials[tri_material(light.tri)].emissive.xyz;
+            e.strength = material_at(tri_material(light.tri)).emissive.xyz;
             if area > 0.0 {
                 e.area_pdf = light.pmf / area;
             }
@@ -345,7 +345,7 @@ fn trace_emitter(origin: vec3<f32>, dir: vec3<f32>) -> EmitterHit {
             continue;
         }
         if node.leaf {
-            let light = light_pool.lights[node.index];
+            let light = light_at(node.index);
             if light.kind == LIGHT_TRIANGLE {
                 let h = intersect_tri(origin, dir, light.tri);
                 if h.x > 0.0 && h.x < out.t && any(triangle_emission(light.tri, h.yz, -dir) > vec3<f32>(0.0)) {

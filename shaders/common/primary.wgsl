@@ -6,7 +6,7 @@
 
 #import gilab::frame::{frame, FLAG_NO_PRIMARY_EMISSION}
 #import gilab::brdf::Surface
-#import gilab::scene::materials
+#import gilab::scene::{materials, material_at}
 #import gilab::surface_point::HitSurface
 
 struct GSurface {
@@ -110,7 +110,7 @@ fn reproject(p: vec3<f32>) -> i32 {
 // The surface's BRDF parameters (alpha already squared; the model and Callisto's parameters
 // from its material).
 fn surface_material(s: GSurface) -> Surface {
-    return Surface(s.base_metal.xyz, s.base_metal.w, s.normal_alpha.w, s.geo_specular.w, materials[s.material].shading);
+    return Surface(s.base_metal.xyz, s.base_metal.w, s.normal_alpha.w, s.geo_specular.w, material_at(s.material).shading);
 }
 
 // The surface as a path vertex (gilab::path_vertex's NEE, a path continued from the pixel);

@@ -5,7 +5,7 @@
 
 #import gilab::rng::{Rng, rand, rand_pair}
 #import gilab::math::luminance
-#import gilab::scene::light_pool
+#import gilab::scene::{light_pool, light_at}
 #import gilab::lights::{select_light, select_light_in_class, class_pdf_scale, light_emitter}
 #import gilab::sampling::sample_triangle
 #import gilab::light_tree::tree_sample_region
@@ -52,7 +52,7 @@ fn regir_fill_slot(centre: vec3<f32>, cell_size: f32, all_lights: bool, by_tree:
         } else if by_tree {
             // The area pdf below is the pool's power pmf times the point's: swap the pmf.
             let t = tree_sample_region(centre, half_diag, rand(rng));
-            let power_pmf = light_pool.lights[t.light].pmf;
+            let power_pmf = light_at(t.light).pmf;
             if t.pmf <= 0.0 || power_pmf <= 0.0 {
                 continue;
             }

@@ -134,6 +134,92 @@ struct LightPool {
 // the techniques under lavapipe's 32 storage buffers per stage.
 @group(0) @binding(4) var<storage, read> texels: array<u32>;
 @group(0) @binding(5) var<storage, read> light_pool: LightPool;
+// The BVH nodes, triangle geometry and attributes, materials and light pool again, as texels
+// (rgba32uint, the same words' bits): what the shaders read through bvh_node, tri_geom_at,
+// tri_attr_at, material_at and light_at. On lavapipe a storage-buffer load at an index that
+// differs across lanes runs a scalar loop over the lanes, about 6x slower than a texel fetch,
+// and a BVH walk or a hit's shading is mostly such loads (src/scene/gpu_scene.rs
+// `SceneTexels`). The buffers stay for their lengths and the few uniform reads.
+@group(0) @binding(6) var bvh_texels: texture_2d<u32>;
+@group(0) @binding(7) var geom_texels: texture_2d<u32>;
+@group(0) @binding(8) var attr_texels: texture_2d<u32>;
+@group(0) @binding(9) var material_texels: texture_2d<u32>;
+@group(0) @binding(10) var light_texels: texture_2d<u32>;
+
+// Texels per row of bvh_texels and geom_texels (must match SCENE_TEXELS_PER_ROW in
+// src/scene/gpu_scene.rs): a power of two, so a texel index splits by mask and shift.
+const SCENE_TEXEL_ROW_SHIFT: u32 = 12u;
+const SCENE_TEXEL_ROW_MASK: u32 = 4095u;
+
+fn scene_texel(t: texture_2d<u32>, k: u32) -> vec4<u32> {
+    return textureLoad(t, vec2<u32>(k & SCENE_TEXEL_ROW_MASK, k >> SCENE_TEXEL_ROW_SHIFT), 0);
+}
+
+// bvh_nodes[i], read from its two texels.
+fn bvh_node(i: u32) -> BvhNode {
+    let a = scene_texel(bvh_texels, 2u * i);
+    let b = scene_texel(bvh_texels, 2u * i + 1u);
+    return BvhNode(bitcast<vec3<f32>>(a.xyz), a.w, bitcast<vec3<f32>>(b.xyz), b.w);
+}
+
+// tri_geom[tri], read from its three texels.
+fn tri_geom_at(tri: u32) -> TriGeom {
+    let k = 3u * tri;
+    return TriGeom(
+        bitcast<vec4<f32>>(scene_texel(geom_texels, k)),
+        bitcast<vec4<f32>>(scene_texel(geom_texels, k + 1u)),
+        bitcast<vec4<f32>>(scene_texel(geom_texels, k + 2u)),
+    );
+}
+
+// tri_attr[tri], read from its six texels.
+fn tri_attr_at(tri: u32) -> TriAttr {
+    let k = 6u * tri;
+    let a = scene_texel(attr_texels, k);
+    let b = scene_texel(attr_texels, k + 1u);
+    let f = scene_texel(attr_texels, k + 5u);
+    return TriAttr(
+        a.xyz, bitcast<f32>(a.w), b.xyz, b.w,
+        bitcast<vec4<f32>>(scene_texel(attr_texels, k + 2u)),
+        bitcast<vec4<f32>>(scene_texel(attr_texels, k + 3u)),
+        bitcast<vec4<f32>>(scene_texel(attr_texels, k + 4u)),
+        f.x, f.y, f.zw,
+    );
+}
+
+fn material_word(k: u32) -> vec4<f32> {
+    return bitcast<vec4<f32>>(scene_texel(material_texels, k));
+}
+
+fn tex_slot_at(k: u32) -> TexSlot {
+    return TexSlot(material_word(k), material_word(k + 1u));
+}
+
+// materials[m], read from its 19 texels.
+fn material_at(m: u32) -> Material {
+    let k = 19u * m;
+    return Material(
+        material_word(k), material_word(k + 1u), material_word(k + 2u), material_word(k + 3u),
+        array<TexSlot, 5>(tex_slot_at(k + 4u), tex_slot_at(k + 6u), tex_slot_at(k + 8u), tex_slot_at(k + 10u), tex_slot_at(k + 12u)),
+        Shading(material_word(k + 14u), material_word(k + 15u), material_word(k + 16u), material_word(k + 17u), material_word(k + 18u)),
+    );
+}
+
+// light_pool.lights[i] (a light, or a light tree node's record), read from its six texels
+// after the pool's one-texel header.
+fn light_at(i: u32) -> Light {
+    let k = 1u + 6u * i;
+    let a = scene_texel(light_texels, k);
+    let b = scene_texel(light_texels, k + 1u);
+    return Light(
+        a.x, a.y, bitcast<f32>(a.z), bitcast<f32>(a.w),
+        bitcast<f32>(b.x), bitcast<f32>(b.y), b.zw,
+        bitcast<vec4<f32>>(scene_texel(light_texels, k + 2u)),
+        bitcast<vec4<f32>>(scene_texel(light_texels, k + 3u)),
+        bitcast<vec4<f32>>(scene_texel(light_texels, k + 4u)),
+        bitcast<vec4<f32>>(scene_texel(light_texels, k + 5u)),
+    );
+}
 
 fn texture_info(index: u32) -> TextureInfo {
     let k = texels[0] + 4u * index;
@@ -145,7 +231,7 @@ fn texture_info(index: u32) -> TextureInfo {
 // (two BVH nodes past the tree, "this frame's world to last frame's", src/scene/gpu_scene.rs)
 // when the triangle belongs to a moving instance (TriAttr.pad.x = record + 1), else p.
 fn previous_position(tri: u32, p: vec3<f32>) -> vec3<f32> {
-    let record = tri_attr[tri].pad.x;
+    let record = tri_attr_at(tri).pad.x;
     if record == 0u {
         return p;
     }
@@ -157,7 +243,7 @@ fn previous_position(tri: u32, p: vec3<f32>) -> vec3<f32> {
 // The inverse of `previous_position`: where a point of triangle `tri` recorded last frame is
 // now (a reservoir's reconnection point on a moving object follows the object).
 fn next_position(tri: u32, p: vec3<f32>) -> vec3<f32> {
-    let record = tri_attr[tri].pad.x;
+    let record = tri_attr_at(tri).pad.x;
     if record == 0u {
         return p;
     }
@@ -179,7 +265,7 @@ fn next_position(tri: u32, p: vec3<f32>) -> vec3<f32> {
 // transpose of the point map, and the inverse of "now to last frame" transposed back is its
 // own transpose.
 fn next_normal(tri: u32, n: vec3<f32>) -> vec3<f32> {
-    let record = tri_attr[tri].pad.x;
+    let record = tri_attr_at(tri).pad.x;
     if record == 0u {
         return n;
     }
@@ -192,16 +278,16 @@ fn next_normal(tri: u32, n: vec3<f32>) -> vec3<f32> {
 }
 
 fn scene_triangle(tri: u32) -> u32 {
-    return tri_attr[tri].scene_tri;
+    return tri_attr_at(tri).scene_tri;
 }
 
 fn tri_material(tri: u32) -> u32 {
-    return tri_attr[tri].material;
+    return tri_attr_at(tri).material;
 }
 
 // Probability that light sampling picks triangle `tri` (0 if it does not emit).
 fn tri_light_pmf(tri: u32) -> f32 {
-    return tri_attr[tri].light_pmf;
+    return tri_attr_at(tri).light_pmf;
 }
 
 // Material index + 1 of a triangle rays may pass through (alpha-tested), else 0.
@@ -222,7 +308,7 @@ fn oct_decode_packed(packed: u32) -> vec3<f32> {
 
 // UV sets 0 and 1 at barycentrics (b, c) of triangle `tri`: xy set 0, zw set 1.
 fn tri_uvs(tri: u32, bary: vec2<f32>) -> vec4<f32> {
-    let a = tri_attr[tri];
+    let a = tri_attr_at(tri);
     let w = 1.0 - bary.x - bary.y;
     let uv0 = w * a.uv0_ab.xy + bary.x * a.uv0_ab.zw + bary.y * a.uv0_c_uv1_a.xy;
     let uv1 = w * a.uv0_c_uv1_a.zw + bary.x * a.uv1_bc.xy + bary.y * a.uv1_bc.zw;
@@ -349,6 +435,6 @@ fn alpha_hole(tri: u32, bary: vec2<f32>) -> bool {
     if tag == 0u {
         return false;
     }
-    let m = materials[tag - 1u];
+    let m = material_at(tag - 1u);
     return material_alpha(m, tri_uvs(tri, bary)) < m.extra.z;
 }

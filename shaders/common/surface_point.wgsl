@@ -3,7 +3,7 @@
 // raster passes with their own group 1 (Lumen's card capture) use it too.
 #define_import_path gilab::surface_point
 
-#import gilab::scene::{tri_geom, tri_attr, materials, tri_uvs, oct_decode_packed, slot_used, slot_sample, TRI_HAS_NORMALS, TRI_HAS_TANGENTS, TRI_BITANGENT_NEG_SHIFT, SLOT_BASE_COLOR, SLOT_METALLIC_ROUGHNESS, SLOT_NORMAL}
+#import gilab::scene::{tri_geom, tri_attr, materials, tri_uvs, oct_decode_packed, slot_used, slot_sample, TRI_HAS_NORMALS, TRI_HAS_TANGENTS, TRI_BITANGENT_NEG_SHIFT, SLOT_BASE_COLOR, SLOT_METALLIC_ROUGHNESS, SLOT_NORMAL, material_at, tri_attr_at}
 #import gilab::brdf::{Surface, make_shaded_surface}
 
 struct HitSurface {
@@ -30,7 +30,7 @@ fn uv_area2(a: vec2<f32>, b: vec2<f32>, c: vec2<f32>) -> f32 {
 // footprint `cone_width` there (0: finest texture level).
 fn surface_at(tri: u32, bary: vec2<f32>, dir: vec3<f32>, cone_width: f32) -> HitSurface {
     let g = tri_geom[tri];
-    let a = tri_attr[tri];
+    let a = tri_attr_at(tri);
     let bary_a = 1.0 - bary.x - bary.y;
     let position = g.vertex_a.xyz + bary.x * g.edge_b.xyz + bary.y * g.edge_c.xyz;
     let cross_e = cross(g.edge_b.xyz, g.edge_c.xyz);
@@ -52,7 +52,7 @@ fn surface_at(tri: u32, bary: vec2<f32>, dir: vec3<f32>, cone_width: f32) -> Hit
     let uvs = tri_uvs(tri, bary);
 
     let mi = a.material;
-    let m = materials[mi];
+    let m = material_at(mi);
     var base = m.base_color;
     if slot_used(m.tex[SLOT_BASE_COLOR]) {
         base *= slot_sample(m.tex[SLOT_BASE_COLOR], uvs, lod, true);

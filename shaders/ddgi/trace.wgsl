@@ -13,7 +13,7 @@
 #import gilab::rng::{rng_init, rand, rand_pair, STREAM_DDGI_PROBE}
 #import gilab::bvh::{trace_closest, NO_HIT}
 #import gilab::surface::hit_surface
-#import gilab::scene::materials
+#import gilab::scene::{materials, material_at}
 #import gilab::brdf::{diffuse_color, specular_albedo_average}
 #import gilab::ray::INFINITE_DISTANCE
 #import gilab::nee::direct_light
@@ -42,7 +42,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         } else {
             let h = hit_surface(origin, dir, hit);
             // A double-sided material has no back face (glTF planes, leaves).
-            if !h.front_face && materials[h.material_index].emissive.w < 0.5 {
+            if !h.front_face && material_at(h.material_index).emissive.w < 0.5 {
                 t = -0.2 * hit.t;
             } else {
                 t = hit.t;

@@ -2,7 +2,7 @@
 // distance to the closest triangle (BVH point query, within the band) and that triangle's
 // object. The sign comes from rays, as in the seed: a voxel is inside when most of the
 // single-sided surfaces its `sign_rays` rays hit are back faces (and most rays hit something).
-#import gilab::scene::{tri_geom, tri_material, materials, scene_triangle}
+#import gilab::scene::{tri_geom, tri_material, materials, scene_triangle, material_at}
 #import gilab::bvh::{trace_closest, NO_HIT}
 #import gilab::math::TWO_PI
 #import gilab::tracing::{params, brick_table, brick_coord, brick_pool, fill_list, level_voxel, closest_triangle, encode_voxel, BRICK, BRICK_VOXELS, BAND, NO_OBJECT}
@@ -27,7 +27,7 @@ fn inside(p: vec3<f32>) -> bool {
         }
         let g = tri_geom[h.tri];
         let n = cross(g.edge_b.xyz, g.edge_c.xyz);
-        let double_sided = materials[tri_material(h.tri)].emissive.w > 0.5;
+        let double_sided = material_at(tri_material(h.tri)).emissive.w > 0.5;
         if double_sided {
             continue;
         }

@@ -4,7 +4,7 @@
 // direction across the voxel, from the face that direction points out of, and stores the
 // nearest front face they meet: its object and the distance. Geometry is cached, lighting is
 // not: the radiance is shaded every frame (voxel_lighting.wgsl), and reads as none until then.
-#import gilab::scene::{tri_geom, tri_material, materials, scene_triangle}
+#import gilab::scene::{tri_geom, tri_material, materials, scene_triangle, material_at}
 #import gilab::bvh::{trace_closest, NO_HIT}
 #import gilab::tracing::{params, brick_table, brick_coord, brick_pool, fill_list, lighting_voxel_size, sdf_distance, voxel_dir, voxel_word_index, lighting_voxel_centre, voxel_ray_start, voxel_ray_length, encode_seen, VOXEL_DIRS, EMPTY}
 #import gilab::surface_cache::{tri_object}
@@ -48,7 +48,7 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) l
             }
             let g = tri_geom[h.tri];
             let facing = dot(cross(g.edge_b.xyz, g.edge_c.xyz), d) > 0.0;
-            let double_sided = materials[tri_material(h.tri)].emissive.w > 0.5;
+            let double_sided = material_at(tri_material(h.tri)).emissive.w > 0.5;
             if facing || double_sided {
                 best = h.t;
                 word = encode_seen(tri_object[scene_triangle(h.tri)], h.t, size);

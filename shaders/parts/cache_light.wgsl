@@ -22,7 +22,7 @@
 #import gilab::world_regir::world_regir_light
 #endif
 #ifdef CACHE_LIGHTCUT
-#import gilab::scene::light_pool
+#import gilab::scene::{light_pool, light_at}
 #import gilab::sampling::sample_triangle
 #import gilab::lights::{eval_light_chosen, select_light_in_class}
 #import gilab::light_tree::{tree_node, lightcut_error, tree_descend, TREE_ONE_MINUS_EPSILON}
@@ -141,7 +141,7 @@ fn lightcut_direct(p: vec3<f32>, n_geo: vec3<f32>, n: vec3<f32>, m: Surface, wo:
     }
     if light_pool.local_count < light_pool.count {
         let i = select_light_in_class(min(rand(rng), TREE_ONE_MINUS_EPSILON), light_pool.local_count, light_pool.count);
-        let d = shade_light_sample(p, n_geo, n, m, wo, eval_light_chosen(i, sample_triangle(rand_pair(rng)), p, light_pool.lights[i].class_pmf));
+        let d = shade_light_sample(p, n_geo, n, m, wo, eval_light_chosen(i, sample_triangle(rand_pair(rng)), p, light_at(i).class_pmf));
         out.radiance += d.radiance;
         out.shadow_rays += d.shadow_rays;
     }

@@ -5,7 +5,7 @@
 // line by line (pbrt-v4's BVHLightSampler).
 #define_import_path gilab::light_tree
 
-#import gilab::scene::light_pool
+#import gilab::scene::{light_pool, light_at}
 
 // The largest f32 below 1: a remapped random number stays in [0, 1).
 const TREE_ONE_MINUS_EPSILON: f32 = 0.99999994;
@@ -30,7 +30,7 @@ struct LightTreeNode {
 // cos_theta_e, class_pmf = two_sided (1 or 0), position = lo, intensity = hi, direction = axis;
 // tests/cpu.rs checks the layout).
 fn tree_node(i: u32) -> LightTreeNode {
-    let r = light_pool.lights[light_pool.count + i];
+    let r = light_at(light_pool.count + i);
     return LightTreeNode(r.kind == 1u, r.tri, r.cdf, r.pmf, r.class_cdf, r.class_pmf != 0.0, r.position.xyz, r.intensity.xyz, r.direction.xyz);
 }
 
@@ -200,7 +200,7 @@ fn tree_pmf_grown(light: u32, p: vec3<f32>, n: vec3<f32>, grow: f32) -> f32 {
     if light >= light_pool.local_count {
         return 0.0;
     }
-    let trail = light_pool.lights[light].trail;
+    let trail = light_at(light).trail;
     var at = 0u;
     var pmf = 1.0;
     for (var depth = 0u; depth <= TREE_MAX_DEPTH; depth++) {

@@ -741,6 +741,9 @@ pub struct GpuScene {
     /// The buffers that move with the geometry: BVH nodes, triangle geometry and attributes,
     /// light pool (bindings 0, 1, 2, 5), rewritten in place by `repose`.
     moving: [wgpu::Buffer; 4],
+    /// The BVH nodes, triangle records, materials and light pool again as textures (bindings
+    /// 6-10): what the shaders read, rewritten with the buffers.
+    texels: SceneTexels,
     /// The instances' transforms as last written (motion records go from them to the next).
     transforms: Vec<glam::Mat4>,
     /// Whether the motion records hold a move (else identity).
@@ -833,14 +836,116 @@ fn light_pool_bytes(lights: &[GpuLight], tree: &LightTree) -> Vec<u8> {
     bytes
 }
 
+/// Texels per row of the scene's texel copies (`SCENE_TEXEL_ROW_*` in shaders/common/scene.wgsl):
+/// a power of two, so the shaders split a texel index by mask and shift.
+pub const SCENE_TEXELS_PER_ROW: u32 = 4096;
+
+/// The BVH nodes (two texels each), triangle geometry (three) and attributes (six), materials
+/// (19) and the light pool (a header texel, then six a record) as rgba32uint textures holding
+/// the same words as their storage buffers. Lavapipe (Mesa 22.3, CI's renderer) loads from a
+/// storage buffer in a scalar loop over the SIMD lanes, a branch per lane and word: a vec4
+/// costs about 23 ns a lane against 4 ns for a texel fetch (measured 2026-12-01,
+/// docs/performance.md). A BVH walk or a hit's shading is mostly such loads, so the shaders
+/// read these (shaders/common/scene.wgsl `bvh_node`, `material_at`, …); GPUs read either at
+/// about the same speed. Rows are SCENE_TEXELS_PER_ROW wide, so the device's largest 2D
+/// texture (16,384 rows on lavapipe) bounds a scene at about 11 M triangles.
+#[derive(Clone)]
+struct SceneTexels {
+    nodes: wgpu::Texture,
+    geom: wgpu::Texture,
+    attr: wgpu::Texture,
+    materials: wgpu::Texture,
+    lights: wgpu::Texture,
+}
+
+impl SceneTexels {
+    fn new(gpu: &Gpu, nodes: &[BvhNode], data: &SceneData, light_pool: &[u8]) -> SceneTexels {
+        SceneTexels {
+            nodes: Self::texture(gpu, "bvh texels", bytemuck::cast_slice(nodes)),
+            geom: Self::texture(gpu, "geometry texels", bytemuck::cast_slice(&data.tri_geom)),
+            attr: Self::texture(
+                gpu,
+                "attribute texels",
+                bytemuck::cast_slice(&data.tri_attr),
+            ),
+            materials: Self::texture(
+                gpu,
+                "material texels",
+                bytemuck::cast_slice(&data.materials),
+            ),
+            lights: Self::texture(gpu, "light texels", &Self::words(light_pool)),
+        }
+    }
+
+    /// Bytes as words (the light pool is built as bytes, not aligned for a cast).
+    fn words(bytes: &[u8]) -> Vec<u32> {
+        bytemuck::pod_collect_to_vec(bytes)
+    }
+
+    fn views(&self) -> [wgpu::TextureView; 5] {
+        [
+            &self.nodes,
+            &self.geom,
+            &self.attr,
+            &self.materials,
+            &self.lights,
+        ]
+        .map(|t| t.create_view(&Default::default()))
+    }
+
+    /// Rows of SCENE_TEXELS_PER_ROW texels for `words` (16 bytes a texel; at least one row).
+    fn extent(words: &[u32]) -> wgpu::Extent3d {
+        let texels = words.len().div_ceil(4) as u32;
+        wgpu::Extent3d {
+            width: SCENE_TEXELS_PER_ROW,
+            height: texels.div_ceil(SCENE_TEXELS_PER_ROW).max(1),
+            depth_or_array_layers: 1,
+        }
+    }
+
+    fn texture(gpu: &Gpu, label: &str, words: &[u32]) -> wgpu::Texture {
+        let texture = gpu.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some(label),
+            size: Self::extent(words),
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::Rgba32Uint,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        Self::write(gpu, &texture, words);
+        texture
+    }
+
+    /// `words` into `texture` from texel 0 on, the last row padded with zeros.
+    fn write(gpu: &Gpu, texture: &wgpu::Texture, words: &[u32]) {
+        let extent = Self::extent(words);
+        let mut padded = words.to_vec();
+        padded.resize((extent.width * extent.height * 4) as usize, 0);
+        gpu.queue.write_texture(
+            texture.as_image_copy(),
+            bytemuck::cast_slice(&padded),
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(extent.width * 16),
+                rows_per_image: Some(extent.height),
+            },
+            extent,
+        );
+    }
+}
+
 impl GpuScene {
     pub fn bind_group_layout(gpu: &Gpu) -> wgpu::BindGroupLayout {
         // 0 BVH nodes, 1 triangle geometry, 2 triangle attributes, 3 materials, 4 scene data
-        // (texture table, environment map, textures), 5 light pool.
-        let entries: Vec<wgpu::BindGroupLayoutEntry> = (0..6)
+        // (texture table, environment map, textures), 5 light pool; 6-10 the BVH nodes,
+        // triangle geometry and attributes, materials and light pool as texels (`SceneTexels`).
+        let visibility = wgpu::ShaderStages::COMPUTE | wgpu::ShaderStages::FRAGMENT;
+        let mut entries: Vec<wgpu::BindGroupLayoutEntry> = (0..6)
             .map(|i| wgpu::BindGroupLayoutEntry {
                 binding: i,
-                visibility: wgpu::ShaderStages::COMPUTE | wgpu::ShaderStages::FRAGMENT,
+                visibility,
                 ty: wgpu::BindingType::Buffer {
                     ty: wgpu::BufferBindingType::Storage { read_only: true },
                     has_dynamic_offset: false,
@@ -849,6 +954,16 @@ impl GpuScene {
                 count: None,
             })
             .collect();
+        entries.extend((6..11).map(|i| wgpu::BindGroupLayoutEntry {
+            binding: i,
+            visibility,
+            ty: wgpu::BindingType::Texture {
+                sample_type: wgpu::TextureSampleType::Uint,
+                view_dimension: wgpu::TextureViewDimension::D2,
+                multisampled: false,
+            },
+            count: None,
+        }));
         crate::render::pipelines::layout(gpu, "scene", &entries)
     }
 
@@ -868,23 +983,35 @@ impl GpuScene {
                     usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
                 })
         };
-        let nodes = storage(
-            "bvh nodes",
-            bytemuck::cast_slice(&nodes_with_motion(&data.bvh, &[])),
-        );
+        let node_words = nodes_with_motion(&data.bvh, &[]);
+        let nodes = storage("bvh nodes", bytemuck::cast_slice(&node_words));
         let geom = storage("tri geom", bytemuck::cast_slice(&data.tri_geom));
         let attr = storage("tri attr", bytemuck::cast_slice(&data.tri_attr));
         let mats = storage("materials", bytemuck::cast_slice(&data.materials));
-        let texels = storage("texels", bytemuck::cast_slice(&data.texels[..]));
+        let scene_words = storage("texels", bytemuck::cast_slice(&data.texels[..]));
         let light_bytes = light_pool_bytes(&data.lights, &data.light_tree);
         let lights = storage("light pool", &light_bytes);
+        let texels = SceneTexels::new(gpu, &node_words, &data, &light_bytes);
         let layout = Self::bind_group_layout(gpu);
-        let bind_group = crate::render::pipelines::buffers_bind_group(
-            gpu,
-            "scene",
-            &layout,
-            &[&nodes, &geom, &attr, &mats, &texels, &lights],
-        );
+        let views = texels.views();
+        let buffers = [&nodes, &geom, &attr, &mats, &scene_words, &lights];
+        let mut entries: Vec<wgpu::BindGroupEntry> = buffers
+            .iter()
+            .enumerate()
+            .map(|(i, b)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource: b.as_entire_binding(),
+            })
+            .collect();
+        entries.extend(views.iter().enumerate().map(|(i, v)| wgpu::BindGroupEntry {
+            binding: 6 + i as u32,
+            resource: wgpu::BindingResource::TextureView(v),
+        }));
+        let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("scene"),
+            layout: &layout,
+            entries: &entries,
+        });
         let mut vbytes = bytemuck::cast_slice::<RasterVertex, u8>(&data.vertices).to_vec();
         if vbytes.is_empty() {
             vbytes.resize(std::mem::size_of::<RasterVertex>(), 0);
@@ -908,6 +1035,7 @@ impl GpuScene {
             vertex_buffer,
             vertex_count,
             moving: [nodes, geom, attr, lights],
+            texels,
             transforms: scene.instances.iter().map(|i| i.transform).collect(),
             motion_live: false,
         }
@@ -957,14 +1085,16 @@ impl GpuScene {
         self.motion_live = motions.iter().any(|m| *m != Mat4::IDENTITY);
         let [nodes, geom, attr, lights] = &self.moving;
         let q = &gpu.queue;
-        q.write_buffer(
-            nodes,
-            0,
-            bytemuck::cast_slice(&nodes_with_motion(bvh, &motions)),
-        );
+        let node_words = nodes_with_motion(bvh, &motions);
+        q.write_buffer(nodes, 0, bytemuck::cast_slice(&node_words));
         q.write_buffer(geom, 0, bytemuck::cast_slice(&g.tri_geom));
+        SceneTexels::write(gpu, &self.texels.nodes, bytemuck::cast_slice(&node_words));
+        SceneTexels::write(gpu, &self.texels.geom, bytemuck::cast_slice(&g.tri_geom));
         q.write_buffer(attr, 0, bytemuck::cast_slice(&g.tri_attr));
-        q.write_buffer(lights, 0, &light_pool_bytes(&g.lights, &g.light_tree));
+        let light_bytes = light_pool_bytes(&g.lights, &g.light_tree);
+        q.write_buffer(lights, 0, &light_bytes);
+        SceneTexels::write(gpu, &self.texels.attr, bytemuck::cast_slice(&g.tri_attr));
+        SceneTexels::write(gpu, &self.texels.lights, &SceneTexels::words(&light_bytes));
         q.write_buffer(&self.vertex_buffer, 0, bytemuck::cast_slice(&g.vertices));
         let d = &mut self.data;
         d.tris = tris;
@@ -999,6 +1129,9 @@ impl GpuScene {
                 .collect();
             gpu.queue
                 .write_buffer(&self.moving[0], at as u64, bytemuck::cast_slice(&identity));
+            // The texels: the whole node list again (the records need not start a row).
+            let nodes = nodes_with_motion(&self.data.bvh, &[]);
+            SceneTexels::write(gpu, &self.texels.nodes, bytemuck::cast_slice(&nodes));
         }
     }
 }

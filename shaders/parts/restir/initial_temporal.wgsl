@@ -7,7 +7,7 @@
 #import gilab::frame::frame
 #import gilab::counters::{flush_counts, no_counts, RAY_CANDIDATE}
 #import gilab::math::{PI, luminance, to_world, oct_encode}
-#import gilab::scene::light_pool
+#import gilab::scene::{light_pool, light_at}
 #import gilab::lights::{LightSample, select_light, select_light_in_class, class_pdf_scale, trace_emitter}
 #import gilab::light_tree::{tree_sample, tree_pmf}
 #import gilab::ray::spawn_ray_origin
@@ -34,7 +34,7 @@ fn local_light_pdf(s: GSurface, li: u32, l: LightSample) -> f32 {
         return l.area_pdf;
     }
     if params.light_tree == 1u {
-        return l.area_pdf * tree_pmf(li, s.pos.xyz, s.geo_specular.xyz) / light_pool.lights[li].pmf;
+        return l.area_pdf * tree_pmf(li, s.pos.xyz, s.geo_specular.xyz) / light_at(li).pmf;
     }
     return l.area_pdf * class_pdf_scale(li);
 }
@@ -94,7 +94,7 @@ fn local_candidates(s: GSurface, rng: ptr<function, Rng>, counts: ptr<function, 
             let t = tree_sample(s.pos.xyz, s.geo_specular.xyz, rand(rng));
             li = select(light_pool.count, t.light, t.pmf > 0.0);
             // The sample's area pdf below holds the pool's power pmf: swap it for the tree's.
-            scale = select(0.0, t.pmf / light_pool.lights[t.light].pmf, t.pmf > 0.0);
+            scale = select(0.0, t.pmf / light_at(t.light).pmf, t.pmf > 0.0);
         } else {
             li = select_light_in_class(rand(rng), 0u, light_pool.local_count);
             scale = class_pdf_scale(li);
@@ -144,7 +144,7 @@ fn directional_candidates(s: GSurface, rng: ptr<function, Rng>) -> Reservoir {
     for (var i = 0u; i < params.directional_candidates; i++) {
         let li = select_light_in_class(rand(rng), light_pool.local_count, light_pool.count);
         let c = contribution(s, li, vec2<f32>(0.0));
-        let pdf = light_pool.lights[li].class_pmf;
+        let pdf = light_at(li).class_pmf;
         var w = 0.0;
         if pdf > 0.0 {
             w = luminance(c.value) / pdf;

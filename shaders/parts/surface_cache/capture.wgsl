@@ -2,7 +2,7 @@
 // orthographic camera into the card's rectangle of the atlas (viewport = rectangle, the card's
 // box depth range clips), writing albedo, normal, emission and depth. `vs_clear` first marks
 // the whole rectangle invalid (depth 2), so a recapture leaves nothing stale behind.
-#import gilab::scene::{materials, alpha_hole, material_emission, tri_uvs, tri_material}
+#import gilab::scene::{materials, alpha_hole, material_emission, tri_uvs, tri_material, material_at}
 #import gilab::surface_point::surface_at
 #import gilab::brdf::{diffuse_color, specular_albedo_average}
 #import gilab::card::{Card, card_uv, card_depth, card_dir, card_axis}
@@ -51,7 +51,7 @@ fn vs_main(v: VertexIn, @builtin(instance_index) card: u32, @builtin(vertex_inde
 
 @fragment
 fn fs_main(in: VertexOut, @builtin(front_facing) front_facing: bool) -> CaptureOut {
-    let m = materials[tri_material(in.tri)];
+    let m = material_at(tri_material(in.tri));
     let double_sided = m.emissive.w > 0.5;
     // The card's projection keeps a surface facing the card counter-clockwise (card_uv).
     if !front_facing && !double_sided {

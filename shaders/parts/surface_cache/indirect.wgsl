@@ -4,7 +4,7 @@
 // (a probe whose rays stop short of the texel is likely on the other side of something) and by
 // normal agreement; the result is blended into the indirect atlas over at most 4 frames.
 #import gilab::surface_cache_lighting::{cache_tiles, probes}
-#import gilab::surface_cache::{cards, atlas_indirect, atlas_index, cache_texel}
+#import gilab::surface_cache::{card_at, atlas_indirect, atlas_index, cache_texel}
 
 const MAX_FRAMES: f32 = 4.0;
 
@@ -21,7 +21,7 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) l
     if !t.valid {
         return;
     }
-    let c = cards[entry.y];
+    let c = card_at(entry.y);
     let tile_lo = vec2<i32>(c.rect.xy / 4u);
     let tile_hi = vec2<i32>((c.rect.xy + c.rect.zw) / 4u) - 1;
     let f = (vec2<f32>(texel) + 0.5) / 4.0 - 0.5;

@@ -23,6 +23,20 @@ const NO_CARD: u32 = 0xffffffffu;
 @group(#{SURFACE_CACHE_GROUP}) @binding(20) var atlas_normal: texture_2d<f32>;
 @group(#{SURFACE_CACHE_GROUP}) @binding(21) var atlas_emissive: texture_2d<f32>;
 @group(#{SURFACE_CACHE_GROUP}) @binding(22) var atlas_depth: texture_2d<f32>;
+// The cards again as texels (rgba32uint, four a card, 4,096 a row): what the lookups read. On
+// lavapipe a storage-buffer vec4 costs about six texel fetches (src/parts/surface_cache/mod.rs
+// `CardTexels`).
+@group(#{SURFACE_CACHE_GROUP}) @binding(23) var card_texels: texture_2d<u32>;
+
+fn card_texel(k: u32) -> vec4<u32> {
+    return textureLoad(card_texels, vec2<u32>(k & 4095u, k >> 12u), 0);
+}
+
+// cards[ci], read from its four texels.
+fn card_at(ci: u32) -> Card {
+    let k = 4u * ci;
+    return Card(bitcast<vec4<f32>>(card_texel(k)), bitcast<vec4<f32>>(card_texel(k + 1u)), card_texel(k + 2u), card_texel(k + 3u));
+}
 
 struct CacheSample {
     albedo: vec3<f32>,
@@ -51,7 +65,7 @@ fn sample_cache(p: vec3<f32>, n: vec3<f32>, object: u32, tolerance_in: f32) -> C
     var best = 0.0;
     for (var k = 0u; k < range.y; k++) {
         let ci = range.x + k;
-        let c = cards[ci];
+        let c = card_at(ci);
         let facing = dot(n, card_dir(c));
         if facing <= 0.1 {
             continue;
@@ -122,7 +136,7 @@ struct CacheTexel {
 
 // The surface a texel of card `ci` holds (invalid where the capture saw nothing).
 fn cache_texel(ci: u32, texel: vec2<u32>) -> CacheTexel {
-    let c = cards[ci];
+    let c = card_at(ci);
     let td = textureLoad(atlas_depth, texel, 0).x;
     if td > 1.5 {
         return CacheTexel(false, vec3<f32>(0.0), vec3<f32>(0.0));

@@ -9,9 +9,9 @@
 #define_import_path gilab::tracing
 
 #import gilab::math::{PI, INV_PI}
-#import gilab::scene::{materials, tri_geom, tri_material, scene_triangle}
+#import gilab::scene::{materials, tri_geom, tri_material, scene_triangle, material_at}
 #import gilab::bvh::{trace_closest, NO_HIT, INSTANCE_LEAF, instance_at, to_object_vector}
-#import gilab::scene::bvh_nodes
+#import gilab::scene::{bvh_nodes, bvh_node, tri_geom_at}
 #import gilab::ray::{offset_point, unoccluded, INFINITE_DISTANCE}
 #import gilab::lights::{LightSample, light_shadow_ray}
 #import gilab::surface_cache::{cards, object_cards, tri_object, atlas_direct, atlas_indirect, atlas_albedo, atlas_normal, atlas_emissive, atlas_depth, CacheSample, sample_cache, cache_radiance, cache_reflected}
@@ -409,7 +409,7 @@ fn trace_bvh_mode(p: vec3<f32>, n_geo: vec3<f32>, d: vec3<f32>, t_max: f32) -> T
     }
     let g = hit_geometric_normal(h.tri);
     let front = dot(g, d) < 0.0;
-    let double_sided = materials[tri_material(h.tri)].emissive.w > 0.5;
+    let double_sided = material_at(tri_material(h.tri)).emissive.w > 0.5;
     let object = tri_object[scene_triangle(h.tri)];
     return TraceHit(true, h.t, o + d * h.t, select(-g, g, front), object, !front && !double_sided, 0u, 0.0, 0u, d);
 }
@@ -631,7 +631,7 @@ fn voxel_lighting(p: vec3<f32>, n: vec3<f32>, first: u32, object: u32) -> vec4<f
 
 // Closest point to p on triangle tri (Ericson, Real-Time Collision Detection 5.1.5).
 fn closest_point_on_triangle(p: vec3<f32>, tri: u32) -> vec3<f32> {
-    let g = tri_geom[tri];
+    let g = tri_geom_at(tri);
     let a = g.vertex_a.xyz;
     let ab = g.edge_b.xyz;
     let ac = g.edge_c.xyz;
@@ -687,7 +687,7 @@ fn closest_triangle(p: vec3<f32>, radius: f32) -> Closest {
 #ifdef INSTANCES
     var top_end = 0u;
     if node_count > 0u {
-        top_end = bvh_nodes[0].skip;
+        top_end = bvh_node(0u).skip;
     }
     var q_p = p;
     var scale = 1.0;
@@ -717,7 +717,7 @@ fn closest_triangle(p: vec3<f32>, radius: f32) -> Closest {
 #endif
             break;
         }
-        let node = bvh_nodes[i];
+        let node = bvh_node(i);
         let q = clamp(q_p, node.bounds_min, node.bounds_max);
         if length(q - q_p) * scale >= best.dist {
             i = node.skip;

@@ -16,7 +16,7 @@
 #import gilab::bvh::{trace_closest, NO_HIT}
 #import gilab::surface::hit_surface
 #import gilab::sky::sky_radiance
-#import gilab::scene::{materials, tri_material}
+#import gilab::scene::{materials, tri_material, material_at}
 #import gilab::surface_cache::cache_at_hit
 #import gilab::world_cache::{world_lookup, world_tmin_at}
 #import gilab::path_vertex::{PathEnd, next_event}
@@ -48,7 +48,7 @@ override fn gilab::path_end::end_path(surf: HitSurface, wo: vec3<f32>, tri: u32,
             let s = hit_surface(o, bs.wi, h);
             // The back of a single-sided surface (a ray that started inside geometry) gives no
             // light, as in Lumen's own traces.
-            let double_sided = materials[tri_material(h.tri)].emissive.w > 0.5;
+            let double_sided = material_at(tri_material(h.tri)).emissive.w > 0.5;
             if s.front_face || double_sided {
                 let c = cache_at_hit(h.tri, s.position, s.geo_normal, h.t);
                 l = c.albedo * (c.direct + c.indirect) * INV_PI;

@@ -43,6 +43,8 @@ use glam::Vec3;
 /// technique at the group it names with `SURFACE_CACHE_GROUP`.
 pub const LOOKUP_BINDINGS: [u32; 5] = [1, 2, 3, 12, 13];
 pub const LOOKUP_TEXTURES: [u32; 4] = [19, 20, 21, 22];
+/// The cards again as texels (`CardTexels`), beside the atlas textures.
+pub const CARD_TEXELS: u32 = 23;
 /// The passes' own bindings in the holder's group 2 (`gilab::surface_cache_lighting`): the
 /// probes on 4x4 tiles, the tile list (its header holds this frame's share: a uniform more in
 /// Lumen's group 2 crashed lavapipe's screen-probe passes).
@@ -75,6 +77,76 @@ pub fn texture_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
             multisampled: false,
         },
         count: None,
+    }
+}
+
+/// The card texels' entry: a 2D rgba32uint texture read by compute passes.
+fn card_texels_entry() -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        ty: wgpu::BindingType::Texture {
+            sample_type: wgpu::TextureSampleType::Uint,
+            view_dimension: wgpu::TextureViewDimension::D2,
+            multisampled: false,
+        },
+        ..texture_entry(CARD_TEXELS)
+    }
+}
+
+/// The cards as an rgba32uint texture, four texels a card, CARD_TEXELS_PER_ROW a row (the
+/// lookup's `card_at`, shaders/parts/surface_cache/shared.wgsl): the same words as the cards'
+/// storage buffer, which the capture's raster pass and the card count keep reading. Lavapipe
+/// (CI's renderer) loads a storage-buffer vec4 in a scalar loop over the SIMD lanes, about six
+/// times a texel fetch, and every cache lookup walks its object's cards. The scene's records
+/// are read the same way (`SceneTexels`, src/scene/gpu_scene.rs).
+struct CardTexels {
+    texture: wgpu::Texture,
+    view: wgpu::TextureView,
+}
+
+/// Texels per row of `CardTexels` (4095 and 12 in `card_texel`).
+const CARD_TEXELS_PER_ROW: u32 = 4096;
+
+impl CardTexels {
+    fn new(gpu: &Gpu, cards: &[cards::GpuCard]) -> CardTexels {
+        let texture = gpu.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("lumen card texels"),
+            size: Self::extent(cards.len()),
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::Rgba32Uint,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        let view = texture.create_view(&Default::default());
+        let t = CardTexels { texture, view };
+        t.write(gpu, cards);
+        t
+    }
+
+    fn extent(cards: usize) -> wgpu::Extent3d {
+        wgpu::Extent3d {
+            width: CARD_TEXELS_PER_ROW,
+            height: (4 * cards as u32).div_ceil(CARD_TEXELS_PER_ROW).max(1),
+            depth_or_array_layers: 1,
+        }
+    }
+
+    /// Every card written again (the last row padded with zeros).
+    fn write(&self, gpu: &Gpu, cards: &[cards::GpuCard]) {
+        let extent = Self::extent(cards.len());
+        let mut words: Vec<u32> = bytemuck::cast_slice(cards).to_vec();
+        words.resize((extent.width * extent.height * 4) as usize, 0);
+        gpu.queue.write_texture(
+            self.texture.as_image_copy(),
+            bytemuck::cast_slice(&words),
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(extent.width * 16),
+                rows_per_image: Some(extent.height),
+            },
+            extent,
+        );
     }
 }
 
@@ -117,6 +189,7 @@ struct Resources {
     /// indirect irradiance, probes, tiles.
     buffers: Vec<(u32, wgpu::Buffer)>,
     atlas_views: Vec<wgpu::TextureView>,
+    card_texels: CardTexels,
     capture_depth_view: wgpu::TextureView,
     index_buffer: wgpu::Buffer,
     capture_bind_group: wgpu::BindGroup,
@@ -133,6 +206,20 @@ impl Resources {
             .find(|(b, _)| *b == binding)
             .expect("a cache binding")
             .1
+    }
+
+    /// The lookup's textures: the atlas (LOOKUP_TEXTURES) and the card texels.
+    fn texture_entries(&self) -> Vec<wgpu::BindGroupEntry<'_>> {
+        let views = self.atlas_views.iter().chain([&self.card_texels.view]);
+        LOOKUP_TEXTURES
+            .iter()
+            .chain([&CARD_TEXELS])
+            .zip(views)
+            .map(|(&binding, view)| wgpu::BindGroupEntry {
+                binding,
+                resource: wgpu::BindingResource::TextureView(view),
+            })
+            .collect()
     }
 }
 
@@ -292,13 +379,14 @@ impl SurfaceCache {
     }
 
     /// The cache's entries in its holder's group 2 layout: card data (1-3), lighting (12-13),
-    /// probes (14), tiles (15), atlas textures (19-22).
+    /// probes (14), tiles (15), atlas textures (19-22), card texels (23).
     pub fn layout_entries() -> Vec<wgpu::BindGroupLayoutEntry> {
         let mut entries: Vec<wgpu::BindGroupLayoutEntry> = [1, 2, 3, 12, 13, PROBES, TILES]
             .iter()
             .map(|&b| pipelines::storage_entry(b, b <= 3 || b == TILES))
             .collect();
         entries.extend(LOOKUP_TEXTURES.iter().map(|&b| texture_entry(b)));
+        entries.push(card_texels_entry());
         entries
     }
 
@@ -314,12 +402,7 @@ impl SurfaceCache {
                 resource: buffer.as_entire_binding(),
             })
             .collect();
-        for (&b, view) in LOOKUP_TEXTURES.iter().zip(&r.atlas_views) {
-            entries.push(wgpu::BindGroupEntry {
-                binding: b,
-                resource: wgpu::BindingResource::TextureView(view),
-            });
-        }
+        entries.extend(r.texture_entries());
         Some(entries)
     }
 
@@ -331,6 +414,7 @@ impl SurfaceCache {
             .map(|&b| pipelines::storage_entry(b, b <= 3))
             .collect();
         entries.extend(LOOKUP_TEXTURES.iter().map(|&b| texture_entry(b)));
+        entries.push(card_texels_entry());
         if world {
             entries.extend(crate::parts::world_cache::lookup_entries());
         }
@@ -353,12 +437,7 @@ impl SurfaceCache {
                 resource: r.buffer(b).as_entire_binding(),
             })
             .collect();
-        for (&b, view) in LOOKUP_TEXTURES.iter().zip(&r.atlas_views) {
-            entries.push(wgpu::BindGroupEntry {
-                binding: b,
-                resource: wgpu::BindingResource::TextureView(view),
-            });
-        }
+        entries.extend(r.texture_entries());
         if let Some(w) = world {
             entries.extend(w.entries());
         }
@@ -464,6 +543,7 @@ impl SurfaceCache {
             (TILES, tiles),
         ];
         let (atlas_views, capture_depth_view) = capture::atlas(gpu, s.atlas_size);
+        let card_texels = CardTexels::new(gpu, &card_set.cards);
         let headers = gpu.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("lumen tile headers"),
             size: ((PRIORITY_RUNS + 1) * std::mem::size_of::<CacheParamsGpu>()) as u64,
@@ -474,6 +554,7 @@ impl SurfaceCache {
             gpu_params,
             buffers,
             atlas_views,
+            card_texels,
             capture_depth_view,
             index_buffer,
             capture_bind_group,
@@ -584,6 +665,9 @@ impl SurfaceCache {
                 k as u64 * size,
                 bytemuck::bytes_of(&c.cards[k as usize]),
             );
+        }
+        if !changed.is_empty() {
+            r.card_texels.write(ctx.gpu, &c.cards);
         }
         self.capture_queue.retain(|k| !changed.contains(k));
         for k in changed {
