@@ -1898,3 +1898,97 @@ fn light_tree_follows_the_moving_lamp() {
     );
     assert!(worst_z < 5.0, "a block {worst_z} standard errors off");
 }
+
+/// The texel copies that passes read instead of a storage buffer (`gilab::parts::texels`: the
+/// surface cache's cards, the distance field) hold the buffer's words: whole rows and the last
+/// row's part, at 1 and 4 words a texel. The rest of the last row stays zero (nothing past the
+/// copy is read); a copy from a later offset holds the later words (the negative control).
+#[test]
+fn buffer_texels_hold_the_buffers_words() {
+    use gilab::gpu::readback::read_buffer_bytes;
+    use gilab::parts::texels::BufferTexels;
+    use gilab::render::pipelines;
+    let gpu = gpu();
+    // Words no two alike (a hash of the index), so a misplaced row or texel cannot match.
+    let words: Vec<u32> = (0..40_000u32)
+        .map(|i| i.wrapping_mul(2_654_435_761).rotate_left(7) ^ 0x5bd1_e995)
+        .collect();
+    let buffer = pipelines::init_buffer(
+        &gpu,
+        "texels source",
+        bytemuck::cast_slice(&words),
+        wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+    );
+    // The texture's words, row by row (per_row texels of `texel_words` words).
+    let read = |t: &BufferTexels, per_row: u32, texel_words: u32| -> Vec<u32> {
+        let size = t.texture().size();
+        let row_bytes = per_row * texel_words * 4;
+        let out =
+            pipelines::storage_buffer(&gpu, "texels readback", (row_bytes * size.height) as u64);
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        enc.copy_texture_to_buffer(
+            t.texture().as_image_copy(),
+            wgpu::TexelCopyBufferInfo {
+                buffer: &out,
+                layout: wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(row_bytes),
+                    rows_per_image: Some(size.height),
+                },
+            },
+            size,
+        );
+        gpu.queue.submit([enc.finish()]);
+        let bytes = read_buffer_bytes(&gpu, &out, out.size()).unwrap();
+        bytemuck::cast_slice(&bytes).to_vec()
+    };
+    // (format, words a texel, texels, texels a row, byte offset into the buffer)
+    let cases = [
+        (
+            wgpu::TextureFormat::R32Uint,
+            1u32,
+            2 * 8192 + 123,
+            8192u32,
+            0u64,
+        ),
+        (wgpu::TextureFormat::Rgba32Sint, 4, 5000, 4096, 0),
+        (wgpu::TextureFormat::R32Float, 1, 8192, 8192, 0),
+        (wgpu::TextureFormat::R32Uint, 1, 777, 512, 4 * 1000),
+    ];
+    for (format, texel_words, count, per_row, offset) in cases {
+        let t = BufferTexels::new(&gpu, "texels", format, count, per_row).unwrap();
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        t.copy_from(&mut enc, &buffer, offset);
+        gpu.queue.submit([enc.finish()]);
+        gpu.check_errors().unwrap();
+        let got = read(&t, per_row, texel_words);
+        let n = (count * texel_words) as usize;
+        let first = (offset / 4) as usize;
+        let expected = &words[first..first + n];
+        let wrong = got[..n]
+            .iter()
+            .zip(expected)
+            .filter(|(a, b)| a != b)
+            .count();
+        let past = got[n..].iter().filter(|&&w| w != 0).count();
+        eprintln!("{format:?} {count} texels from word {first}: {wrong} words differ, {past} nonzero past the copy");
+        assert_eq!(wrong, 0, "{format:?}: the copy differs from the buffer");
+        assert_eq!(past, 0, "{format:?}: words past the copy");
+        // The negative control: the same texels hold none of the words one texel on.
+        let shifted = &words[first + texel_words as usize..first + texel_words as usize + n];
+        let same = got[..n].iter().zip(shifted).filter(|(a, b)| a == b).count();
+        assert!(
+            same < n / 100,
+            "{format:?}: the shifted words match ({same} of {n})"
+        );
+    }
+    // The CPU path (the cards' texels): written words, zeros after.
+    let t = BufferTexels::new(&gpu, "texels", wgpu::TextureFormat::Rgba32Uint, 1001, 4096).unwrap();
+    t.write(&gpu, bytemuck::cast_slice(&words[..4004]));
+    let got = read(&t, 4096, 4);
+    assert_eq!(&got[..4004], &words[..4004], "written texels differ");
+    assert!(
+        got[4004..].iter().all(|&w| w == 0),
+        "words past the written ones"
+    );
+}

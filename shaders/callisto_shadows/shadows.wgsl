@@ -39,21 +39,27 @@ override fn gilab::bvh::instance_moves(at: u32) -> bool {
 }
 
 var<workgroup> wg_depth: array<f32, 256>;
-var<workgroup> wg_vis: array<atomic<u32>, 8>;
-var<workgroup> wg_traced: array<atomic<u32>, 8>;
-// Traced visibility per pixel (fractional where the shadow cache averages a cell).
+// Traced visibility per pixel (fractional where the shadow cache averages a cell), NOT_TRACED
+// where the pixel traced no ray for the light. Plain floats, not bit masks: lavapipe runs a
+// workgroup atomic as a scalar loop over the lanes, and the reconstruction and the rates read
+// up to 36 of these per pixel and light (docs/performance.md).
 var<workgroup> wg_visf: array<f32, 256>;
+const NOT_TRACED: f32 = -1.0;
+// Per 2x2 quad: its traced pixels, and (<< 8) those that saw the light: the rates' 3x3 quad
+// neighbourhoods read 9 of these instead of 36 pixels.
+var<workgroup> wg_quad: array<u32, 64>;
 var<workgroup> wg_rates: array<atomic<u32>, 4>;
 var<workgroup> wg_red: array<f32, 256>;
 var<workgroup> wg_count: u32;
 var<workgroup> wg_valid: atomic<u32>;
 
 fn traced_bit(li: u32) -> bool {
-    return ((atomicLoad(&wg_traced[li / 32u]) >> (li % 32u)) & 1u) != 0u;
+    return wg_visf[li] >= 0.0;
 }
 
+// Traced and seen the light (visibility at least a half).
 fn vis_bit(li: u32) -> bool {
-    return ((atomicLoad(&wg_vis[li / 32u]) >> (li % 32u)) & 1u) != 0u;
+    return wg_visf[li] >= 0.5;
 }
 
 fn local_index(x: u32, y: u32) -> u32 {
@@ -97,10 +103,6 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
     if li == 0u {
         wg_count = list_count(base);
         atomicStore(&wg_valid, 0u);
-    }
-    if li < 8u {
-        atomicStore(&wg_vis[li], 0u);
-        atomicStore(&wg_traced[li], 0u);
     }
     if li < 4u {
         atomicStore(&wg_rates[li], 0u);
@@ -198,18 +200,22 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
         let trace_here = traced && lit;
         var vis = 0.0;
         if trace_here {
-            let bitv = 1u << (li % 32u);
-            atomicOr(&wg_traced[li / 32u], bitv);
             vis = split_visibility(light, light_shadow_ray(p, ng, ls), p, ng, z, moves, &rays);
-            if vis >= 0.5 {
-                atomicOr(&wg_vis[li / 32u], bitv);
-            }
         }
-        wg_visf[li] = vis;
+        wg_visf[li] = select(NOT_TRACED, vis, trace_here);
         if valid {
             quad_rate = max(quad_rate, rate);
         }
         workgroupBarrier();
+        if li < 64u {
+            var q = 0u;
+            for (var cc = 0u; cc < 4u; cc++) {
+                let sl = local_index(2u * (li % 8u) + (cc & 1u), 2u * (li / 8u) + cc / 2u);
+                q += select(0u, 1u, traced_bit(sl)) + select(0u, 256u, vis_bit(sl));
+            }
+            // Read after the reduction's first barrier (step 4).
+            wg_quad[li] = q;
+        }
         // 2. Bilateral reconstruction of a skipped pixel.
         if lit && !trace_here {
             var sum = 0.0;
@@ -272,8 +278,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
         if li < 64u {
             let gx = li % 8u;
             let gy = li / 8u;
-            var m = 0.0;
-            var k = 0.0;
+            var counts = 0u;
             for (var oy = -1; oy <= 1; oy++) {
                 for (var ox = -1; ox <= 1; ox++) {
                     let nx = i32(gx) + ox;
@@ -281,15 +286,12 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
                     if nx < 0 || ny < 0 || nx >= 8 || ny >= 8 {
                         continue;
                     }
-                    for (var cc = 0u; cc < 4u; cc++) {
-                        let sl = local_index(2u * u32(nx) + (cc & 1u), 2u * u32(ny) + cc / 2u);
-                        if traced_bit(sl) {
-                            m += 1.0;
-                            k += f32(vis_bit(sl));
-                        }
-                    }
+                    counts += wg_quad[u32(ny) * 8u + u32(nx)];
                 }
             }
+            // Traced samples, and those that saw the light (whole numbers: exact in f32).
+            let m = f32(counts & 0xffu);
+            let k = f32(counts >> 8u);
             var variance = 0.0;
             if m >= 2.0 {
                 let mean = k / m;
@@ -312,11 +314,8 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
         if li < 4u {
             rates[rate_base(parity(), tile, slot) + li] = atomicExchange(&wg_rates[li], 0u);
         }
-        if li < 8u {
-            atomicStore(&wg_vis[li], 0u);
-            atomicStore(&wg_traced[li], 0u);
-        }
-        workgroupBarrier();
+        // No barrier here: the next light's first writes (wg_visf, then wg_rates after its
+        // reduction's barriers) come after every read of this light's.
     }
     // 5. The tail: lights outside the list (beyond their range, left out of a full list), by
     // `tail_samples` samples picked by power from the whole pool; a pick that is in the list

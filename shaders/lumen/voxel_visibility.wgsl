@@ -6,7 +6,7 @@
 // not: the radiance is shaded every frame (voxel_lighting.wgsl), and reads as none until then.
 #import gilab::scene::{tri_geom, tri_material, materials, scene_triangle, material_at}
 #import gilab::bvh::{trace_closest, NO_HIT}
-#import gilab::tracing::{params, brick_table, brick_coord, brick_pool, fill_list, lighting_voxel_size, sdf_distance, voxel_dir, voxel_word_index, lighting_voxel_centre, voxel_ray_start, voxel_ray_length, encode_seen, VOXEL_DIRS, EMPTY}
+#import gilab::tracing::{params, brick_table, brick_coord, brick_pool, fill_list, lighting_voxel_size, sdf_distance_written, voxel_dir, voxel_word_index, lighting_voxel_centre, voxel_ray_start, voxel_ray_length, encode_seen, VOXEL_DIRS, EMPTY}
 #import gilab::surface_cache::{tri_object}
 
 // The level this dispatch fills (one dispatch per level, as the fill).
@@ -39,7 +39,7 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) l
             let o = select(vec2<f32>(select(-0.25, 0.25, (r & 1u) == 1u), select(-0.25, 0.25, (r & 2u) == 2u)), vec2<f32>(0.0), r == 0u);
             let origin = start + (o.x * u + o.y * v) * size;
             // A ray starting inside geometry (the field, filled just before) sees nothing real.
-            if sdf_distance(l, origin) < 0.0 {
+            if sdf_distance_written(l, origin) < 0.0 {
                 continue;
             }
             let h = trace_closest(origin, -d, 0.0, select(best - 0.02 * size, best, word == EMPTY));

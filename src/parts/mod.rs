@@ -45,6 +45,9 @@
 //!   pixel in 25; lookup `gilab::hash_cache`, at the bind group a pass names with
 //!   `HASH_CACHE_GROUP`). Used by the `hash-cache` technique, by ReSTIR GI
 //!   (`gi_terminate = "hash-cache"`) and by DDGI's probe rays (`probe_hits = "hash-cache"`).
+//! - [`texels::BufferTexels`]: texel copies of storage buffers that passes read many times
+//!   (the surface cache's cards, the distance field): lavapipe reads a texel several times
+//!   faster than a storage buffer's words.
 
 use crate::gpu::Gpu;
 use crate::render::RenderContext;
@@ -61,6 +64,7 @@ pub mod restir_gi;
 pub mod surface_cache;
 pub mod surfel_cache;
 pub mod surfels;
+pub mod texels;
 pub mod tracing;
 pub mod world_cache;
 pub mod world_regir;

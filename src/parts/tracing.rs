@@ -2,13 +2,16 @@
 //! shaders/parts/tracing/shared.wgsl), through the global distance field or the BVH
 //! (`trace_scene`, mode by [`FLAG_BVH`]), and the light at a hit from the surface cache. Its
 //! bindings sit in bind group 2 of the pass that traces: the uniform at 0 ([`TracingParamsGpu`])
-//! and the distance field at 4-11 ([`DISTANCE_FIELD_BINDINGS`]). Lumen builds and fills the
-//! distance field and binds it; a holder without one (the standalone surface cache and its
-//! world cache, for ReSTIR GI's paths) binds [`BvhOnly`]: BVH mode, the distance-field slots
-//! filled with 16-byte buffers no pass reads.
+//! and the distance field at 4-11 ([`DISTANCE_FIELD_BINDINGS`]), with its texel copies at
+//! 27-30 ([`DistanceFieldTexels`]). Lumen builds and fills the distance field and binds it; a
+//! holder without one (the standalone surface cache and its world cache, for ReSTIR GI's paths)
+//! binds [`BvhOnly`]: BVH mode, the distance-field slots filled with 16-byte buffers and
+//! one-texel textures no pass reads.
 
 use crate::gpu::Gpu;
+use crate::parts::texels::{texture_entry, BufferTexels};
 use crate::render::pipelines;
+use anyhow::Result;
 
 /// One clipmap level of the distance field in [`TracingParamsGpu`].
 #[repr(C)]
@@ -55,11 +58,97 @@ pub const FLAG_VOXEL_LIGHTING: u32 = 128;
 /// Bindings of group 2 that hold the distance field (11: the edit boxes, read-only).
 pub const DISTANCE_FIELD_BINDINGS: [u32; 8] = [4, 5, 6, 7, 8, 9, 10, 11];
 
+/// Bindings of group 2 that hold the distance field's texel copies: brick table, brick
+/// coordinates, the brick pool's distances, the coarse volume.
+pub const DISTANCE_FIELD_TEXEL_BINDINGS: [u32; 4] = [27, 28, 29, 30];
+
+/// Texels per row of the copies (`sdf_texel` in shaders/parts/tracing/shared.wgsl: 8191, 13).
+const SDF_TEXELS_PER_ROW: u32 = 8192;
+
 /// Layout entries of the tracing bindings (uniform and distance field).
 pub fn layout_entries() -> Vec<wgpu::BindGroupLayoutEntry> {
     let mut entries = vec![pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE)];
     entries.extend(DISTANCE_FIELD_BINDINGS.map(|b| pipelines::storage_entry(b, b == 11)));
+    entries.extend(DistanceFieldTexels::layout_entries());
     entries
+}
+
+/// The distance field's words again as textures, which every SDF step reads (up to ten words:
+/// the coarse bound, a brick's table entry and coordinates, eight voxels). Copied from the
+/// buffers at the end of each update (`copy`); the update's own passes read the buffers. On
+/// lavapipe this is most of a distance-field ray's cost (crate::parts::texels).
+pub struct DistanceFieldTexels {
+    table: BufferTexels,
+    coords: BufferTexels,
+    pool: BufferTexels,
+    coarse: BufferTexels,
+}
+
+impl DistanceFieldTexels {
+    /// Copies for `slots` brick slots, `pool_bricks` bricks of 512 voxels and `coarse_cells`
+    /// coarse cells.
+    pub fn new(
+        gpu: &Gpu,
+        slots: u32,
+        pool_bricks: u32,
+        coarse_cells: u32,
+    ) -> Result<DistanceFieldTexels> {
+        use wgpu::TextureFormat as F;
+        let texels =
+            |label, format, count| BufferTexels::new(gpu, label, format, count, SDF_TEXELS_PER_ROW);
+        Ok(DistanceFieldTexels {
+            table: texels("sdf brick table texels", F::R32Uint, slots)?,
+            coords: texels("sdf brick coord texels", F::Rgba32Sint, slots)?,
+            pool: texels("sdf brick pool texels", F::R32Uint, pool_bricks * 512)?,
+            coarse: texels("sdf coarse texels", F::R32Float, coarse_cells)?,
+        })
+    }
+
+    /// Layout entries of the copies.
+    pub fn layout_entries() -> [wgpu::BindGroupLayoutEntry; 4] {
+        use wgpu::TextureSampleType as T;
+        let [a, b, c, d] = DISTANCE_FIELD_TEXEL_BINDINGS;
+        [
+            texture_entry(a, T::Uint),
+            texture_entry(b, T::Sint),
+            texture_entry(c, T::Uint),
+            texture_entry(d, T::Float { filterable: false }),
+        ]
+    }
+
+    /// Records the copy of the buffers at bindings 4 (table), 5 (coordinates), 6 (the pool,
+    /// whose distances come first) and 7 (coarse).
+    pub fn copy(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        table: &wgpu::Buffer,
+        coords: &wgpu::Buffer,
+        pool: &wgpu::Buffer,
+        coarse: &wgpu::Buffer,
+    ) {
+        self.table.copy_from(enc, table, 0);
+        self.coords.copy_from(enc, coords, 0);
+        self.pool.copy_from(enc, pool, 0);
+        self.coarse.copy_from(enc, coarse, 0);
+    }
+
+    /// Bind group entries of the copies.
+    pub fn entries(&self) -> Vec<wgpu::BindGroupEntry<'_>> {
+        let views = [
+            &self.table.view,
+            &self.coords.view,
+            &self.pool.view,
+            &self.coarse.view,
+        ];
+        DISTANCE_FIELD_TEXEL_BINDINGS
+            .iter()
+            .zip(views)
+            .map(|(&binding, view)| wgpu::BindGroupEntry {
+                binding,
+                resource: wgpu::BindingResource::TextureView(view),
+            })
+            .collect()
+    }
 }
 
 /// The tracing bindings of a holder without a distance field: its uniform (BVH mode) and
@@ -67,10 +156,11 @@ pub fn layout_entries() -> Vec<wgpu::BindGroupLayoutEntry> {
 pub struct BvhOnly {
     pub uniform: wgpu::Buffer,
     unused: Vec<wgpu::Buffer>,
+    unused_texels: DistanceFieldTexels,
 }
 
 impl BvhOnly {
-    pub fn new(gpu: &Gpu, label: &str) -> BvhOnly {
+    pub fn new(gpu: &Gpu, label: &str) -> Result<BvhOnly> {
         let uniform = pipelines::init_buffer(
             gpu,
             label,
@@ -81,7 +171,11 @@ impl BvhOnly {
             .iter()
             .map(|_| pipelines::storage_buffer(gpu, "tracing: no distance field", 16))
             .collect();
-        BvhOnly { uniform, unused }
+        Ok(BvhOnly {
+            uniform,
+            unused,
+            unused_texels: DistanceFieldTexels::new(gpu, 1, 0, 1)?,
+        })
     }
 
     /// BVH tracing with the sky and the lights as the scene has them.
@@ -114,6 +208,7 @@ impl BvhOnly {
                     resource: b.as_entire_binding(),
                 }),
         );
+        all.extend(self.unused_texels.entries());
         all
     }
 }

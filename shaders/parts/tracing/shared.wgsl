@@ -106,6 +106,19 @@ fn lit_list_index(k: u32) -> u32 {
 }
 // Scene edits: world boxes (min, max) whose bricks are rebuilt.
 @group(2) @binding(11) var<storage, read> dirty_boxes: array<vec4<f32>>;
+// The same words as bindings 4, 5, 6 (its distances) and 7, as texels (src/parts/tracing.rs
+// DistanceFieldTexels), copied at the end of each update: every SDF step reads up to ten of
+// them, and lavapipe reads a texel in half the time of a storage-buffer word (a vec4 in a
+// seventh). The update's own passes read the buffers (`written`), which the copy follows.
+@group(2) @binding(27) var brick_table_texels: texture_2d<u32>;
+@group(2) @binding(28) var brick_coord_texels: texture_2d<i32>;
+@group(2) @binding(29) var brick_pool_texels: texture_2d<u32>;
+@group(2) @binding(30) var coarse_texels: texture_2d<f32>;
+
+// Where word i of a copied buffer is (SDF_TEXELS_PER_ROW = 8192 in src/parts/tracing.rs).
+fn sdf_texel(i: u32) -> vec2<u32> {
+    return vec2<u32>(i & 8191u, i >> 13u);
+}
 
 fn has_flag(f: u32) -> bool {
     return (params.flags & f) != 0u;
@@ -152,11 +165,18 @@ fn brick_slot(l: u32, b: vec3<i32>) -> u32 {
 }
 
 // Where brick `b` (world brick coordinates) of level l starts in brick_pool, or EMPTY where no
-// brick is stored for it.
-fn brick_base(l: u32, b: vec3<i32>) -> u32 {
+// brick is stored for it; from the texels, or with `written` from the buffers.
+fn brick_base(l: u32, b: vec3<i32>, written: bool) -> u32 {
     let slot = brick_slot(l, b);
-    let held = brick_coord[slot];
-    let entry = brick_table[slot];
+    var held: vec4<i32>;
+    var entry: u32;
+    if written {
+        held = brick_coord[slot];
+        entry = brick_table[slot];
+    } else {
+        held = textureLoad(brick_coord_texels, sdf_texel(slot), 0);
+        entry = textureLoad(brick_table_texels, sdf_texel(slot), 0).x;
+    }
     if entry == EMPTY || held.w == 0 || any(held.xyz != b) {
         return EMPTY;
     }
@@ -164,18 +184,22 @@ fn brick_base(l: u32, b: vec3<i32>) -> u32 {
 }
 
 // The word of world voxel v in the brick `b` that holds it, whose pool start is `base`.
-fn brick_word(base: u32, b: vec3<i32>, v: vec3<i32>) -> u32 {
+fn brick_word(base: u32, b: vec3<i32>, v: vec3<i32>, written: bool) -> u32 {
     if base == EMPTY {
         return EMPTY;
     }
     let local = vec3<u32>(v - b * i32(BRICK));
-    return brick_pool[base + local.x + BRICK * (local.y + BRICK * local.z)];
+    let i = base + local.x + BRICK * (local.y + BRICK * local.z);
+    if written {
+        return brick_pool[i];
+    }
+    return textureLoad(brick_pool_texels, sdf_texel(i), 0).x;
 }
 
 // The stored voxel word of world voxel v of level l, or EMPTY where no brick holds it.
 fn voxel_word(l: u32, v: vec3<i32>) -> u32 {
     let b = floor_div(v, i32(BRICK));
-    return brick_word(brick_base(l, b), b, v);
+    return brick_word(brick_base(l, b, false), b, v, false);
 }
 
 fn encode_voxel(dist_in_band: f32, object: u32) -> u32 {
@@ -197,7 +221,7 @@ fn coarse_cells() -> u32 {
 
 // Lower bound on the distance to the nearest surface from the coarse volume (its value at the
 // nearest coarse centre minus the distance to that centre), or -1 outside the level.
-fn coarse_bound(l: u32, p: vec3<f32>) -> f32 {
+fn coarse_bound(l: u32, p: vec3<f32>, written: bool) -> f32 {
     let n = coarse_cells();
     let cell = 4.0 * level_voxel(l);
     let c = vec3<i32>(floor((p - level_min(l)) / cell));
@@ -206,14 +230,20 @@ fn coarse_bound(l: u32, p: vec3<f32>) -> f32 {
     }
     let idx = l * n * n * n + u32(c.x) + n * (u32(c.y) + n * u32(c.z));
     let centre = level_min(l) + (vec3<f32>(c) + 0.5) * cell;
-    return coarse[idx] - length(p - centre);
+    var d: f32;
+    if written {
+        d = coarse[idx];
+    } else {
+        d = textureLoad(coarse_texels, sdf_texel(idx), 0).x;
+    }
+    return d - length(p - centre);
 }
 
 // Trilinear distance from the bricks of level l. The eight taps mostly lie in one brick, so a
 // brick's table entry is looked up when a tap enters it, not once per tap: this is the inner
 // loop of every distance-field ray. A tap's distance (world units) is its voxel centre's,
 // `BAND` voxels where no brick is stored.
-fn brick_distance(l: u32, p: vec3<f32>) -> f32 {
+fn brick_distance(l: u32, p: vec3<f32>, written: bool) -> f32 {
     let f = p / level_voxel(l) - 0.5;
     let i0 = vec3<i32>(floor(f));
     let t = f - floor(f);
@@ -229,9 +259,9 @@ fn brick_distance(l: u32, p: vec3<f32>) -> f32 {
         let b = v >> vec3<u32>(BRICK_SHIFT);
         if any(b != brick) {
             brick = b;
-            base = brick_base(l, b);
+            base = brick_base(l, b, written);
         }
-        let word = brick_word(base, b, v);
+        let word = brick_word(base, b, v, written);
         d += w.x * w.y * w.z * select(decode_distance(word) * band, band, word == EMPTY);
     }
     return d;
@@ -240,12 +270,21 @@ fn brick_distance(l: u32, p: vec3<f32>) -> f32 {
 // Signed distance at p from level l: the coarse volume far from surfaces (empty-space
 // skipping), the narrow-band bricks near them.
 fn sdf_distance(l: u32, p: vec3<f32>) -> f32 {
-    let bound = coarse_bound(l, p);
+    return sdf_distance_from(l, p, false);
+}
+
+// The same from the buffers, for a pass of the update itself (before the texels are copied).
+fn sdf_distance_written(l: u32, p: vec3<f32>) -> f32 {
+    return sdf_distance_from(l, p, true);
+}
+
+fn sdf_distance_from(l: u32, p: vec3<f32>, written: bool) -> f32 {
+    let bound = coarse_bound(l, p, written);
     let band = BAND * level_voxel(l);
     if bound > band {
         return bound;
     }
-    return brick_distance(l, p);
+    return brick_distance(l, p, written);
 }
 
 // Object id stored at the voxel nearest p.

@@ -27,6 +27,7 @@ mod capture;
 pub mod cards;
 
 use crate::gpu::{timing::PassTimer, Gpu};
+use crate::parts::texels::BufferTexels;
 use crate::parts::tracing::{self, BvhOnly};
 use crate::parts::world_cache::{WorldCache, WorldCachePipelines, WorldCacheSettings};
 use crate::parts::world_regir::{WorldRegir, WorldRegirSettings};
@@ -43,7 +44,7 @@ use glam::Vec3;
 /// technique at the group it names with `SURFACE_CACHE_GROUP`.
 pub const LOOKUP_BINDINGS: [u32; 5] = [1, 2, 3, 12, 13];
 pub const LOOKUP_TEXTURES: [u32; 4] = [19, 20, 21, 22];
-/// The cards again as texels (`CardTexels`), beside the atlas textures.
+/// The cards again as texels (`card_texels`), beside the atlas textures.
 pub const CARD_TEXELS: u32 = 23;
 /// The passes' own bindings in the holder's group 2 (`gilab::surface_cache_lighting`): the
 /// probes on 4x4 tiles, the tile list (its header holds this frame's share: a uniform more in
@@ -82,72 +83,27 @@ pub fn texture_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
 
 /// The card texels' entry: a 2D rgba32uint texture read by compute passes.
 fn card_texels_entry() -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry {
-        ty: wgpu::BindingType::Texture {
-            sample_type: wgpu::TextureSampleType::Uint,
-            view_dimension: wgpu::TextureViewDimension::D2,
-            multisampled: false,
-        },
-        ..texture_entry(CARD_TEXELS)
-    }
+    crate::parts::texels::texture_entry(CARD_TEXELS, wgpu::TextureSampleType::Uint)
 }
 
-/// The cards as an rgba32uint texture, four texels a card, CARD_TEXELS_PER_ROW a row (the
-/// lookup's `card_at`, shaders/parts/surface_cache/shared.wgsl): the same words as the cards'
-/// storage buffer, which the capture's raster pass and the card count keep reading. Lavapipe
-/// (CI's renderer) loads a storage-buffer vec4 in a scalar loop over the SIMD lanes, about six
-/// times a texel fetch, and every cache lookup walks its object's cards. The scene's records
-/// are read the same way (`SceneTexels`, src/scene/gpu_scene.rs).
-struct CardTexels {
-    texture: wgpu::Texture,
-    view: wgpu::TextureView,
-}
-
-/// Texels per row of `CardTexels` (4095 and 12 in `card_texel`).
+/// Texels per row of the card texels (4095 and 12 in `card_texel`).
 const CARD_TEXELS_PER_ROW: u32 = 4096;
 
-impl CardTexels {
-    fn new(gpu: &Gpu, cards: &[cards::GpuCard]) -> CardTexels {
-        let texture = gpu.device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("lumen card texels"),
-            size: Self::extent(cards.len()),
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: wgpu::TextureFormat::Rgba32Uint,
-            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-            view_formats: &[],
-        });
-        let view = texture.create_view(&Default::default());
-        let t = CardTexels { texture, view };
-        t.write(gpu, cards);
-        t
-    }
-
-    fn extent(cards: usize) -> wgpu::Extent3d {
-        wgpu::Extent3d {
-            width: CARD_TEXELS_PER_ROW,
-            height: (4 * cards as u32).div_ceil(CARD_TEXELS_PER_ROW).max(1),
-            depth_or_array_layers: 1,
-        }
-    }
-
-    /// Every card written again (the last row padded with zeros).
-    fn write(&self, gpu: &Gpu, cards: &[cards::GpuCard]) {
-        let extent = Self::extent(cards.len());
-        let mut words: Vec<u32> = bytemuck::cast_slice(cards).to_vec();
-        words.resize((extent.width * extent.height * 4) as usize, 0);
-        gpu.queue.write_texture(
-            self.texture.as_image_copy(),
-            bytemuck::cast_slice(&words),
-            wgpu::TexelCopyBufferLayout {
-                offset: 0,
-                bytes_per_row: Some(extent.width * 16),
-                rows_per_image: Some(extent.height),
-            },
-            extent,
-        );
-    }
+/// The cards as an rgba32uint texture, four texels a card (the lookup's `card_at`,
+/// shaders/parts/surface_cache/shared.wgsl): the same words as the cards' storage buffer, which
+/// the capture's raster pass and the card count keep reading. Every cache lookup walks its
+/// object's cards, and lavapipe reads a texel several times faster than a storage-buffer vec4
+/// (crate::parts::texels).
+fn card_texels(gpu: &Gpu, cards: &[cards::GpuCard]) -> Result<BufferTexels> {
+    let t = BufferTexels::new(
+        gpu,
+        "lumen card texels",
+        wgpu::TextureFormat::Rgba32Uint,
+        4 * cards.len() as u32,
+        CARD_TEXELS_PER_ROW,
+    )?;
+    t.write(gpu, bytemuck::cast_slice(cards));
+    Ok(t)
 }
 
 /// `CacheParams` of shaders/parts/surface_cache/lighting.wgsl, the tile list's header.
@@ -189,7 +145,7 @@ struct Resources {
     /// indirect irradiance, probes, tiles.
     buffers: Vec<(u32, wgpu::Buffer)>,
     atlas_views: Vec<wgpu::TextureView>,
-    card_texels: CardTexels,
+    card_texels: BufferTexels,
     capture_depth_view: wgpu::TextureView,
     index_buffer: wgpu::Buffer,
     capture_bind_group: wgpu::BindGroup,
@@ -543,7 +499,7 @@ impl SurfaceCache {
             (TILES, tiles),
         ];
         let (atlas_views, capture_depth_view) = capture::atlas(gpu, s.atlas_size);
-        let card_texels = CardTexels::new(gpu, &card_set.cards);
+        let card_texels = card_texels(gpu, &card_set.cards)?;
         let headers = gpu.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("lumen tile headers"),
             size: ((PRIORITY_RUNS + 1) * std::mem::size_of::<CacheParamsGpu>()) as u64,
@@ -667,7 +623,7 @@ impl SurfaceCache {
             );
         }
         if !changed.is_empty() {
-            r.card_texels.write(ctx.gpu, &c.cards);
+            r.card_texels.write(ctx.gpu, bytemuck::cast_slice(&c.cards));
         }
         self.capture_queue.retain(|k| !changed.contains(k));
         for k in changed {
@@ -968,7 +924,7 @@ impl SurfaceCache {
         let sky = ctx.scene.sky.max_element() > 0.0 && data.features.sky_visible;
         st.flags = BvhOnly::flags(sky, data.features.light_count() > 0);
         if st.trace.is_none() {
-            st.trace = Some(BvhOnly::new(gpu, "surface cache tracing"));
+            st.trace = Some(BvhOnly::new(gpu, "surface cache tracing")?);
         }
         if refresh == Refresh::Build {
             self.reset(gpu);

@@ -154,6 +154,8 @@ impl Lumen {
             &[bg],
             [cells.div_ceil(64), 1, 1],
         );
+        // Readers take the texels from here on (the update's passes above read the buffers).
+        r.copy_sdf_texels(enc);
     }
 }
 

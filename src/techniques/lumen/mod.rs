@@ -59,6 +59,7 @@ use screen_probes::{ProbePipelines, ScreenProbes};
 use crate::gpu::{readback, timing::PassTimer, Gpu};
 use crate::parts::reflections::HitCache;
 use crate::parts::surface_cache::{Refresh, SurfaceCache};
+use crate::parts::tracing::DistanceFieldTexels;
 use crate::parts::world_cache::{WorldCache, WorldCachePipelines};
 use crate::parts::{Reflections, RestirDirect};
 use crate::render::params::{ParamChanges, Params};
@@ -174,6 +175,8 @@ struct Resources {
     /// Lumen's own buffers of group 2 by binding (0, 4..=11, 16..=18); the surface cache's
     /// fill the others.
     buffers: Vec<(u32, wgpu::Buffer)>,
+    /// The distance field's texel copies (27-30), which everything that traces it reads.
+    sdf_texels: DistanceFieldTexels,
     bind_group: wgpu::BindGroup,
     args_bind_group: wgpu::BindGroup,
     fill_bind_groups: Vec<wgpu::BindGroup>,
@@ -200,6 +203,18 @@ impl Resources {
             .expect("one of Lumen's bindings")
             .1
     }
+
+    /// Records the copy of the distance field's buffers into its texels (after an update's
+    /// passes, before anything traces).
+    fn copy_sdf_texels(&self, enc: &mut wgpu::CommandEncoder) {
+        self.sdf_texels.copy(
+            enc,
+            self.buffer(4),
+            self.buffer(5),
+            self.buffer(6),
+            self.buffer(7),
+        );
+    }
 }
 
 /// Group 2 over Lumen's `buffers` and the surface cache's entries.
@@ -207,6 +222,7 @@ fn lumen_bind_group(
     gpu: &Gpu,
     layout: &wgpu::BindGroupLayout,
     buffers: &[(u32, wgpu::Buffer)],
+    sdf_texels: &DistanceFieldTexels,
     cache: &SurfaceCache,
 ) -> wgpu::BindGroup {
     let mut entries: Vec<wgpu::BindGroupEntry> = buffers
@@ -216,6 +232,7 @@ fn lumen_bind_group(
             resource: buffer.as_entire_binding(),
         })
         .collect();
+    entries.extend(sdf_texels.entries());
     entries.extend(cache.entries().expect("the surface cache's resources"));
     gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
         label: Some("lumen"),

@@ -12,6 +12,7 @@ impl Lumen {
             for b in (4..=11).chain(16..=18) {
                 entries.push(pipelines::storage_entry(b, b == 11));
             }
+            entries.extend(DistanceFieldTexels::layout_entries());
             entries.extend(SurfaceCache::layout_entries());
             Layouts {
                 lumen: pipelines::layout(gpu, "lumen", &entries),
@@ -146,7 +147,9 @@ impl Lumen {
             (18, buf("lumen pixel direct", 3 * pixels * 16)),
         ];
         let queries = buf("lumen queries", QUERY_CAPACITY as u64 * 32);
-        let bind_group = lumen_bind_group(gpu, &layouts[0], &buffers, &self.cache);
+        let sdf_texels =
+            DistanceFieldTexels::new(gpu, slots as u32, pool_bricks, coarse_cells as u32)?;
+        let bind_group = lumen_bind_group(gpu, &layouts[0], &buffers, &sdf_texels, &self.cache);
         // One fill dispatch per level, then the voxel lighting's.
         let args = pipelines::indirect_args_buffer(gpu, "lumen fill args", MAX_LEVELS as u64 + 1);
         let args_bind_group =
@@ -177,6 +180,7 @@ impl Lumen {
         let res = Resources {
             params_buffer,
             buffers,
+            sdf_texels,
             bind_group,
             args_bind_group,
             fill_bind_groups,
@@ -202,6 +206,7 @@ impl Lumen {
         let empty_table = vec![u32::MAX; (res.buffer(4).size() / 4) as usize];
         gpu.queue
             .write_buffer(res.buffer(4), 0, bytemuck::cast_slice(&empty_table));
+        res.copy_sdf_texels(&mut enc);
         gpu.submit("lumen: distance field brick pool reset", enc.finish());
         self.clipmaps = Some(clip);
         self.scene_tris = data.tris.clone();
@@ -233,7 +238,8 @@ impl Lumen {
                 let Some(r) = self.res.as_mut() else {
                     return Ok(false);
                 };
-                r.bind_group = lumen_bind_group(gpu, &layout, &r.buffers, &self.cache);
+                r.bind_group =
+                    lumen_bind_group(gpu, &layout, &r.buffers, &r.sdf_texels, &self.cache);
             }
         }
         if data.tris != self.scene_tris {
