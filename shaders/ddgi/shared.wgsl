@@ -61,6 +61,26 @@ struct Probe {
 @group(2) @binding(5) var<storage, read_write> debug_out: array<vec4<f32>>;
 // Per pixel, the direct-light part's radiance (direct = "restir").
 @group(2) @binding(6) var<storage, read_write> pixel_direct: array<vec4<f32>>;
+// The probe records (two texels a probe: offset_state, then coord_frames, as words) and the
+// irradiance and distance maps again as texels, copied after each blend (src/techniques/ddgi:
+// Resources::texels): every gather reads 8 probes' records and bilinear footprints, and
+// lavapipe reads a texel several times faster than a storage buffer. The blend reads and
+// writes the buffers above; everything after it reads these.
+@group(2) @binding(7) var probe_texels: texture_2d<u32>;
+@group(2) @binding(8) var irradiance_map: texture_2d<f32>;
+@group(2) @binding(9) var distance_map: texture_2d<f32>;
+
+// Where element i of a copied buffer is (TEXELS_PER_ROW = 8192 in src/techniques/ddgi).
+fn ddgi_texel(i: u32) -> vec2<u32> {
+    return vec2<u32>(i & 8191u, i >> 13u);
+}
+
+// A probe's record as the last blend left it.
+fn probe_record(slot: u32) -> Probe {
+    let a = textureLoad(probe_texels, ddgi_texel(2u * slot), 0);
+    let b = textureLoad(probe_texels, ddgi_texel(2u * slot + 1u), 0);
+    return Probe(bitcast<vec4<f32>>(a), bitcast<vec4<i32>>(b));
+}
 
 // Rays per probe with fixed directions (not rotated, never blended): relocation and
 // classification read them; a switched-off probe traces only these (RTXGI's fixed rays).
@@ -124,7 +144,7 @@ fn grid_position(c: u32, g: vec3<i32>) -> vec3<f32> {
 // Whether the record in `slot` belongs to the probe the slot holds now (not yet: the volume
 // moved, and the slot's probe is new).
 fn record_current(slot: u32, g: vec3<i32>) -> bool {
-    return all(probes[slot].coord_frames.xyz == g);
+    return all(probe_record(slot).coord_frames.xyz == g);
 }
 
 // A probe's world position: its grid position plus its relocation offset.
@@ -132,7 +152,7 @@ fn probe_position(slot: u32) -> vec3<f32> {
     let g = slot_grid(slot);
     var p = grid_position(u32(g.w), g.xyz);
     if record_current(slot, g.xyz) {
-        p += probes[slot].offset_state.xyz;
+        p += probe_record(slot).offset_state.xyz;
     }
     return p;
 }
@@ -141,14 +161,14 @@ fn probe_position(slot: u32) -> vec3<f32> {
 // surface; it traces its fixed rays only).
 fn probe_active(slot: u32) -> bool {
     let g = slot_grid(slot);
-    return !record_current(slot, g.xyz) || probes[slot].offset_state.w == STATE_ACTIVE;
+    return !record_current(slot, g.xyz) || probe_record(slot).offset_state.w == STATE_ACTIVE;
 }
 
 // Its maps may be read: on, and blended at least once since it was switched on (a new probe,
 // or one switched on again, holds no data of its own yet).
 fn probe_readable(slot: u32) -> bool {
     let g = slot_grid(slot);
-    let r = probes[slot];
+    let r = probe_record(slot);
     return all(r.coord_frames.xyz == g.xyz) && r.offset_state.w == STATE_ACTIVE && r.coord_frames.w > 0;
 }
 
@@ -197,20 +217,20 @@ fn distance_index(slot: u32, t: vec2<u32>) -> u32 {
 // A probe's irradiance arriving from around `dir` (a surface facing dir receives it).
 fn probe_irradiance(slot: u32, dir: vec3<f32>) -> vec3<f32> {
     let b = bilinear(dir, IRR_TEXELS);
-    let a = irradiance_texels[irradiance_index(slot, b.texel)].xyz;
-    let c = irradiance_texels[irradiance_index(slot, b.texel + vec2<u32>(1u, 0u))].xyz;
-    let d = irradiance_texels[irradiance_index(slot, b.texel + vec2<u32>(0u, 1u))].xyz;
-    let e = irradiance_texels[irradiance_index(slot, b.texel + vec2<u32>(1u, 1u))].xyz;
+    let a = textureLoad(irradiance_map, ddgi_texel(irradiance_index(slot, b.texel)), 0).xyz;
+    let c = textureLoad(irradiance_map, ddgi_texel(irradiance_index(slot, b.texel + vec2<u32>(1u, 0u))), 0).xyz;
+    let d = textureLoad(irradiance_map, ddgi_texel(irradiance_index(slot, b.texel + vec2<u32>(0u, 1u))), 0).xyz;
+    let e = textureLoad(irradiance_map, ddgi_texel(irradiance_index(slot, b.texel + vec2<u32>(1u, 1u))), 0).xyz;
     return mix(mix(a, c, b.t.x), mix(d, e, b.t.x), b.t.y);
 }
 
 // Mean and mean square of the distance from a probe to the nearest surface around `dir`.
 fn probe_distance(slot: u32, dir: vec3<f32>) -> vec2<f32> {
     let b = bilinear(dir, DIST_TEXELS);
-    let a = distance_texels[distance_index(slot, b.texel)];
-    let c = distance_texels[distance_index(slot, b.texel + vec2<u32>(1u, 0u))];
-    let d = distance_texels[distance_index(slot, b.texel + vec2<u32>(0u, 1u))];
-    let e = distance_texels[distance_index(slot, b.texel + vec2<u32>(1u, 1u))];
+    let a = textureLoad(distance_map, ddgi_texel(distance_index(slot, b.texel)), 0).xy;
+    let c = textureLoad(distance_map, ddgi_texel(distance_index(slot, b.texel + vec2<u32>(1u, 0u))), 0).xy;
+    let d = textureLoad(distance_map, ddgi_texel(distance_index(slot, b.texel + vec2<u32>(0u, 1u))), 0).xy;
+    let e = textureLoad(distance_map, ddgi_texel(distance_index(slot, b.texel + vec2<u32>(1u, 1u))), 0).xy;
     return mix(mix(a, c, b.t.x), mix(d, e, b.t.x), b.t.y);
 }
 

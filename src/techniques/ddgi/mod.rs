@@ -16,6 +16,7 @@ pub mod volume;
 
 use crate::gpu::{timing::PassTimer, Gpu};
 use crate::parts::hash_cache::{self, HashCache, HashCacheSettings};
+use crate::parts::texels::{texture_entry, BufferTexels};
 use crate::parts::{Part, RestirDirect};
 use crate::render::params::{ParamChanges, ParamKind, ParamSpec, Params};
 use crate::render::primary::FrameInputs;
@@ -149,10 +150,31 @@ struct Resources {
     rays: wgpu::Buffer,
     irradiance: wgpu::Buffer,
     distance: wgpu::Buffer,
+    /// The probe records, irradiance and distance maps again as texels (bindings 7-9), copied
+    /// after each blend: every gather reads 8 probes' records and 8 bilinear footprints, and
+    /// lavapipe reads a texel several times faster than a storage buffer (crate::parts::texels).
+    /// The blend reads and writes the buffers.
+    texels: [BufferTexels; 3],
     bind_group: wgpu::BindGroup,
     direct_bind_group: wgpu::BindGroup,
     /// (probes, rays per probe, pixels, debug planes) they were sized for.
     sized: (u32, u32, u64, u64),
+}
+
+/// Texels per row of the copies (`ddgi_texel` in shaders/ddgi/shared.wgsl: 8191, 13).
+const TEXELS_PER_ROW: u32 = 8192;
+
+impl Resources {
+    /// Records the copy of the probe records and maps into their texels.
+    fn copy_texels(&self, enc: &mut wgpu::CommandEncoder) {
+        for (t, b) in self
+            .texels
+            .iter()
+            .zip([&self.probes, &self.irradiance, &self.distance])
+        {
+            t.copy_from(enc, b, 0);
+        }
+    }
 }
 
 /// The debug views of the 8 probes a pixel's gather reads: corner k of its cell (k's bits are
@@ -250,6 +272,10 @@ impl Ddgi {
             .get_or_insert_with(|| {
                 let mut entries = vec![pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE)];
                 entries.extend((1..=6).map(|b| pipelines::storage_entry(b, false)));
+                let float = wgpu::TextureSampleType::Float { filterable: false };
+                entries.push(texture_entry(7, wgpu::TextureSampleType::Uint));
+                entries.push(texture_entry(8, float));
+                entries.push(texture_entry(9, float));
                 pipelines::layout(gpu, "ddgi", &entries)
             })
             .clone()
@@ -302,20 +328,51 @@ impl Ddgi {
         let distance = pipelines::storage_buffer(gpu, "ddgi distance", bytes.distance);
         let debug = pipelines::storage_buffer(gpu, "ddgi debug", pixels * 16 * planes);
         let direct = pipelines::storage_buffer(gpu, "ddgi pixel direct", pixels * 16);
-        let bind_group = pipelines::buffers_bind_group(
-            gpu,
-            "ddgi",
-            &layout,
-            &[
-                &params,
-                &probe_buf,
-                &ray_buf,
-                &irradiance,
-                &distance,
-                &debug,
-                &direct,
-            ],
-        );
+        let texels = |label, format, count: u64| {
+            BufferTexels::new(gpu, label, format, count as u32, TEXELS_PER_ROW)
+        };
+        let texels = [
+            texels(
+                "ddgi probe texels",
+                wgpu::TextureFormat::Rgba32Uint,
+                2 * probes as u64,
+            )?,
+            texels(
+                "ddgi irradiance texels",
+                wgpu::TextureFormat::Rgba32Float,
+                bytes.irradiance / 16,
+            )?,
+            texels(
+                "ddgi distance texels",
+                wgpu::TextureFormat::Rg32Float,
+                bytes.distance / 8,
+            )?,
+        ];
+        let mut entries: Vec<wgpu::BindGroupEntry> = [
+            &params,
+            &probe_buf,
+            &ray_buf,
+            &irradiance,
+            &distance,
+            &debug,
+            &direct,
+        ]
+        .into_iter()
+        .enumerate()
+        .map(|(b, buffer)| wgpu::BindGroupEntry {
+            binding: b as u32,
+            resource: buffer.as_entire_binding(),
+        })
+        .collect();
+        entries.extend(texels.iter().zip(7..).map(|(t, b)| wgpu::BindGroupEntry {
+            binding: b,
+            resource: wgpu::BindingResource::TextureView(&t.view),
+        }));
+        let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("ddgi"),
+            layout: &layout,
+            entries: &entries,
+        });
         let direct_layout = self.restir_direct.output_layout(gpu).clone();
         let direct_bind_group =
             pipelines::buffers_bind_group(gpu, "ddgi pixel direct", &direct_layout, &[&direct]);
@@ -325,6 +382,7 @@ impl Ddgi {
             rays: ray_buf,
             irradiance,
             distance,
+            texels,
             bind_group,
             direct_bind_group,
             sized: (probes, rays, pixels, planes),
@@ -510,6 +568,7 @@ impl Technique for Ddgi {
         for b in [&r.probes, &r.rays, &r.irradiance, &r.distance] {
             enc.clear_buffer(b, 0, None);
         }
+        r.copy_texels(&mut enc);
         gpu.submit("ddgi: reset", enc.finish());
     }
 
@@ -571,6 +630,9 @@ impl Technique for Ddgi {
             &[&r.bind_group],
             [rows[0], rows[1], 1],
         );
+        // Every reader after the blend (this frame's shade, next frame's probe rays) takes
+        // the texels.
+        r.copy_texels(enc);
         if direct_restir {
             self.restir_direct
                 .record(ctx, enc, timer, &r.direct_bind_group);
