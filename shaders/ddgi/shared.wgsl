@@ -11,6 +11,7 @@
 
 #import gilab::math::{PI, TWO_PI, oct_encode, oct_decode}
 #import gilab::toroidal::wrap_grid
+#import gilab::texels::wide_texel
 
 struct Cascade {
     // World position of grid index (0, 0, 0) (xyz), the probe spacing (w).
@@ -70,15 +71,10 @@ struct Probe {
 @group(2) @binding(8) var irradiance_map: texture_2d<f32>;
 @group(2) @binding(9) var distance_map: texture_2d<f32>;
 
-// Where element i of a copied buffer is (TEXELS_PER_ROW = 8192 in src/techniques/ddgi).
-fn ddgi_texel(i: u32) -> vec2<u32> {
-    return vec2<u32>(i & 8191u, i >> 13u);
-}
-
 // A probe's record as the last blend left it.
 fn probe_record(slot: u32) -> Probe {
-    let a = textureLoad(probe_texels, ddgi_texel(2u * slot), 0);
-    let b = textureLoad(probe_texels, ddgi_texel(2u * slot + 1u), 0);
+    let a = textureLoad(probe_texels, wide_texel(2u * slot), 0);
+    let b = textureLoad(probe_texels, wide_texel(2u * slot + 1u), 0);
     return Probe(bitcast<vec4<f32>>(a), bitcast<vec4<i32>>(b));
 }
 
@@ -217,20 +213,20 @@ fn distance_index(slot: u32, t: vec2<u32>) -> u32 {
 // A probe's irradiance arriving from around `dir` (a surface facing dir receives it).
 fn probe_irradiance(slot: u32, dir: vec3<f32>) -> vec3<f32> {
     let b = bilinear(dir, IRR_TEXELS);
-    let a = textureLoad(irradiance_map, ddgi_texel(irradiance_index(slot, b.texel)), 0).xyz;
-    let c = textureLoad(irradiance_map, ddgi_texel(irradiance_index(slot, b.texel + vec2<u32>(1u, 0u))), 0).xyz;
-    let d = textureLoad(irradiance_map, ddgi_texel(irradiance_index(slot, b.texel + vec2<u32>(0u, 1u))), 0).xyz;
-    let e = textureLoad(irradiance_map, ddgi_texel(irradiance_index(slot, b.texel + vec2<u32>(1u, 1u))), 0).xyz;
+    let a = textureLoad(irradiance_map, wide_texel(irradiance_index(slot, b.texel)), 0).xyz;
+    let c = textureLoad(irradiance_map, wide_texel(irradiance_index(slot, b.texel + vec2<u32>(1u, 0u))), 0).xyz;
+    let d = textureLoad(irradiance_map, wide_texel(irradiance_index(slot, b.texel + vec2<u32>(0u, 1u))), 0).xyz;
+    let e = textureLoad(irradiance_map, wide_texel(irradiance_index(slot, b.texel + vec2<u32>(1u, 1u))), 0).xyz;
     return mix(mix(a, c, b.t.x), mix(d, e, b.t.x), b.t.y);
 }
 
 // Mean and mean square of the distance from a probe to the nearest surface around `dir`.
 fn probe_distance(slot: u32, dir: vec3<f32>) -> vec2<f32> {
     let b = bilinear(dir, DIST_TEXELS);
-    let a = textureLoad(distance_map, ddgi_texel(distance_index(slot, b.texel)), 0).xy;
-    let c = textureLoad(distance_map, ddgi_texel(distance_index(slot, b.texel + vec2<u32>(1u, 0u))), 0).xy;
-    let d = textureLoad(distance_map, ddgi_texel(distance_index(slot, b.texel + vec2<u32>(0u, 1u))), 0).xy;
-    let e = textureLoad(distance_map, ddgi_texel(distance_index(slot, b.texel + vec2<u32>(1u, 1u))), 0).xy;
+    let a = textureLoad(distance_map, wide_texel(distance_index(slot, b.texel)), 0).xy;
+    let c = textureLoad(distance_map, wide_texel(distance_index(slot, b.texel + vec2<u32>(1u, 0u))), 0).xy;
+    let d = textureLoad(distance_map, wide_texel(distance_index(slot, b.texel + vec2<u32>(0u, 1u))), 0).xy;
+    let e = textureLoad(distance_map, wide_texel(distance_index(slot, b.texel + vec2<u32>(1u, 1u))), 0).xy;
     return mix(mix(a, c, b.t.x), mix(d, e, b.t.x), b.t.y);
 }
 

@@ -9,6 +9,10 @@
 use crate::gpu::Gpu;
 use anyhow::{bail, Result};
 
+/// Texels per row of the distance field's and DDGI's copies (`wide_texel` in
+/// shaders/parts/texels.wgsl: 8191, 13).
+pub const WIDE_ROW: u32 = 8192;
+
 /// A texture holding `count` texels of `format` in rows of `per_row` (a power of two, so that a
 /// shader finds texel i at `(i & (per_row - 1), i >> log2(per_row))`).
 pub struct BufferTexels {

@@ -9,7 +9,7 @@
 //! one-texel textures no pass reads.
 
 use crate::gpu::Gpu;
-use crate::parts::texels::{texture_entry, BufferTexels};
+use crate::parts::texels::{texture_entry, BufferTexels, WIDE_ROW};
 use crate::render::pipelines;
 use anyhow::Result;
 
@@ -62,9 +62,6 @@ pub const DISTANCE_FIELD_BINDINGS: [u32; 8] = [4, 5, 6, 7, 8, 9, 10, 11];
 /// coordinates, the brick pool's distances, the coarse volume.
 pub const DISTANCE_FIELD_TEXEL_BINDINGS: [u32; 4] = [27, 28, 29, 30];
 
-/// Texels per row of the copies (`sdf_texel` in shaders/parts/tracing/shared.wgsl: 8191, 13).
-const SDF_TEXELS_PER_ROW: u32 = 8192;
-
 /// Layout entries of the tracing bindings (uniform and distance field).
 pub fn layout_entries() -> Vec<wgpu::BindGroupLayoutEntry> {
     let mut entries = vec![pipelines::uniform_entry(0, wgpu::ShaderStages::COMPUTE)];
@@ -94,8 +91,7 @@ impl DistanceFieldTexels {
         coarse_cells: u32,
     ) -> Result<DistanceFieldTexels> {
         use wgpu::TextureFormat as F;
-        let texels =
-            |label, format, count| BufferTexels::new(gpu, label, format, count, SDF_TEXELS_PER_ROW);
+        let texels = |label, format, count| BufferTexels::new(gpu, label, format, count, WIDE_ROW);
         Ok(DistanceFieldTexels {
             table: texels("sdf brick table texels", F::R32Uint, slots)?,
             coords: texels("sdf brick coord texels", F::Rgba32Sint, slots)?,

@@ -16,6 +16,7 @@
 #import gilab::lights::{LightSample, light_shadow_ray}
 #import gilab::surface_cache::{cards, object_cards, tri_object, atlas_direct, atlas_indirect, atlas_albedo, atlas_normal, atlas_emissive, atlas_depth, CacheSample, sample_cache, cache_radiance, cache_reflected}
 #import gilab::toroidal::wrap_grid
+#import gilab::texels::wide_texel
 
 const MAX_LEVELS: u32 = 6u;
 const BRICK: u32 = 8u;
@@ -115,11 +116,6 @@ fn lit_list_index(k: u32) -> u32 {
 @group(2) @binding(29) var brick_pool_texels: texture_2d<u32>;
 @group(2) @binding(30) var coarse_texels: texture_2d<f32>;
 
-// Where word i of a copied buffer is (SDF_TEXELS_PER_ROW = 8192 in src/parts/tracing.rs).
-fn sdf_texel(i: u32) -> vec2<u32> {
-    return vec2<u32>(i & 8191u, i >> 13u);
-}
-
 fn has_flag(f: u32) -> bool {
     return (params.flags & f) != 0u;
 }
@@ -174,8 +170,8 @@ fn brick_base(l: u32, b: vec3<i32>, written: bool) -> u32 {
         held = brick_coord[slot];
         entry = brick_table[slot];
     } else {
-        held = textureLoad(brick_coord_texels, sdf_texel(slot), 0);
-        entry = textureLoad(brick_table_texels, sdf_texel(slot), 0).x;
+        held = textureLoad(brick_coord_texels, wide_texel(slot), 0);
+        entry = textureLoad(brick_table_texels, wide_texel(slot), 0).x;
     }
     if entry == EMPTY || held.w == 0 || any(held.xyz != b) {
         return EMPTY;
@@ -193,7 +189,7 @@ fn brick_word(base: u32, b: vec3<i32>, v: vec3<i32>, written: bool) -> u32 {
     if written {
         return brick_pool[i];
     }
-    return textureLoad(brick_pool_texels, sdf_texel(i), 0).x;
+    return textureLoad(brick_pool_texels, wide_texel(i), 0).x;
 }
 
 // The stored voxel word of world voxel v of level l, or EMPTY where no brick holds it.
@@ -234,7 +230,7 @@ fn coarse_bound(l: u32, p: vec3<f32>, written: bool) -> f32 {
     if written {
         d = coarse[idx];
     } else {
-        d = textureLoad(coarse_texels, sdf_texel(idx), 0).x;
+        d = textureLoad(coarse_texels, wide_texel(idx), 0).x;
     }
     return d - length(p - centre);
 }

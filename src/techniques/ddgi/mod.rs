@@ -16,7 +16,7 @@ pub mod volume;
 
 use crate::gpu::{timing::PassTimer, Gpu};
 use crate::parts::hash_cache::{self, HashCache, HashCacheSettings};
-use crate::parts::texels::{texture_entry, BufferTexels};
+use crate::parts::texels::{texture_entry, BufferTexels, WIDE_ROW};
 use crate::parts::{Part, RestirDirect};
 use crate::render::params::{ParamChanges, ParamKind, ParamSpec, Params};
 use crate::render::primary::FrameInputs;
@@ -160,9 +160,6 @@ struct Resources {
     /// (probes, rays per probe, pixels, debug planes) they were sized for.
     sized: (u32, u32, u64, u64),
 }
-
-/// Texels per row of the copies (`ddgi_texel` in shaders/ddgi/shared.wgsl: 8191, 13).
-const TEXELS_PER_ROW: u32 = 8192;
 
 impl Resources {
     /// Records the copy of the probe records and maps into their texels.
@@ -329,7 +326,7 @@ impl Ddgi {
         let debug = pipelines::storage_buffer(gpu, "ddgi debug", pixels * 16 * planes);
         let direct = pipelines::storage_buffer(gpu, "ddgi pixel direct", pixels * 16);
         let texels = |label, format, count: u64| {
-            BufferTexels::new(gpu, label, format, count as u32, TEXELS_PER_ROW)
+            BufferTexels::new(gpu, label, format, count as u32, WIDE_ROW)
         };
         let texels = [
             texels(
