@@ -758,7 +758,8 @@ impl SurfaceCache {
                     PASSES[1].0,
                     &p.lighting[1],
                     &[group2],
-                    [probes.div_ceil(64), 1, 1],
+                    // Four probes of 16 rays a workgroup (probe.wgsl).
+                    [probes.div_ceil(4), 1, 1],
                 );
                 pipelines::technique_pass(
                     ctx,
