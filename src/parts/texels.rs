@@ -121,6 +121,10 @@ impl BufferTexels {
 
     /// Writes `bytes` (at most `count` texels) from the CPU, the rest of the last row zero.
     pub fn write(&self, gpu: &Gpu, bytes: &[u8]) {
+        debug_assert!(
+            bytes.len() <= (self.count * self.texel_bytes()) as usize,
+            "more bytes than texels"
+        );
         let row_bytes = (self.per_row * self.texel_bytes()) as usize;
         let rows = self.count.div_ceil(self.per_row).max(1);
         let mut padded = bytes.to_vec();
