@@ -4,9 +4,17 @@
 // candidate path (one per length and end); resampling by luminance keeps one, with
 // W = sum of the candidates' luminances / the kept one's (M = 1). Its reconnection vertex and
 // suffix are recorded as the path is traced (gilab::restir_pt describes them).
+//
+// With SUFFIX_TERMINATE (`suffix_terminate` names a cache; the pass is composed with the
+// cache's lookup at group 3 and its module overriding gilab::path_end::end_path), the suffix
+// ends at its first hit past the reconnection vertex that the cache covers: that hit's cache
+// light is the candidate of that length (END_CACHE) and the path stops. The decision and the
+// light depend on the suffix alone (the hit, the segment that reached it), which every shift
+// reuses as traced, so a shifted path ends in the same cell and the Jacobians are unchanged.
+// A path without a reconnection vertex never ends early: its shifts replay it.
 #import gilab::rng::{rng_init, rand, rand_uint, STREAM_PT_INITIAL}
 #import gilab::frame::frame
-#import gilab::counters::{flush_counts, no_counts, RAY_SHADOW, RAY_INDIRECT}
+#import gilab::counters::{flush_counts, no_counts, count_cache_lookup, RAY_SHADOW, RAY_INDIRECT}
 #import gilab::math::luminance
 #import gilab::primary::current_surface
 #import gilab::brdf::{bsdf_eval, bsdf_sample}
@@ -16,7 +24,12 @@
 #import gilab::ray::{spawn_ray_origin, unoccluded}
 #import gilab::sampling::power_heuristic
 #import gilab::path_vertex::{nee_sky_share, pick_nee_light}
-#import gilab::restir_pt::{params, reservoirs, reservoir_index, TEMPORAL_SEGMENT, PathReservoir, empty_path_reservoir, Vertex, primary_vertex, hit_vertex, path_surface, vertex_numbers, rough, reconnectable, pack_info, Stream, empty_stream, stream_add, stream_result, END_EMISSION, END_NEE, END_SKY}
+#import gilab::path_end::end_path
+#import gilab::restir_pt::{params, reservoirs, reservoir_index, TEMPORAL_SEGMENT, PathReservoir, empty_path_reservoir, Vertex, primary_vertex, hit_vertex, path_surface, vertex_numbers, rough, reconnectable, pack_info, Stream, empty_stream, stream_add, stream_result, END_EMISSION, END_NEE, END_SKY, END_CACHE}
+
+// Light candidates of the NEE a cache end takes at its hit (ReSTIR's path_light_candidates
+// default, as ReSTIR GI's paths end).
+const END_LIGHT_CANDIDATES: u32 = 8u;
 
 // The reconnection vertex found so far along the base path (r = 0: none yet).
 struct Reconnection {
@@ -72,6 +85,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             var v = primary_vertex(s);
             var t = vec3<f32>(1.0);
             var rc = Reconnection(0u, NO_HIT, vec2<f32>(0.0), false, 0.0, vec3<f32>(0.0), 0.0, vec3<f32>(1.0));
+            var looked_up = false;
             for (var j = 1u; j <= params.max_bounces; j++) {
                 let u = vertex_numbers(seed, j);
                 // Paths of length 2 to a light of the pool are direct light: ReSTIR DI's with
@@ -148,6 +162,30 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     }
                     stream_add(&st, candidate(seed, c, j + 1u, END_EMISSION, false, rc, suffix, p_light, vec3<f32>(0.0)), luminance(c), 1.0, rand(&rng));
                 }
+#ifdef SUFFIX_TERMINATE
+                // x_{j+1} is a suffix hit (past x_r) where the path would take NEE (j < D): the
+                // cache's light there (reflected, with its own NEE for caches that take one)
+                // ends the path where the cache covers the hit. The first lookup is counted.
+                if rc.r > 0u && rc.r <= j && j < params.max_bounces {
+                    let e = end_path(h, -bs.wi, hit.tri, hit.t, vec3<f32>(1.0), p_sky, END_LIGHT_CANDIDATES, &rng);
+                    counts[RAY_SHADOW] += e.shadow_rays;
+                    counts[RAY_INDIRECT] += e.indirect_rays;
+                    if !looked_up && e.outcome != 0u {
+                        looked_up = true;
+                        count_cache_lookup(&counts, e.outcome);
+                    }
+                    if e.ended {
+                        let l_end = e.direct + e.indirect;
+                        let c = t * l_end;
+                        var suffix = l_end;
+                        if rc.r < j {
+                            suffix = rc.suffix * l_end;
+                        }
+                        stream_add(&st, candidate(seed, c, j + 1u, END_CACHE, false, rc, suffix, 0.0, vec3<f32>(0.0)), luminance(c), 1.0, rand(&rng));
+                        break;
+                    }
+                }
+#endif
                 v = hit_vertex(h, bs.wi);
             }
         }

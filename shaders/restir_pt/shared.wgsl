@@ -67,6 +67,9 @@ struct PtParams {
 const END_EMISSION: u32 = 0u; // x_k: an emitter hit by a BSDF-sampled ray from x_{k-1}
 const END_NEE: u32 = 1u; // x_k: a light point (or sky direction) sampled by NEE at x_{k-1}
 const END_SKY: u32 = 2u; // a BSDF-sampled ray from x_{k-1} escaped to the sky
+// x_k (k > r): a suffix hit where the path ended in a radiance cache (`suffix_terminate`); the
+// cache's light there is in the suffix radiance, which every shift reuses as it is.
+const END_CACHE: u32 = 3u;
 
 struct PathReservoir {
     // Reconnection vertex x_r: its triangle (NO_HIT: none, the shift replays the whole path)

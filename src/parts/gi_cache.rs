@@ -1,5 +1,6 @@
 //! The one interface of a radiance cache that GI sample paths end in (ReSTIR GI's
-//! `gi_terminate`, in `restir` and `callisto-shadows`): the holder builds it, records its passes
+//! `gi_terminate`, in `restir` and `callisto-shadows`; ReSTIR PT's `suffix_terminate`): the
+//! holder builds it ([`CacheReader`] with the one pass that reads it), records its passes
 //! inside the frame that reads it, and composes its reading pass with the cache's shader defs
 //! (`common/path.wgsl`'s termination and the lookup's bind group) and its end-of-path module
 //! (which overrides `gilab::path_end::end_path`), binding the cache's lookup.
@@ -10,7 +11,7 @@
 
 use crate::gpu::{timing::PassTimer, Gpu};
 use crate::parts::world_regir::{Coverage, WorldRegirSettings};
-use crate::render::{PassInfo, RenderContext};
+use crate::render::{pipelines, PassInfo, RenderContext};
 use crate::scene::features::SceneFeatures;
 use anyhow::Result;
 
@@ -95,5 +96,72 @@ pub trait GiCache {
     /// hits in a family whose GI ends there).
     fn surface_cache(&self) -> Option<&crate::parts::SurfaceCache> {
         None
+    }
+}
+
+/// The bind group a cache's reading pass binds the lookup at: after the scene (0), the frame (1)
+/// and the holder's own group (2).
+pub const READER_GROUP: u32 = 3;
+
+/// A cache and the one pass of its holder that reads it (the lookup at [`READER_GROUP`]),
+/// composed with the cache's reader defs and its end-of-path module: ReSTIR GI's temporal pass,
+/// ReSTIR PT's initial pass.
+pub struct CacheReader {
+    pub cache: Box<dyn GiCache>,
+    pub pipeline: wgpu::ComputePipeline,
+}
+
+/// The holder's reading pass: its entry file, its own layout (group 2) and its own defs (added
+/// after the cache's).
+pub struct ReaderPass<'a> {
+    pub entry: &'a str,
+    pub layout: &'a wgpu::BindGroupLayout,
+    pub defs: &'a [(&'static str, u32)],
+}
+
+impl CacheReader {
+    /// Builds the cache `kind` makes from `settings` and the reading pass, from the current
+    /// sources (also on hot reload). `old`'s cache is kept, with its history, while its key
+    /// equals the new one. On error the old reader comes back beside the error (a failed hot
+    /// reload keeps the cache and its pass running).
+    pub fn build(
+        ctx: &RenderContext,
+        old: Option<CacheReader>,
+        kind: &CacheKind,
+        settings: &CacheSettings,
+        pass: ReaderPass<'_>,
+    ) -> (Option<CacheReader>, Result<()>) {
+        let key = (kind.key)(settings);
+        let (mut cache, old_pipeline) = match old {
+            Some(c) if c.cache.key() == key => (c.cache, Some(c.pipeline)),
+            _ => match (kind.new)(settings) {
+                Ok(cache) => (cache, None),
+                Err(e) => return (None, Err(e)),
+            },
+        };
+        let built = cache.build(ctx).and_then(|()| {
+            let (mut defs, lookup_layout) = cache.reader(ctx.gpu, READER_GROUP);
+            defs.extend_from_slice(pass.defs);
+            let shaders = ctx
+                .shaders
+                .with_defs(&defs)
+                .with_imports(&[cache.path_end()]);
+            pipelines::compute_pipeline(
+                ctx.gpu,
+                &shaders,
+                pass.entry,
+                &[
+                    &ctx.scene.layout,
+                    ctx.frame_layout,
+                    pass.layout,
+                    &lookup_layout,
+                ],
+            )
+        });
+        match (built, old_pipeline) {
+            (Ok(pipeline), _) => (Some(CacheReader { cache, pipeline }), Ok(())),
+            (Err(e), Some(pipeline)) => (Some(CacheReader { cache, pipeline }), Err(e)),
+            (Err(e), None) => (None, Err(e)),
+        }
     }
 }

@@ -44,7 +44,8 @@
 //!   cells by position, facing and a camera-distance level; updated by full paths from one
 //!   pixel in 25; lookup `gilab::hash_cache`, at the bind group a pass names with
 //!   `HASH_CACHE_GROUP`). Used by the `hash-cache` technique, by ReSTIR GI
-//!   (`gi_terminate = "hash-cache"`) and by DDGI's probe rays (`probe_hits = "hash-cache"`).
+//!   (`gi_terminate = "hash-cache"`), by ReSTIR PT's suffixes (`suffix_terminate`), by DDGI's
+//!   probe rays (`probe_hits = "hash-cache"`) and by the surfels' uncovered hits.
 //! - [`texels::BufferTexels`]: texel copies of storage buffers that passes read many times
 //!   (the surface cache's cards, the distance field): lavapipe reads a texel several times
 //!   faster than a storage buffer's words.

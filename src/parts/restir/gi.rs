@@ -6,7 +6,7 @@
 
 use super::lighting::{PassFiles, PassPair, RestirLighting};
 use crate::gpu::{timing::PassTimer, Gpu};
-use crate::parts::gi_cache::{CacheKey, CacheSettings, GiCache};
+use crate::parts::gi_cache::{CacheKey, CacheReader, ReaderPass};
 use crate::render::{pipelines, PassInfo, RenderContext};
 use anyhow::Result;
 
@@ -28,9 +28,9 @@ pub struct Gi {
     pub(super) reservoirs: Option<wgpu::Buffer>,
     /// Per pixel: sky radiance reached by this frame's sample ray (not reused: it has no point).
     pub(super) sky: Option<wgpu::Buffer>,
-    /// `gi_terminate = "lumen-cards" | "surfels"`: the cache the sample paths end in, and the
-    /// temporal pass composed to read it (group 3).
-    pub(super) cache: Option<CacheTermination>,
+    /// `gi_terminate` names a cache: the cache the sample paths end in, and the temporal pass
+    /// composed to read it (group 3).
+    pub(super) cache: Option<CacheReader>,
     /// The passes' sample paths pick NEE lights by the light tree (`LIGHT_TREE`, with
     /// `light_tree`): the variant `passes` and `cache` were composed as.
     pub(super) light_tree: bool,
@@ -45,15 +45,6 @@ pub(super) fn gi_defs(light_tree: bool) -> &'static [(&'static str, u32)] {
         &[]
     }
 }
-
-/// Sample paths that end in a cache (the part and the pass that reads it).
-pub(super) struct CacheTermination {
-    pub(super) cache: Box<dyn GiCache>,
-    pub(super) temporal: wgpu::ComputePipeline,
-}
-
-/// The bind group the temporal pass reads the cache through.
-const CACHE_GROUP: u32 = 3;
 
 impl Gi {
     pub(super) fn build_resources(&mut self, gpu: &Gpu, pixels: u64, keep: bool) {
@@ -93,7 +84,7 @@ impl Gi {
             enc,
             timer,
             TEMPORAL,
-            &c.temporal,
+            &c.pipeline,
             &[bind_group, lookup],
             [ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1],
         );
@@ -133,42 +124,21 @@ impl RestirLighting {
         let Some(kind) = self.settings.gi_terminate.kind() else {
             anyhow::bail!("gi_terminate = \"path\" ends in no cache");
         };
-        let key = (kind.key)(&self.cache_settings());
-        let old = self.gi.cache.take();
-        let (mut cache, old_temporal) = match old {
-            Some(c) if c.cache.key() == key => (c.cache, Some(c.temporal)),
-            _ => ((kind.new)(&self.cache_settings())?, None),
+        // GI_TERMINATE: the path ends in a cache (gilab::path_end), the one whose module
+        // overrides its `end_path`.
+        let mut defs = vec![("GI_TERMINATE", 1)];
+        defs.extend_from_slice(gi_defs(self.settings.light_tree));
+        let layout = self.layout(ctx.gpu).clone();
+        let pass = ReaderPass {
+            entry: PASSES[0].1,
+            layout: &layout,
+            defs: &defs,
         };
-        let built = cache.build(ctx).and_then(|()| {
-            let (mut defs, lookup_layout) = cache.reader(ctx.gpu, CACHE_GROUP);
-            // GI_TERMINATE: the path ends in a cache (gilab::path_end), the one whose module
-            // overrides its `end_path`.
-            defs.push(("GI_TERMINATE", 1));
-            defs.extend_from_slice(gi_defs(self.settings.light_tree));
-            let shaders = ctx
-                .shaders
-                .with_defs(&defs)
-                .with_imports(&[cache.path_end()]);
-            let layout = self.layout(ctx.gpu).clone();
-            pipelines::compute_pipeline(
-                ctx.gpu,
-                &shaders,
-                PASSES[0].1,
-                &[&ctx.scene.layout, ctx.frame_layout, &layout, &lookup_layout],
-            )
-        });
-        match (built, old_temporal) {
-            (Ok(temporal), _) => {
-                self.gi.cache = Some(CacheTermination { cache, temporal });
-                Ok(())
-            }
-            // A failed hot reload keeps the cache and its pass running.
-            (Err(e), Some(temporal)) => {
-                self.gi.cache = Some(CacheTermination { cache, temporal });
-                Err(e)
-            }
-            (Err(e), None) => Err(e),
-        }
+        let old = self.gi.cache.take();
+        let (reader, built) =
+            CacheReader::build(ctx, old, kind, &self.settings.cache_settings(), pass);
+        self.gi.cache = reader;
+        built
     }
 
     /// The surface cache the GI paths end in (`lumen-cards`, `lumen-world`), when it runs: its
@@ -196,21 +166,10 @@ impl RestirLighting {
             .transpose()
     }
 
-    /// The holder's cache parameters, as a registered cache reads them.
-    fn cache_settings(&self) -> CacheSettings {
-        let s = &self.settings;
-        CacheSettings {
-            atlas_size: s.cache_atlas_size,
-            update: s.cache_update,
-            ray_budget: s.cache_ray_budget,
-            light: s.cache_light,
-        }
-    }
-
     /// The cache the parameters ask for (`gi_terminate` names one).
     fn cache_key(&self) -> Option<CacheKey> {
         let kind = self.settings.gi_terminate.kind()?;
-        Some((kind.key)(&self.cache_settings()))
+        Some((kind.key)(&self.settings.cache_settings()))
     }
 
     pub fn gi_passes(&self, f: &crate::scene::features::SceneFeatures) -> Vec<PassInfo> {
@@ -231,7 +190,7 @@ impl RestirLighting {
                 } else if let Some(kind) = s.gi_terminate.kind() {
                     format!(
                         "one sample path per pixel ending {}, temporal reuse",
-                        (kind.describe)(&self.cache_settings(), s.gi_bounces.max(1))
+                        (kind.describe)(&self.settings.cache_settings(), s.gi_bounces.max(1))
                     )
                 } else {
                     format!(

@@ -436,6 +436,17 @@ impl RestirSettings {
 }
 
 impl RestirSettings {
+    /// The cache parameters (`cache_atlas_size`, `cache_update`, `cache_ray_budget`,
+    /// `cache_direct`), as a registered cache reads them.
+    pub fn cache_settings(&self) -> crate::parts::gi_cache::CacheSettings {
+        crate::parts::gi_cache::CacheSettings {
+            atlas_size: self.cache_atlas_size,
+            update: self.cache_update,
+            ray_budget: self.cache_ray_budget,
+            light: self.cache_light,
+        }
+    }
+
     /// Combinations that cannot run, as one line.
     pub fn check(&self) -> anyhow::Result<()> {
         Ok(())

@@ -10,7 +10,10 @@
 //!    bounded by `max_bounces`, no Russian roulette); its contributions (one per length and
 //!    end) are candidates resampled by luminance into the pixel's path reservoir. The reservoir
 //!    keeps the reconnection vertex (triangle + barycentrics, so it follows moving objects),
-//!    the suffix radiance there, the path's seed, length and end.
+//!    the suffix radiance there, the path's seed, length and end. With `suffix_terminate`
+//!    naming a cache (the caches of ReSTIR GI's `gi_terminate`, through
+//!    [`crate::parts::gi_cache`]), the suffix ends at its first hit the cache covers: the
+//!    cache's passes run first and this pass reads its lookup.
 //! 2. `path_temporal`: last frame's reservoir at the reprojected pixel, pairwise MIS (two shifts).
 //! 3. `path_spatial`: `spatial_count` neighbours, pairwise MIS with the canonical sample (two
 //!    shifts per neighbour: GRIS's generalised balance heuristic in its pairwise form).
@@ -27,6 +30,8 @@ pub mod shift_math;
 pub use params::{PtParamsGpu, PtSettings, MAX_SPATIAL, PARAMS};
 
 use crate::gpu::{timing::PassTimer, Gpu};
+use crate::parts::gi_cache::{CacheReader, CacheSettings, ReaderPass};
+use crate::parts::restir::{RestirSettings, PARAMS as RESTIR_PARAMS};
 use crate::parts::Part;
 use crate::parts::RestirDirect;
 use crate::render::params::{ParamChanges, Params};
@@ -73,6 +78,8 @@ pub struct RestirPt {
     pipelines: Pipelines,
     resources: Option<Resources>,
     restir_direct: RestirDirect,
+    /// `suffix_terminate` names a cache: the cache and `path_initial` composed to read it.
+    cache: Option<CacheReader>,
     scene_diagonal: f32,
 }
 
@@ -86,6 +93,7 @@ impl Default for RestirPt {
             pipelines: Pipelines::default(),
             resources: None,
             restir_direct: RestirDirect::default(),
+            cache: None,
             scene_diagonal: 1.0,
         }
     }
@@ -173,6 +181,39 @@ impl RestirPt {
         self.restir_direct
             .prepare(ctx, self.settings.direct_restir, rebuild, ())
     }
+
+    /// The cache a suffix ends in: at ReSTIR's cache defaults (`cache_atlas_size`,
+    /// `cache_update`, `cache_ray_budget`, `cache_direct`).
+    fn cache_settings() -> CacheSettings {
+        RestirSettings::from_params(&Params::new("restir", RESTIR_PARAMS)).cache_settings()
+    }
+
+    /// Builds the cache `suffix_terminate` names and `path_initial` composed to read it, when
+    /// they are not built for it yet, or again on `rebuild` (a shader changed). A cache
+    /// switched off stays built (switching back costs no compile) and is not recorded.
+    fn prepare_cache(&mut self, ctx: &RenderContext, rebuild: bool) -> Result<()> {
+        let Some(kind) = self.settings.suffix_terminate.kind() else {
+            // Switched off: kept for switching back, unless its shaders changed.
+            if rebuild {
+                self.cache = None;
+            }
+            return Ok(());
+        };
+        let settings = Self::cache_settings();
+        let current = self.cache.as_ref().map(|c| c.cache.key());
+        if !rebuild && current == Some((kind.key)(&settings)) {
+            return Ok(());
+        }
+        let layout = self.layout(ctx.gpu);
+        let pass = ReaderPass {
+            entry: OWN_SHADER_FILES[0],
+            layout: &layout,
+            defs: &[("SUFFIX_TERMINATE", 1)],
+        };
+        let (reader, built) = CacheReader::build(ctx, self.cache.take(), kind, &settings, pass);
+        self.cache = reader;
+        built
+    }
 }
 
 impl Technique for RestirPt {
@@ -201,17 +242,30 @@ impl Technique for RestirPt {
                 why: RestirDirect::describe(),
             });
         }
+        let suffix_end = match s.suffix_terminate.kind() {
+            Some(kind) => {
+                if let Some(c) = &self.cache {
+                    v.extend(c.cache.passes(f));
+                }
+                format!(
+                    "; its suffix ends in {} at its first hit past the reconnection vertex that the cache covers",
+                    kind.name
+                )
+            }
+            None => String::new(),
+        };
         v.push(PassInfo {
             name: "path_initial",
             runs: true,
             why: format!(
-                "one path per pixel (NEE + MIS, up to {} bounces), its contributions resampled into a path reservoir{}",
+                "one path per pixel (NEE + MIS, up to {} bounces), its contributions resampled into a path reservoir{}{}",
                 s.max_bounces,
                 if s.direct_restir {
                     " (length 2 left to ReSTIR DI)"
                 } else {
                     ""
-                }
+                },
+                suffix_end
             ),
         });
         v.push(PassInfo {
@@ -256,6 +310,7 @@ impl Technique for RestirPt {
         let spatial = ctx.pipeline(OWN_SHADER_FILES[2], &layout)?;
         let shade = ctx.pipeline(OWN_SHADER_FILES[3], &layout)?;
         self.prepare_direct(ctx, true)?;
+        self.prepare_cache(ctx, true)?;
         self.pipelines = Pipelines {
             initial: Some(initial),
             temporal: Some(temporal),
@@ -268,6 +323,7 @@ impl Technique for RestirPt {
 
     fn apply_params(&mut self, ctx: &RenderContext) -> Result<()> {
         self.prepare_direct(ctx, false)?;
+        self.prepare_cache(ctx, false)?;
         self.build_resources(ctx);
         Ok(())
     }
@@ -312,7 +368,35 @@ impl Technique for RestirPt {
                 .record(ctx, enc, timer, &r.direct_bind_group);
         }
         let bg = &r.bind_group;
-        pipelines::image_pass(ctx, enc, timer, "path_initial", initial, bg);
+        let suffix_cache = self
+            .settings
+            .suffix_terminate
+            .cache()
+            .then_some(self.cache.as_mut())
+            .flatten();
+        // With a cache: its passes, then the initial pass that reads its lookup (the plain
+        // pass while the lookup is not there yet).
+        let mut read_cache = false;
+        if let Some(c) = suffix_cache {
+            c.cache.record(ctx, enc, timer);
+            if let Some(lookup) = c.cache.lookup() {
+                let groups = [ctx.extent[0].div_ceil(8), ctx.extent[1].div_ceil(8), 1];
+                let bind_groups = [bg, lookup];
+                pipelines::technique_pass(
+                    ctx,
+                    enc,
+                    timer,
+                    "path_initial",
+                    &c.pipeline,
+                    &bind_groups,
+                    groups,
+                );
+                read_cache = true;
+            }
+        }
+        if !read_cache {
+            pipelines::image_pass(ctx, enc, timer, "path_initial", initial, bg);
+        }
         if self.settings.temporal {
             pipelines::image_pass(ctx, enc, timer, "path_temporal", temporal, bg);
         }

@@ -1,5 +1,6 @@
 //! ReSTIR PT's parameters: the declared table, the typed settings and the uniform.
 
+use crate::parts::restir::GiTerminate;
 use crate::render::params::{ParamKind, ParamSpec, Params};
 
 /// Spatial neighbours per pixel at most (`MAX_NEIGHBOURS` in shaders/restir_pt/spatial.wgsl).
@@ -87,6 +88,14 @@ pub const PARAMS: &[ParamSpec] = &[
         },
         default: 16.0,
     },
+    ParamSpec {
+        name: "suffix_terminate",
+        what: "where a path's suffix (its vertices past the reconnection vertex) ends: path (traced to max_bounces), or at the first suffix hit the named radiance cache covers (the caches of ReSTIR GI's gi_terminate, built and updated in the same frame at ReSTIR's cache defaults; hash-cache: where the segment is longer than the hit's cell and the cell has samples). Shifts reuse the suffix as traced, so it ends in the same cell in every pixel that reconnects to it; paths without a reconnection vertex (shift = replay) never end early",
+        higher: "a cache: bounces past the first suffix hit cost no rays, biased by the cache (and a suffix reused from last frame keeps last frame's cache light)",
+        lower: "path: every bounce traced, unbiased against the reference at the same max_depth",
+        kind: ParamKind::Choice(&GiTerminate::NAMES),
+        default: 0.0,
+    },
     crate::parts::restir_direct::param(
         DIRECT,
         "direct light (paths of length 2): unified (in the path reservoirs) or restir (ReSTIR DI through the direct-light part; the path reservoirs then hold indirect light only)",
@@ -122,6 +131,7 @@ pub struct PtSettings {
     pub max_history: f32,
     pub spatial_count: u32,
     pub spatial_radius: f32,
+    pub suffix_terminate: GiTerminate,
     pub direct_restir: bool,
     pub accumulate: bool,
     pub debug: bool,
@@ -138,6 +148,7 @@ impl PtSettings {
             max_history: p.f32("max_history"),
             spatial_count: p.u32("spatial_count"),
             spatial_radius: p.f32("spatial_radius"),
+            suffix_terminate: GiTerminate::from_index(p.u32("suffix_terminate")),
             direct_restir: crate::parts::restir_direct::chosen(p),
             accumulate: p.bool("accumulate"),
             debug: p.bool(crate::techniques::DEBUG_VIEWS),
