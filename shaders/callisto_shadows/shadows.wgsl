@@ -4,7 +4,11 @@
 //    frame's list of this tile; a light new to the tile gets full rate). Quarter rate traces the
 //    top-left pixel; half rate traces the min/max-depth pair on border quads and the diagonal
 //    on flat quads; full rate all four. One light sample per traced pixel (a point on a
-//    triangle light, the light itself for punctual ones), one shadow ray;
+//    triangle light, the light itself for punctual ones), one shadow ray. The pixels that trace
+//    queue their rays, and the workgroup's first invocations trace the queue: at quarter rate a
+//    quarter of the invocations traverse, each with all its SIMD lanes busy, instead of every
+//    wave with a quarter of its lanes (a GPU's skipped pixels then save traversal time, not
+//    only rays; issue 58);
 // 2. reconstruct the skipped pixels bilaterally, as the seed lists: quarter averages the
 //    traced top-left samples of this and the neighbouring quads (bilinear x depth weights),
 //    half on borders copies the traced sample nearest in depth, half on flat quads averages the
@@ -27,6 +31,7 @@
 #import gilab::primary::{current_surface, surface_material}
 #import gilab::brdf::bsdf_eval
 #import gilab::lights::{eval_light_point, light_shadow_ray, select_light}
+#import gilab::ray::RaySegment
 #import gilab::callisto_cache::{split_visibility, receiver_dynamic, record_dynamic}
 #import gilab::scene::{light_pool, light_at}
 #import gilab::callisto::{params, tile_lists, rates, stats, current, debug_out, list_base, list_count, rate_base, get_rate, find_slot, parity, TILE, RATE_NONE, RATE_QUARTER, RATE_HALF, RATE_FULL, NO_SLOT}
@@ -49,6 +54,13 @@ const NOT_TRACED: f32 = -1.0;
 // neighbourhoods read 9 of these instead of 36 pixels.
 var<workgroup> wg_quad: array<u32, 64>;
 var<workgroup> wg_rates: array<atomic<u32>, 4>;
+// This light's shadow rays, queued by the pixels that trace (step 1): the ray by pixel, the
+// pixels in queue order, their count. And the rays traced for each pixel by whichever
+// invocation traced them (the debug view's count per pixel).
+var<workgroup> wg_ray: array<RaySegment, 256>;
+var<workgroup> wg_queue: array<u32, 256>;
+var<workgroup> wg_queued: atomic<u32>;
+var<workgroup> wg_pixel_rays: array<u32, 256>;
 var<workgroup> wg_red: array<f32, 256>;
 var<workgroup> wg_count: u32;
 var<workgroup> wg_valid: atomic<u32>;
@@ -107,6 +119,10 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
     if li < 4u {
         atomicStore(&wg_rates[li], 0u);
     }
+    if li == 0u {
+        atomicStore(&wg_queued, 0u);
+    }
+    wg_pixel_rays[li] = 0u;
     wg_depth[li] = select(-1.0, s.wo_dist.w, valid);
     workgroupBarrier();
     if valid {
@@ -198,15 +214,36 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
         }
         let lit = any(c > vec3<f32>(0.0));
         let trace_here = traced && lit;
-        var vis = 0.0;
         if trace_here {
-            vis = split_visibility(light, light_shadow_ray(p, ng, ls), p, ng, z, moves, &rays);
+            wg_ray[li] = light_shadow_ray(p, ng, ls);
+            wg_queue[atomicAdd(&wg_queued, 1u)] = li;
+        } else {
+            wg_visf[li] = NOT_TRACED;
         }
-        wg_visf[li] = select(NOT_TRACED, vis, trace_here);
         if valid {
             quad_rate = max(quad_rate, rate);
         }
         workgroupBarrier();
+        // The queue, one ray per invocation; each reads its pixel's surface again (the
+        // G-buffer's exact values: the same visibility whichever invocation traces it).
+        if li < atomicLoad(&wg_queued) {
+            let owner = wg_queue[li];
+            let opx = wid.xy * TILE + vec2<u32>(owner % TILE, owner / TILE);
+            let os = current_surface(opx.y * frame.size.x + opx.x);
+            var traced_rays = 0u;
+            wg_visf[owner] = split_visibility(light, wg_ray[owner], os.pos.xyz, os.geo_specular.xyz, wg_depth[owner], receiver_dynamic(u32(os.prev_pos.w)), &traced_rays);
+            wg_pixel_rays[owner] += traced_rays;
+        }
+        workgroupBarrier();
+        if li == 0u {
+            // Read by every invocation before the barrier above; the next light queues after
+            // this light's reduction barriers.
+            atomicStore(&wg_queued, 0u);
+        }
+        var vis = 0.0;
+        if trace_here {
+            vis = wg_visf[li];
+        }
         if li < 64u {
             var q = 0u;
             for (var cc = 0u; cc < 4u; cc++) {
@@ -338,6 +375,9 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
             }
         }
     }
+    // The rays queued for this pixel (each written by one invocation per light, before the
+    // reduction's barriers).
+    rays += wg_pixel_rays[li];
     counts[RAY_SHADOW] += rays;
     let tile_direct = reduce_sum(li, luminance(shadowed + sampled));
     if li == 0u {
