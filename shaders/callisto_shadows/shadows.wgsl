@@ -4,11 +4,12 @@
 //    frame's list of this tile; a light new to the tile gets full rate). Quarter rate traces the
 //    top-left pixel; half rate traces the min/max-depth pair on border quads and the diagonal
 //    on flat quads; full rate all four. One light sample per traced pixel (a point on a
-//    triangle light, the light itself for punctual ones), one shadow ray. The pixels that trace
-//    queue their rays, and the workgroup's first invocations trace the queue: at quarter rate a
-//    quarter of the invocations traverse, each with all its SIMD lanes busy, instead of every
-//    wave with a quarter of its lanes (a GPU's skipped pixels then save traversal time, not
-//    only rays; issue 58);
+//    triangle light, the light itself for punctual ones), one shadow ray. A pixel that traces
+//    looks up its shadow-cache cell, and queues its ray only when a traversal is left (an
+//    uncached cell, or moving instances behind a cached one); the workgroup's first
+//    invocations trace the queue. At quarter rate a quarter of the invocations traverse, each
+//    wave with all its lanes busy, instead of every wave with a quarter of its lanes (a GPU's
+//    skipped pixels and cached cells then save traversal time, not only rays; issue 58);
 // 2. reconstruct the skipped pixels bilaterally, as the seed lists: quarter averages the
 //    traced top-left samples of this and the neighbouring quads (bilinear x depth weights),
 //    half on borders copies the traced sample nearest in depth, half on flat quads averages the
@@ -32,7 +33,7 @@
 #import gilab::brdf::bsdf_eval
 #import gilab::lights::{eval_light_point, light_shadow_ray, select_light}
 #import gilab::ray::RaySegment
-#import gilab::callisto_cache::{split_visibility, receiver_dynamic, record_dynamic}
+#import gilab::callisto_cache::{split_visibility, plan_visibility, finish_visibility, pack_plan, unpack_plan, receiver_dynamic, record_dynamic, NO_TRACE}
 #import gilab::scene::{light_pool, light_at}
 #import gilab::callisto::{params, tile_lists, rates, stats, current, debug_out, list_base, list_count, rate_base, get_rate, find_slot, parity, TILE, RATE_NONE, RATE_QUARTER, RATE_HALF, RATE_FULL, NO_SLOT}
 
@@ -54,10 +55,11 @@ const NOT_TRACED: f32 = -1.0;
 // neighbourhoods read 9 of these instead of 36 pixels.
 var<workgroup> wg_quad: array<u32, 64>;
 var<workgroup> wg_rates: array<atomic<u32>, 4>;
-// This light's shadow rays, queued by the pixels that trace (step 1): the ray by pixel, the
-// pixels in queue order, their count. And the rays traced for each pixel by whichever
-// invocation traced them (the debug view's count per pixel).
+// This light's shadow rays that traverse, queued by their pixels (step 1): the ray and its
+// visibility plan (pack_plan) by pixel, the pixels in queue order, their count. And the rays
+// traced for each pixel by whichever invocation traced them (the debug view's count per pixel).
 var<workgroup> wg_ray: array<RaySegment, 256>;
+var<workgroup> wg_plan: array<vec2<u32>, 256>;
 var<workgroup> wg_queue: array<u32, 256>;
 var<workgroup> wg_queued: atomic<u32>;
 var<workgroup> wg_pixel_rays: array<u32, 256>;
@@ -214,24 +216,29 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
         }
         let lit = any(c > vec3<f32>(0.0));
         let trace_here = traced && lit;
+        wg_visf[li] = NOT_TRACED;
         if trace_here {
-            wg_ray[li] = light_shadow_ray(p, ng, ls);
-            wg_queue[atomicAdd(&wg_queued, 1u)] = li;
-        } else {
-            wg_visf[li] = NOT_TRACED;
+            let seg = light_shadow_ray(p, ng, ls);
+            let plan = plan_visibility(light, seg, p, ng, z, moves);
+            if plan.instances == NO_TRACE {
+                // The cell's cached visibility, and nothing moving in the way.
+                wg_visf[li] = plan.vis;
+            } else {
+                wg_ray[li] = seg;
+                wg_plan[li] = pack_plan(plan);
+                wg_queue[atomicAdd(&wg_queued, 1u)] = li;
+            }
         }
         if valid {
             quad_rate = max(quad_rate, rate);
         }
         workgroupBarrier();
-        // The queue, one ray per invocation; each reads its pixel's surface again (the
-        // G-buffer's exact values: the same visibility whichever invocation traces it).
+        // The queue, one ray per invocation (the same visibility whichever invocation traces
+        // it: the plan and the ray are the pixel's).
         if li < atomicLoad(&wg_queued) {
             let owner = wg_queue[li];
-            let opx = wid.xy * TILE + vec2<u32>(owner % TILE, owner / TILE);
-            let os = current_surface(opx.y * frame.size.x + opx.x);
             var traced_rays = 0u;
-            wg_visf[owner] = split_visibility(light, wg_ray[owner], os.pos.xyz, os.geo_specular.xyz, wg_depth[owner], receiver_dynamic(u32(os.prev_pos.w)), &traced_rays);
+            wg_visf[owner] = finish_visibility(unpack_plan(wg_plan[owner]), wg_ray[owner], &traced_rays);
             wg_pixel_rays[owner] += traced_rays;
         }
         workgroupBarrier();

@@ -129,36 +129,57 @@ fn cache_slot(light: u32, p: vec3<f32>, n: vec3<f32>, dist: f32) -> u32 {
 // No traversal due: after a cache hit or a finished static ray.
 const NO_TRACE: u32 = 0xffffffffu;
 
-// Visibility of a shadow ray from receiver p (geometric normal ng, distance dist from the
-// camera; `receiver_moves`: on a moving instance) towards light `light`, counting traversals in
-// `rays`. Without the split, one ray against the whole scene. With it, the cell's static
-// visibility (cached, or traced against the static instances while the cell fills), then a ray
-// against the moving instances where the static part lets light through. The traversals share
-// one call site, in a loop of at most two steps: drivers inline every call, and a call site per
-// case made nine copies of the BVH traversal in the shadow pass.
-fn split_visibility(light: u32, seg: RaySegment, p: vec3<f32>, ng: vec3<f32>, dist: f32, receiver_moves: bool, rays: ptr<function, u32>) -> f32 {
-    var slot = CACHE_NONE;
+// What a shadow ray's visibility needs before any traversal: the receiver's cell and its cached
+// static visibility, and the traversal left (`instances`: the whole scene, the static instances
+// while the cell fills, the moving ones behind a cached value; NO_TRACE: none, `vis` is final).
+// The shadow pass plans at the pixel and queues only the rays that traverse.
+struct VisibilityPlan {
+    slot: u32,
+    vis: f32,
+    instances: u32,
+}
+
+// The plan of a shadow ray from receiver p (geometric normal ng, distance dist from the camera;
+// `receiver_moves`: on a moving instance) towards light `light`. Without the split, one ray
+// against the whole scene. With it, the cell's static visibility (cached, or traced against the
+// static instances while the cell fills), then a ray against the moving instances where the
+// static part lets light through.
+fn plan_visibility(light: u32, seg: RaySegment, p: vec3<f32>, ng: vec3<f32>, dist: f32, receiver_moves: bool) -> VisibilityPlan {
+    var plan = VisibilityPlan(CACHE_NONE, 0.0, INSTANCES_ALL);
     if params.shadow_cache != 0u && !receiver_moves && !light_dynamic(light) {
-        slot = cache_slot(light, p, ng, dist);
+        plan.slot = cache_slot(light, p, ng, dist);
     }
-    var vis = 0.0;
-    var instances = INSTANCES_ALL;
-    if slot != CACHE_NONE {
-        let filled = cache_word(slot_word(slot, SLOT_FILLED));
+    if plan.slot != CACHE_NONE {
+        let filled = cache_word(slot_word(plan.slot, SLOT_FILLED));
         if filled != 0u {
-            vis = f32(filled & 0xffffu) / f32(filled >> 16u);
-            instances = NO_TRACE;
+            plan.vis = f32(filled & 0xffffu) / f32(filled >> 16u);
+            plan.instances = next_traversal(plan.vis, seg);
         } else {
             // Filling: this ray's own static visibility, added to the cell.
-            instances = INSTANCES_STATIC;
+            plan.instances = INSTANCES_STATIC;
         }
     }
+    return plan;
+}
+
+// After the static visibility `vis` (cached or just traced): a ray against the moving instances
+// where light got through and moving instances may be in the way, else nothing.
+fn next_traversal(vis: f32, seg: RaySegment) -> u32 {
+    if vis <= 0.0 || params.dynamic_count == 0u || !enters_dynamic(seg) {
+        return NO_TRACE;
+    }
+    return INSTANCES_DYNAMIC;
+}
+
+// The plan's traversals, counted in `rays`, and the visibility. They share one call site, in a
+// loop of at most two steps: drivers inline every call, and a call site per case made nine
+// copies of the BVH traversal in the shadow pass.
+fn finish_visibility(plan: VisibilityPlan, seg: RaySegment, rays: ptr<function, u32>) -> f32 {
+    var vis = plan.vis;
+    var instances = plan.instances;
     for (var step = 0u; step < 2u; step++) {
         if instances == NO_TRACE {
-            if vis <= 0.0 || params.dynamic_count == 0u || !enters_dynamic(seg) {
-                break;
-            }
-            instances = INSTANCES_DYNAMIC;
+            break;
         }
         *rays += 1u;
         let open = !occluded_filtered(seg, instances);
@@ -168,9 +189,24 @@ fn split_visibility(light: u32, seg: RaySegment, p: vec3<f32>, ng: vec3<f32>, di
         if instances == INSTANCES_DYNAMIC {
             return select(0.0, vis, open);
         }
-        atomicAdd(&shadow_cache[slot_word(slot, SLOT_VALUE)], 0x10000u | u32(open));
+        atomicAdd(&shadow_cache[slot_word(plan.slot, SLOT_VALUE)], 0x10000u | u32(open));
         vis = f32(open);
-        instances = NO_TRACE;
+        instances = next_traversal(vis, seg);
     }
     return vis;
+}
+
+fn split_visibility(light: u32, seg: RaySegment, p: vec3<f32>, ng: vec3<f32>, dist: f32, receiver_moves: bool, rays: ptr<function, u32>) -> f32 {
+    return finish_visibility(plan_visibility(light, seg, p, ng, dist, receiver_moves), seg, rays);
+}
+
+// A plan in two words for workgroup memory: the slot (a static fill's) or the cached
+// visibility (a moving-only ray's), and the traversal.
+fn pack_plan(plan: VisibilityPlan) -> vec2<u32> {
+    return vec2<u32>(select(plan.slot, bitcast<u32>(plan.vis), plan.instances == INSTANCES_DYNAMIC), plan.instances);
+}
+
+fn unpack_plan(v: vec2<u32>) -> VisibilityPlan {
+    let dynamic = v.y == INSTANCES_DYNAMIC;
+    return VisibilityPlan(select(v.x, CACHE_NONE, dynamic), select(0.0, bitcast<f32>(v.x), dynamic), v.y);
 }
