@@ -61,6 +61,8 @@ var<workgroup> wg_rates: array<atomic<u32>, 4>;
 var<workgroup> wg_ray: array<RaySegment, 256>;
 var<workgroup> wg_plan: array<vec2<u32>, 256>;
 var<workgroup> wg_queue: array<u32, 256>;
+// A queue entry's flag: a skipped pixel's own ray (step 2 found no traced sample).
+const SKIPPED: u32 = 0x10000u;
 var<workgroup> wg_queued: atomic<u32>;
 var<workgroup> wg_pixel_rays: array<u32, 256>;
 var<workgroup> wg_red: array<f32, 256>;
@@ -83,6 +85,53 @@ fn local_index(x: u32, y: u32) -> u32 {
 // Depth weight of a sample at depth zs for a pixel at depth z.
 fn depth_weight(z: f32, zs: f32) -> f32 {
     return exp(-abs(z - zs) / (params.border_depth * z + 1e-6));
+}
+
+// Step 2: a skipped pixel's visibility from the traced samples around it, as the sum of the
+// weighted samples and the sum of the weights. Quarter rate: the traced top-left samples of
+// this and the neighbouring quads (bilinear x depth weights); half rate on a flat quad: the
+// diagonal pair; else (or nothing usable) the traced sample of the quad nearest in depth. The
+// weights depend only on which pixels trace (wg_visf >= 0) and their depths, so before
+// tracing the pass knows which skipped pixels find no sample (weight 0) and trace their own.
+fn reconstruct(rate: u32, border: bool, qx: u32, qy: u32, lid: vec2<u32>, z: f32) -> vec2<f32> {
+    var sum = 0.0;
+    var wsum = 0.0;
+    if rate == RATE_QUARTER {
+        for (var k = 0u; k < 4u; k++) {
+            let sx = 2u * qx + 2u * (k & 1u);
+            let sy = 2u * qy + 2u * (k / 2u);
+            if sx < TILE && sy < TILE {
+                let sl = local_index(sx, sy);
+                if traced_bit(sl) {
+                    let w = (1.0 - abs(f32(sx) - f32(lid.x)) * 0.5) * (1.0 - abs(f32(sy) - f32(lid.y)) * 0.5) * depth_weight(z, wg_depth[sl]);
+                    sum += w * wg_visf[sl];
+                    wsum += w;
+                }
+            }
+        }
+    } else if rate == RATE_HALF && !border {
+        for (var k = 0u; k < 2u; k++) {
+            let sl = local_index(2u * qx + k, 2u * qy + k);
+            if traced_bit(sl) {
+                let w = depth_weight(z, wg_depth[sl]);
+                sum += w * wg_visf[sl];
+                wsum += w;
+            }
+        }
+    }
+    if wsum <= 1e-6 {
+        var best = 1e30;
+        for (var k = 0u; k < 4u; k++) {
+            let sl = local_index(2u * qx + (k & 1u), 2u * qy + k / 2u);
+            let dz = abs(wg_depth[sl] - z);
+            if traced_bit(sl) && dz < best {
+                best = dz;
+                sum = wg_visf[sl];
+                wsum = 1.0;
+            }
+        }
+    }
+    return vec2<f32>(sum, wsum);
 }
 
 // Reduces wg_red over the workgroup (sum); every invocation must call it.
@@ -216,30 +265,50 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
         }
         let lit = any(c > vec3<f32>(0.0));
         let trace_here = traced && lit;
-        wg_visf[li] = NOT_TRACED;
-        if trace_here {
-            let seg = light_shadow_ray(p, ng, ls);
-            let plan = plan_visibility(light, seg, p, ng, z, moves);
-            if plan.instances == NO_TRACE {
-                // The cell's cached visibility, and nothing moving in the way.
-                wg_visf[li] = plan.vis;
-            } else {
-                wg_ray[li] = seg;
-                wg_plan[li] = pack_plan(plan);
-                wg_queue[atomicAdd(&wg_queued, 1u)] = li;
-            }
-        }
+        // Which pixels trace (their visibility comes after the queue).
+        wg_visf[li] = select(NOT_TRACED, 0.0, trace_here);
         if valid {
             quad_rate = max(quad_rate, rate);
         }
         workgroupBarrier();
+        // A pixel's own ray: where it traces, and where it is skipped but step 2 will find no
+        // traced sample around it.
+        var own = trace_here;
+        if lit && !trace_here {
+            own = !(reconstruct(rate, border, qx, qy, lid.xy, z).y > 0.0);
+        }
+        var own_vis = 0.0;
+        var queued = false;
+        if own {
+            let seg = light_shadow_ray(p, ng, ls);
+            let plan = plan_visibility(light, seg, p, ng, z, moves);
+            // NO_TRACE: the cell's cached visibility, and nothing moving in the way.
+            own_vis = plan.vis;
+            if plan.instances != NO_TRACE {
+                wg_ray[li] = seg;
+                wg_plan[li] = pack_plan(plan);
+                wg_queue[atomicAdd(&wg_queued, 1u)] = li | select(0u, SKIPPED, !trace_here);
+                queued = true;
+            }
+        }
+        workgroupBarrier();
         // The queue, one ray per invocation (the same visibility whichever invocation traces
-        // it: the plan and the ray are the pixel's).
+        // it: the plan and the ray are the pixel's). A skipped pixel's visibility goes to
+        // wg_red (free until this light's reduction), so that step 2 never reads it as traced.
         if li < atomicLoad(&wg_queued) {
-            let owner = wg_queue[li];
+            let entry = wg_queue[li];
+            let owner = entry & ~SKIPPED;
             var traced_rays = 0u;
-            wg_visf[owner] = finish_visibility(unpack_plan(wg_plan[owner]), wg_ray[owner], &traced_rays);
+            let v = finish_visibility(unpack_plan(wg_plan[owner]), wg_ray[owner], &traced_rays);
             wg_pixel_rays[owner] += traced_rays;
+            if (entry & SKIPPED) != 0u {
+                wg_red[owner] = v;
+            } else {
+                wg_visf[owner] = v;
+            }
+        }
+        if trace_here && !queued {
+            wg_visf[li] = own_vis;
         }
         workgroupBarrier();
         if li == 0u {
@@ -250,6 +319,8 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
         var vis = 0.0;
         if trace_here {
             vis = wg_visf[li];
+        } else if own {
+            vis = select(own_vis, wg_red[li], queued);
         }
         if li < 64u {
             var q = 0u;
@@ -260,54 +331,12 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lid
             // Read after the reduction's first barrier (step 4).
             wg_quad[li] = q;
         }
-        // 2. Bilateral reconstruction of a skipped pixel.
+        // 2. Bilateral reconstruction of a skipped pixel (its own ray's visibility, above,
+        // where no traced sample is usable).
         if lit && !trace_here {
-            var sum = 0.0;
-            var wsum = 0.0;
-            if rate == RATE_QUARTER {
-                // The traced top-left samples around the pixel: bilinear x depth weights.
-                for (var k = 0u; k < 4u; k++) {
-                    let sx = 2u * qx + 2u * (k & 1u);
-                    let sy = 2u * qy + 2u * (k / 2u);
-                    if sx < TILE && sy < TILE {
-                        let sl = local_index(sx, sy);
-                        if traced_bit(sl) {
-                            let w = (1.0 - abs(f32(sx) - f32(lid.x)) * 0.5) * (1.0 - abs(f32(sy) - f32(lid.y)) * 0.5) * depth_weight(z, wg_depth[sl]);
-                            sum += w * wg_visf[sl];
-                            wsum += w;
-                        }
-                    }
-                }
-            } else if rate == RATE_HALF && !border {
-                // Flat: the average of the diagonal pair.
-                for (var k = 0u; k < 2u; k++) {
-                    let sl = local_index(2u * qx + k, 2u * qy + k);
-                    if traced_bit(sl) {
-                        let w = depth_weight(z, wg_depth[sl]);
-                        sum += w * wg_visf[sl];
-                        wsum += w;
-                    }
-                }
-            }
-            if wsum <= 1e-6 {
-                // Half rate on a border (or nothing usable above): copy the traced sample of the
-                // quad nearest in depth.
-                var best = 1e30;
-                for (var k = 0u; k < 4u; k++) {
-                    let sl = local_index(2u * qx + (k & 1u), 2u * qy + k / 2u);
-                    let dz = abs(wg_depth[sl] - z);
-                    if traced_bit(sl) && dz < best {
-                        best = dz;
-                        sum = wg_visf[sl];
-                        wsum = 1.0;
-                    }
-                }
-            }
-            if wsum > 0.0 {
-                vis = sum / wsum;
-            } else {
-                // No traced neighbour saw the light: trace this pixel itself.
-                vis = split_visibility(light, light_shadow_ray(p, ng, ls), p, ng, z, moves, &rays);
+            let r = reconstruct(rate, border, qx, qy, lid.xy, z);
+            if r.y > 0.0 {
+                vis = r.x / r.y;
             }
         }
         if ls.is_delta {
