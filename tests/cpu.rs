@@ -350,7 +350,7 @@ shared_structs! {
     Twin::Memory("Cascade") => gilab::techniques::ddgi::volume::CascadeGpu { origin_spacing, base }
     Twin::Memory("PtParams") => gilab::techniques::restir_pt::PtParamsGpu {
         max_bounces, temporal, max_history, spatial_count, spatial_radius, rc_alpha, rc_distance,
-        pixels, accumulate, direct_restir, debug, pad,
+        pixels, accumulate, direct_restir, debug, pairs,
     }
 }
 

@@ -581,6 +581,35 @@ fn unbiased_on_cornell() {
     );
 }
 
+/// Paired spatial reuse (`spatial_pairs`, ReSTIR PT Enhanced's reciprocal neighbours): the same
+/// check, with the neighbours p +- d of per-frame offsets and each pair's shifts traced once.
+#[test]
+fn unbiased_on_cornell_with_paired_spatial_reuse() {
+    let _g = common::serial();
+    assert_unbiased(
+        "cornell, paired spatial reuse",
+        builtin::cornell(),
+        [64, 64],
+        256,
+        toml::toml! { spatial_pairs = true },
+    );
+}
+
+/// The glossy scene with paired spatial reuse (mostly replay and hybrid shifts). Not run by
+/// default (CI time): `cargo test --release --test restir_pt -- --ignored --nocapture glossy_with_paired`.
+#[test]
+#[ignore = "slow tier: a non-default switch on a second scene (docs/restir_pt.md)"]
+fn unbiased_on_glossy_with_paired_spatial_reuse() {
+    let _g = common::serial();
+    assert_unbiased(
+        "glossy, paired spatial reuse",
+        builtin::glossy(),
+        [48, 48],
+        256,
+        toml::toml! { spatial_pairs = true },
+    );
+}
+
 #[test]
 fn unbiased_on_glossy() {
     // Metal spheres from roughness 0 to 0.7 before a mirror: replay through the mirror and

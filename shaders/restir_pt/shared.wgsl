@@ -29,7 +29,7 @@
 #import gilab::frame::frame
 #import gilab::primary::{GSurface, surface_material}
 #import gilab::math::luminance
-#import gilab::rng::{Rng, rand, rand_pair, pcg_hash}
+#import gilab::rng::{Rng, rand, rand_pair, pcg_hash, rng_init, STREAM_PT_SPATIAL}
 #import gilab::brdf::{Surface, bsdf_eval, bsdf_sample}
 #import gilab::bvh::{trace_closest, NO_HIT}
 #import gilab::surface_point::{HitSurface, surface_at}
@@ -60,7 +60,9 @@ struct PtParams {
     direct_restir: u32,
     // 1: debug views written.
     debug: u32,
-    pad: u32,
+    // Paired spatial reuse: the neighbours come in pairs(p +- offset), `pairs` offsets a frame
+    // (0: each pixel draws its own neighbours).
+    pairs: u32,
 }
 
 // End kinds of a path (info bits 16-17).
@@ -112,6 +114,61 @@ struct PathReservoir {
 @group(2) @binding(3) var<storage, read_write> direct_light: array<vec4<f32>>;
 
 const TEMPORAL_SEGMENT: u32 = 2u;
+
+// Paired spatial reuse (`spatial_pairs`, ReSTIR PT Enhanced's reciprocal neighbours): this
+// frame's offsets d_k, the same at every pixel, so pixel p's neighbours p + d_k and p - d_k have
+// p as theirs. Pass `path_pairs` traces each pair {p, p + d_k} once (at p: both of its shifts)
+// and `path_spatial` reads them from both ends, so n neighbours cost n shifts instead of 2n.
+const MAX_PAIRS: u32 = 4u;
+
+// One shift of a pair as `path_pairs` stores it: F at the receiving pixel and |dT/dx|
+// (0: failed), the offset path's pdfs (Shifted), and w = 1 where the pair holds (both pixels
+// valid, similar both ways; 0: not neighbours this frame).
+struct PairShift {
+    contrib_jacobian: vec4<f32>,
+    pdfs: vec4<f32>,
+}
+
+// Pair shifts: per pixel p and offset k, p's path shifted to p + d_k (2 (p MAX_PAIRS + k)),
+// then that pixel's path shifted to p (+ 1).
+@group(2) @binding(4) var<storage, read_write> pair_shifts: array<PairShift>;
+
+// Offset k of this frame (never (0, 0)): a point of the spatial_radius disk, rounded, drawn
+// from the frame's seed alone (a stream no pixel's coordinates reach).
+fn pair_offset(k: u32) -> vec2<i32> {
+    var rng = rng_init(vec2<u32>(0xffffffffu, k), frame.sample_offset, STREAM_PT_SPATIAL, frame.seed);
+    let u = rand_pair(&rng);
+    let r = params.spatial_radius * sqrt(u.x);
+    let angle = 6.28318530717959 * u.y;
+    let d = vec2<i32>(i32(round(r * cos(angle))), i32(round(r * sin(angle))));
+    return select(d, vec2<i32>(1, 0), all(d == vec2<i32>(0)));
+}
+
+// The pixel at p + d, or -1 outside the image.
+fn offset_pixel(p: vec2<u32>, d: vec2<i32>) -> i32 {
+    let q = vec2<i32>(p) + d;
+    if q.x < 0 || q.y < 0 || q.x >= i32(frame.size.x) || q.y >= i32(frame.size.y) {
+        return -1;
+    }
+    return q.y * i32(frame.size.x) + q.x;
+}
+
+fn pair_shift_index(owner: u32, k: u32, which: u32) -> u32 {
+    return 2u * (owner * MAX_PAIRS + k) + which;
+}
+
+fn store_pair_shift(at: u32, sh: Shifted, holds: bool) {
+    pair_shifts[at] = PairShift(vec4<f32>(sh.contrib, sh.jacobian), vec4<f32>(sh.rc_area_pdf, sh.rc_pdf, f32(sh.failed), select(0.0, 1.0, holds)));
+}
+
+fn load_pair_shift(at: u32) -> Shifted {
+    let p = pair_shifts[at];
+    return Shifted(p.contrib_jacobian.xyz, p.contrib_jacobian.w, p.pdfs.x, p.pdfs.y, 0u, p.pdfs.z > 0.5);
+}
+
+fn pair_holds(at: u32) -> bool {
+    return pair_shifts[at].pdfs.w > 0.5;
+}
 
 fn reservoir_index(segment: u32, pixel: u32) -> u32 {
     return segment * params.pixels + pixel;

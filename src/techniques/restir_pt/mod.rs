@@ -16,7 +16,10 @@
 //!    cache's passes run first and this pass reads its lookup.
 //! 2. `path_temporal`: last frame's reservoir at the reprojected pixel, pairwise MIS (two shifts).
 //! 3. `path_spatial`: `spatial_count` neighbours, pairwise MIS with the canonical sample (two
-//!    shifts per neighbour: GRIS's generalised balance heuristic in its pairwise form).
+//!    shifts per neighbour: GRIS's generalised balance heuristic in its pairwise form). With
+//!    `spatial_pairs` the neighbours are p ± d for per-frame offsets d, and `path_pairs` traces
+//!    each pair's two shifts once for both of its pixels (ReSTIR PT Enhanced's reciprocal
+//!    neighbours: half the shifts).
 //! 4. `shade`: F × W of the kept path, emission, accumulation.
 //!
 //! The shift (hybrid, or reconnection / replay only) and its Jacobians are described in
@@ -44,12 +47,17 @@ use anyhow::Result;
 pub const PATH_RESERVOIR_BYTES: u64 = 80;
 /// Reservoir segments: final of even frames, final of odd frames, this frame's working copy.
 const SEGMENTS: u64 = 3;
+/// Bytes of `PairShift` in shaders/restir_pt/shared.wgsl, and of a pixel's pairs (`MAX_PAIRS`
+/// offsets, two shifts each).
+const PAIR_SHIFT_BYTES: u64 = 32;
+const PAIR_BYTES_PER_PIXEL: u64 = 2 * (MAX_SPATIAL as u64).div_ceil(2) * PAIR_SHIFT_BYTES;
 
-const OWN_SHADER_FILES: [&str; 4] = [
+const OWN_SHADER_FILES: [&str; 5] = [
     "restir_pt/initial.wgsl",
     "restir_pt/temporal.wgsl",
     "restir_pt/spatial.wgsl",
     "restir_pt/shade.wgsl",
+    "restir_pt/pairs.wgsl",
 ];
 
 #[derive(Default)]
@@ -58,6 +66,7 @@ struct Pipelines {
     temporal: Option<wgpu::ComputePipeline>,
     spatial: Option<wgpu::ComputePipeline>,
     shade: Option<wgpu::ComputePipeline>,
+    pairs: Option<wgpu::ComputePipeline>,
 }
 
 /// Buffers sized by the image, and the bind groups over them.
@@ -111,6 +120,7 @@ impl RestirPt {
                         pipelines::storage_entry(1, false),
                         pipelines::storage_entry(2, false),
                         pipelines::storage_entry(3, false),
+                        pipelines::storage_entry(4, false),
                     ],
                 )
             })
@@ -120,6 +130,12 @@ impl RestirPt {
     /// Reservoir memory per pixel (bytes): three segments of one path reservoir.
     pub fn reservoir_bytes_per_pixel() -> u64 {
         SEGMENTS * PATH_RESERVOIR_BYTES
+    }
+
+    /// Memory of paired spatial reuse's shifts per pixel (bytes; allocated whether or not
+    /// `spatial_pairs` is on, so that switching it rebuilds nothing).
+    pub fn pair_bytes_per_pixel() -> u64 {
+        PAIR_BYTES_PER_PIXEL
     }
 
     fn write_params(&self, gpu: &Gpu) {
@@ -152,11 +168,16 @@ impl RestirPt {
             );
             let debug = pipelines::storage_buffer(gpu, "restir-pt debug", 2 * pixels * 16);
             let direct = pipelines::storage_buffer(gpu, "restir-pt direct light", pixels * 16);
+            let pair_shifts = pipelines::storage_buffer(
+                gpu,
+                "restir-pt pair shifts",
+                pixels * PAIR_BYTES_PER_PIXEL,
+            );
             let bind_group = pipelines::buffers_bind_group(
                 gpu,
                 "restir-pt",
                 &layout,
-                &[&params, &reservoirs, &debug, &direct],
+                &[&params, &reservoirs, &debug, &direct, &pair_shifts],
             );
             let direct_layout = self.restir_direct.output_layout(gpu).clone();
             let direct_bind_group = pipelines::buffers_bind_group(
@@ -281,9 +302,27 @@ impl Technique for RestirPt {
             },
         });
         v.push(PassInfo {
+            name: "path_pairs",
+            runs: s.pairs() > 0,
+            why: if s.pairs() > 0 {
+                format!(
+                    "{} offsets within {} px: each pair of pixels' two shifts, traced once for both",
+                    s.pairs(),
+                    s.spatial_radius
+                )
+            } else {
+                "spatial_pairs = false".into()
+            },
+        });
+        v.push(PassInfo {
             name: "path_spatial",
             runs: true,
-            why: if s.spatial_count > 0 {
+            why: if s.pairs() > 0 {
+                format!(
+                    "{} neighbours (p +- each offset), pairwise MIS from the pairs' shifts",
+                    2 * s.pairs()
+                )
+            } else if s.spatial_count > 0 {
                 format!(
                     "{} neighbours within {} px, two shifts each (pairwise MIS)",
                     s.spatial_count, s.spatial_radius
@@ -309,6 +348,7 @@ impl Technique for RestirPt {
         let temporal = ctx.pipeline(OWN_SHADER_FILES[1], &layout)?;
         let spatial = ctx.pipeline(OWN_SHADER_FILES[2], &layout)?;
         let shade = ctx.pipeline(OWN_SHADER_FILES[3], &layout)?;
+        let pairs = ctx.pipeline(OWN_SHADER_FILES[4], &layout)?;
         self.prepare_direct(ctx, true)?;
         self.prepare_cache(ctx, true)?;
         self.pipelines = Pipelines {
@@ -316,6 +356,7 @@ impl Technique for RestirPt {
             temporal: Some(temporal),
             spatial: Some(spatial),
             shade: Some(shade),
+            pairs: Some(pairs),
         };
         self.build_resources(ctx);
         Ok(())
@@ -352,11 +393,12 @@ impl Technique for RestirPt {
         enc: &mut wgpu::CommandEncoder,
         timer: &mut PassTimer,
     ) {
-        let (Some(initial), Some(temporal), Some(spatial), Some(shade)) = (
+        let (Some(initial), Some(temporal), Some(spatial), Some(shade), Some(pairs)) = (
             &self.pipelines.initial,
             &self.pipelines.temporal,
             &self.pipelines.spatial,
             &self.pipelines.shade,
+            &self.pipelines.pairs,
         ) else {
             return;
         };
@@ -400,6 +442,9 @@ impl Technique for RestirPt {
         if self.settings.temporal {
             pipelines::image_pass(ctx, enc, timer, "path_temporal", temporal, bg);
         }
+        if self.settings.pairs() > 0 {
+            pipelines::image_pass(ctx, enc, timer, "path_pairs", pairs, bg);
+        }
         pipelines::image_pass(ctx, enc, timer, "path_spatial", spatial, bg);
         pipelines::image_pass(ctx, enc, timer, "shade", shade, bg);
     }
@@ -436,7 +481,8 @@ impl Technique for RestirPt {
         Ok(())
     }
 
-    /// The budget knob is `spatial_count`: each neighbour costs two shifts, about one ray each
+    /// The budget knob is `spatial_count`: each neighbour costs two shifts (one with
+    /// `spatial_pairs`), about one ray each
     /// where paths reconnect at their first bounce (more where they replay), measured when a
     /// measurement is given; the path and the temporal shifts are the fixed part.
     fn params_for_ray_budget(
@@ -445,7 +491,18 @@ impl Technique for RestirPt {
         measured: Option<f64>,
     ) -> Option<ParamChanges> {
         let s = &self.settings;
-        let shifts = |n: u32| 2.0 * n as f64 + if s.temporal { 2.0 } else { 0.0 };
+        // Spatial shifts per neighbour: two, or one with `spatial_pairs` (a pair's two shifts
+        // serve both of its pixels).
+        let per_neighbour = if s.spatial_pairs { 1.0 } else { 2.0 };
+        let neighbours = |n: u32| {
+            if s.spatial_pairs {
+                2 * n.min(MAX_SPATIAL).div_ceil(2)
+            } else {
+                n
+            }
+        };
+        let shifts =
+            |n: u32| per_neighbour * neighbours(n) as f64 + if s.temporal { 2.0 } else { 0.0 };
         let assumed_path = 2.0 * s.max_bounces.min(3) as f64 + 1.0;
         let (fixed, per_shift) = match measured {
             Some(m) if m > 0.0 => {
@@ -458,7 +515,7 @@ impl Technique for RestirPt {
         };
         let temporal = shifts(0) * per_shift;
         let left = rays_per_pixel - fixed - temporal;
-        let count = ((left / (2.0 * per_shift)).floor().max(0.0) as u32).min(MAX_SPATIAL);
+        let count = ((left / (per_neighbour * per_shift)).floor().max(0.0) as u32).min(MAX_SPATIAL);
         (count != s.spatial_count).then(|| ParamChanges::new().int("spatial_count", count as i64))
     }
 }

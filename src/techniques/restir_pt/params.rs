@@ -89,6 +89,14 @@ pub const PARAMS: &[ParamSpec] = &[
         default: 16.0,
     },
     ParamSpec {
+        name: "spatial_pairs",
+        what: "paired spatial reuse (ReSTIR PT Enhanced's reciprocal neighbours): the neighbours are p + d and p - d for spatial_count / 2 offsets d drawn per frame (the same at every pixel, rounded up to pairs), and each pair's two shifts are traced once (pass path_pairs) and read by both pixels",
+        higher: "on: about half the spatial shifts (rays) for the same neighbour count; neighbours in the same pattern at every pixel in a frame",
+        lower: "off: each pixel draws its own neighbours and traces two shifts per neighbour",
+        kind: ParamKind::Bool,
+        default: 0.0,
+    },
+    ParamSpec {
         name: "suffix_terminate",
         what: "where a path's suffix (its vertices past the reconnection vertex) ends: path (traced to max_bounces), or at the first suffix hit the named radiance cache covers (the caches of ReSTIR GI's gi_terminate, built and updated in the same frame at ReSTIR's cache defaults; hash-cache: where the segment is longer than the hit's cell and the cell has samples). Shifts reuse the suffix as traced, so it ends in the same cell in every pixel that reconnects to it; paths without a reconnection vertex (shift = replay) never end early",
         higher: "a cache: bounces past the first suffix hit cost no rays, biased by the cache (and a suffix reused from last frame keeps last frame's cache light)",
@@ -131,6 +139,7 @@ pub struct PtSettings {
     pub max_history: f32,
     pub spatial_count: u32,
     pub spatial_radius: f32,
+    pub spatial_pairs: bool,
     pub suffix_terminate: GiTerminate,
     pub direct_restir: bool,
     pub accumulate: bool,
@@ -148,6 +157,7 @@ impl PtSettings {
             max_history: p.f32("max_history"),
             spatial_count: p.u32("spatial_count"),
             spatial_radius: p.f32("spatial_radius"),
+            spatial_pairs: p.bool("spatial_pairs"),
             suffix_terminate: GiTerminate::from_index(p.u32("suffix_terminate")),
             direct_restir: crate::parts::restir_direct::chosen(p),
             accumulate: p.bool("accumulate"),
@@ -168,6 +178,16 @@ impl PtSettings {
         }
     }
 
+    /// Offsets of paired spatial reuse (`spatial_pairs`; 0: off): half the neighbours,
+    /// rounded up.
+    pub fn pairs(&self) -> u32 {
+        if self.spatial_pairs {
+            self.spatial_count.min(MAX_SPATIAL).div_ceil(2)
+        } else {
+            0
+        }
+    }
+
     pub fn gpu(&self, pixels: u32, scene_diagonal: f32) -> PtParamsGpu {
         let (rc_alpha, rc_distance) = self.criteria(scene_diagonal);
         PtParamsGpu {
@@ -182,7 +202,7 @@ impl PtSettings {
             accumulate: self.accumulate as u32,
             direct_restir: self.direct_restir as u32,
             debug: self.debug as u32,
-            pad: 0,
+            pairs: self.pairs(),
         }
     }
 }
@@ -202,5 +222,5 @@ pub struct PtParamsGpu {
     pub accumulate: u32,
     pub direct_restir: u32,
     pub debug: u32,
-    pub pad: u32,
+    pub pairs: u32,
 }
