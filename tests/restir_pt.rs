@@ -843,7 +843,7 @@ fn history_is_kept_while_objects_move() {
 fn ray_budget_sets_the_spatial_neighbours() {
     use gilab::render::Technique;
     let pt = gilab::techniques::restir_pt::RestirPt::default();
-    let count = |budget: f64| {
+    let count_for = |pt: &gilab::techniques::restir_pt::RestirPt, budget: f64| {
         pt.params_for_ray_budget(budget, Some(16.0))
             .and_then(|t| match t.get("spatial_count") {
                 Some(gilab::render::params::ParamValue::Int(i)) => Some(i),
@@ -851,6 +851,7 @@ fn ray_budget_sets_the_spatial_neighbours() {
             })
             .unwrap_or(pt.settings.spatial_count as i64)
     };
+    let count = |budget: f64| count_for(&pt, budget);
     // 16 rays measured at 3 neighbours: a budget below the path and the temporal shifts leaves
     // none, a large one the most there are, and the count grows with the budget.
     assert_eq!(count(8.0), 0);
@@ -858,6 +859,17 @@ fn ray_budget_sets_the_spatial_neighbours() {
     let counts: Vec<i64> = (8..40).map(|b| count(b as f64)).collect();
     assert!(counts.windows(2).all(|w| w[0] <= w[1]), "{counts:?}");
     assert_eq!(count(16.0), 3, "the measured budget keeps the setting");
+    // With `spatial_pairs` a neighbour costs one shift, not two: the same budget buys at least
+    // as many neighbours, and more once there is room for one.
+    let mut paired = gilab::techniques::restir_pt::RestirPt::default();
+    paired
+        .set_params(&gilab::render::params::ParamChanges::new().bool("spatial_pairs", true))
+        .unwrap();
+    let more: Vec<(i64, i64)> = (8..40)
+        .map(|b| (count(b as f64), count_for(&paired, b as f64)))
+        .collect();
+    assert!(more.iter().all(|(a, b)| b >= a), "{more:?}");
+    assert!(more.iter().any(|(a, b)| b > a), "{more:?}");
 }
 
 /// `suffix_terminate = "hash-cache"` (issue 61): a path's suffix ends in the hash radiance
