@@ -6,6 +6,10 @@
 // the surfels there hold (multi-bounce through the cache); where no surfel covers the hit (off
 // screen) the path continues instead (NEE + BSDF sampling + Russian roulette). Sky on a miss.
 // Emission of the first hit is left out: the pixel's own direct light counts it.
+// The paths of uncovered hits are queued in the workgroup and traced by its first invocations,
+// one each (the ray, the random state and the result in workgroup memory): the paths are the
+// pass's long work, and a wave of rays whose few uncovered hits continued in place ran at the
+// longest one's pace with the other lanes idle. The same numbers whichever invocation traces.
 // With `uncovered_hits = "hash-cache"` (SURFELS_HASH_CACHE) an uncovered hit whose segment is
 // longer than its hash cell and whose cell holds samples reads the hash radiance cache instead
 // (the light the surface reflects, direct and indirect: no shadow ray, no path), as DDGI's
@@ -13,7 +17,7 @@
 #import gilab::frame::frame
 #import gilab::math::{INV_PI, luminance, to_world}
 #import gilab::counters::{flush_counts, no_counts, count_cache_lookup, RAY_SURFEL, RAY_SHADOW, RAY_INDIRECT}
-#import gilab::rng::{rng_init, rand, rand_pair, STREAM_SURFEL_RAYS}
+#import gilab::rng::{Rng, rng_init, rand, rand_pair, STREAM_SURFEL_RAYS}
 #import gilab::bvh::{trace_closest, NO_HIT}
 #import gilab::surface::hit_surface
 #import gilab::brdf::{bsdf_sample, diffuse_color, specular_albedo_average}
@@ -27,14 +31,38 @@
 #import gilab::hash_cache::{hash_lookup, cell_size_at, cache_albedo, cacheable}
 #endif
 
+// The queued paths: by the invocation whose ray hit (its local index), the path's first ray and
+// random state, then its radiance; the queue holds those invocations in queue order.
+var<workgroup> wg_path_origin: array<vec3<f32>, 64>;
+var<workgroup> wg_path_dir: array<vec3<f32>, 64>;
+var<workgroup> wg_path_rng: array<u32, 64>;
+var<workgroup> wg_path_radiance: array<vec3<f32>, 64>;
+var<workgroup> wg_queue: array<u32, 64>;
+var<workgroup> wg_queued: atomic<u32>;
 
 @compute @workgroup_size(64, 1, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) local_index: u32) {
     var counts = no_counts();
-    if gid.x < min(ray_offsets[params.max_surfels], params.ray_capacity) {
+    if local_index == 0u {
+        atomicStore(&wg_queued, 0u);
+    }
+    workgroupBarrier();
+    // What the ray's invocation keeps across the queue: its ray, the light so far, the queued
+    // path's weight.
+    let has_ray = gid.x < min(ray_offsets[params.max_surfels], params.ray_capacity);
+    var i = 0u;
+    var v = vec3<f32>(0.0, 0.0, 1.0);
+    var pdf = 0.0;
+    var guide_texel = 0u;
+    var cos_theta = 0.0;
+    var l = vec3<f32>(0.0);
+    var t_hit = INFINITE_DISTANCE;
+    var path_weight = vec3<f32>(0.0);
+    var queued = false;
+    if has_ray {
         // With ray binning, invocations run the rays in bin order; each ray keeps its index
         // (its surfel, its random numbers, its result slot), so the image does not change.
-        let i = select(gid.x, atomicLoad(&counters[ray_bin_order() + gid.x]), has_flag(FLAG_BINNING));
+        i = select(gid.x, atomicLoad(&counters[ray_bin_order() + gid.x]), has_flag(FLAG_BINNING));
         let slot = ray_owner[i];
         let k = i - ray_offsets[slot];
         let s = surfels[slot];
@@ -44,13 +72,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
 
         // Direction and its pdf (solid angle): gilab::surfel_rays, as the binning pass drew it.
         let rd = surfel_ray_direction(slot, &rng);
-        var v = rd.v;
-        let pdf = rd.pdf;
-        let guide_texel = rd.guide_texel;
-        let cos_theta = v.z;
+        v = rd.v;
+        pdf = rd.pdf;
+        guide_texel = rd.guide_texel;
+        cos_theta = v.z;
 
-        var l = vec3<f32>(0.0);
-        var t_hit = INFINITE_DISTANCE;
         if cos_theta > 1e-6 && pdf > 0.0 {
             let dir = to_world(v, n);
             let origin = spawn_ray_origin(p, n, dir);
@@ -100,15 +126,32 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 } else if !cached {
                     let b = bsdf_sample(h.material, h.normal, wo, rand(&rng), rand_pair(&rng));
                     if b.valid && dot(b.wi, h.geo_normal) > 0.0 {
-                        let path = trace_path(spawn_ray_origin(h.position, h.geo_normal, b.wi), b.wi, &rng, 0u, true, plain_path());
-                        counts[RAY_INDIRECT] += path.first_rays + path.indirect_rays;
-                        counts[RAY_SHADOW] += path.shadow_rays;
-                        l += b.weight * path.radiance;
+                        wg_path_origin[local_index] = spawn_ray_origin(h.position, h.geo_normal, b.wi);
+                        wg_path_dir[local_index] = b.wi;
+                        wg_path_rng[local_index] = rng.state;
+                        wg_queue[atomicAdd(&wg_queued, 1u)] = local_index;
+                        path_weight = b.weight;
+                        queued = true;
                     }
                 }
             }
         } else {
             v = vec3<f32>(0.0, 0.0, 1.0);
+        }
+    }
+    workgroupBarrier();
+    if local_index < atomicLoad(&wg_queued) {
+        let owner = wg_queue[local_index];
+        var path_rng = Rng(wg_path_rng[owner]);
+        let path = trace_path(wg_path_origin[owner], wg_path_dir[owner], &path_rng, 0u, true, plain_path());
+        counts[RAY_INDIRECT] += path.first_rays + path.indirect_rays;
+        counts[RAY_SHADOW] += path.shadow_rays;
+        wg_path_radiance[owner] = path.radiance;
+    }
+    workgroupBarrier();
+    if has_ray {
+        if queued {
+            l += path_weight * wg_path_radiance[local_index];
         }
         let estimate = select(vec3<f32>(0.0), l * cos_theta / pdf, pdf > 0.0);
         let depth_texel = texel_of(hemi_oct_encode(v), DEPTH_RES);
